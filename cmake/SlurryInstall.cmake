@@ -1,0 +1,16 @@
+include(CMakePackageConfigHelpers)
+install(TARGETS slurry slurry_constitutive slurry_transfer slurry_engine slurry_parallel
+        EXPORT SlurryTargets
+        ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}
+        LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR}
+        RUNTIME DESTINATION ${CMAKE_INSTALL_BINDIR}
+        INCLUDES DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
+foreach(part constitutive transfer engine)
+  install(DIRECTORY ${PROJECT_SOURCE_DIR}/${part}/include/ DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
+endforeach()
+install(EXPORT SlurryTargets NAMESPACE slurry:: DESTINATION ${CMAKE_INSTALL_LIBDIR}/cmake/Slurry)
+configure_package_config_file(${PROJECT_SOURCE_DIR}/cmake/SlurryConfig.cmake.in
+  ${PROJECT_BINARY_DIR}/SlurryConfig.cmake INSTALL_DESTINATION ${CMAKE_INSTALL_LIBDIR}/cmake/Slurry)
+write_basic_package_version_file(${PROJECT_BINARY_DIR}/SlurryConfigVersion.cmake COMPATIBILITY SameMinorVersion)
+install(FILES ${PROJECT_BINARY_DIR}/SlurryConfig.cmake ${PROJECT_BINARY_DIR}/SlurryConfigVersion.cmake
+        DESTINATION ${CMAKE_INSTALL_LIBDIR}/cmake/Slurry)
