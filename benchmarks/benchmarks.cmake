@@ -1,0 +1,5 @@
+foreach(b bench_svd bench_mpm_step)
+  if(EXISTS ${CMAKE_CURRENT_SOURCE_DIR}/${b}.cpp)
+    slurry_add_benchmark(${b} ${b}.cpp)
+  endif()
+endforeach()
