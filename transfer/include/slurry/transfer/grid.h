@@ -1,0 +1,145 @@
+#pragma once
+/// \file grid.h
+/// Dense background grid of MPM nodes: node i sits at origin + i dx.
+///
+/// Each node stores (momentum or velocity, mass) packed in one Dim+1 vector, so that P2G adds one
+/// small vector per node (the layout of Hu et al. 2018's mls-mpm88). The grid tracks the box of
+/// nodes touched since the last clear, so clearing and the grid update cost the occupied box,
+/// not the whole domain.
+///
+/// This is the grid interface the transfers use (`origin()`, `dx()`, `inv_dx()`, `res()`,
+/// `index()`, `stride()`, `node()`, `touch()`); a sparse blocked grid can stand in its place.
+#include <Eigen/Core>
+#include <algorithm>
+#include <array>
+#include <cstdint>
+#include <vector>
+
+namespace slurry::transfer {
+
+template <class T, int Dim>
+class DenseGrid {
+ public:
+  using Vec = Eigen::Matrix<T, Dim, 1>;
+  using IVec = Eigen::Matrix<int, Dim, 1>;
+  /// (m v_x, m v_y[, m v_z], m) during P2G; (v_x, v_y[, v_z], m) after the grid update.
+  using Node = Eigen::Matrix<T, Dim + 1, 1>;
+
+  DenseGrid() = default;
+  /// `res` nodes per axis, spaced dx apart from `origin`.
+  DenseGrid(const Vec& origin, T dx, const IVec& res) { resize(origin, dx, res); }
+
+  void resize(const Vec& origin, T dx, const IVec& res) {
+    origin_ = origin;
+    dx_ = dx;
+    inv_dx_ = T(1) / dx;
+    res_ = res;
+    stride_[Dim - 1] = 1;
+    for (int d = Dim - 2; d >= 0; --d) stride_[d] = stride_[d + 1] * std::int64_t(res[d + 1]);
+    nodes_.assign(std::size_t(stride_[0] * res[0]), Node::Zero());
+    if (!old_.empty()) old_.assign(nodes_.size(), Vec::Zero());
+    lo_ = res_;
+    hi_ = IVec::Constant(-1);
+  }
+
+  const Vec& origin() const { return origin_; }
+  T dx() const { return dx_; }
+  T inv_dx() const { return inv_dx_; }
+  const IVec& res() const { return res_; }
+  std::int64_t stride(int d) const { return stride_[d]; }
+  std::size_t size() const { return nodes_.size(); }
+
+  std::int64_t index(const IVec& i) const {
+    std::int64_t k = 0;
+    for (int d = 0; d < Dim; ++d) k += stride_[d] * i[d];
+    return k;
+  }
+  template <class Base>
+  std::int64_t index(const Base& base) const {
+    std::int64_t k = 0;
+    for (int d = 0; d < Dim; ++d) k += stride_[d] * base[d];
+    return k;
+  }
+  Vec position(const IVec& i) const { return origin_ + dx_ * i.template cast<T>(); }
+
+  Node& node(std::int64_t k) { return nodes_[std::size_t(k)]; }
+  const Node& node(std::int64_t k) const { return nodes_[std::size_t(k)]; }
+  Node* data() { return nodes_.data(); }
+  const Node* data() const { return nodes_.data(); }
+
+  /// FLIP keeps each node's velocity from before the grid update; other schemes do not pay for it.
+  void keep_old_velocity(bool keep) { old_.assign(keep ? nodes_.size() : 0, Vec::Zero()); }
+  bool keeps_old_velocity() const { return !old_.empty(); }
+  Vec& old_velocity(std::int64_t k) { return old_[std::size_t(k)]; }
+  const Vec& old_velocity(std::int64_t k) const { return old_[std::size_t(k)]; }
+
+  /// Widens the active box to nodes [lo, hi] (inclusive).
+  void touch(const IVec& lo, const IVec& hi) {
+    lo_ = lo_.cwiseMin(lo);
+    hi_ = hi_.cwiseMax(hi);
+  }
+  bool empty() const { return (hi_.array() < lo_.array()).any(); }
+  const IVec& active_lo() const { return lo_; }
+  const IVec& active_hi() const { return hi_; }
+
+  /// Zeroes the nodes of the active box and empties it.
+  void clear() {
+    if (!empty()) for_each_active_row([&](std::int64_t k0, int n) {
+        std::fill(nodes_.begin() + k0, nodes_.begin() + k0 + n, Node::Zero());
+      });
+    lo_ = res_;
+    hi_ = IVec::Constant(-1);
+  }
+
+  /// Calls fn(first node index, count) for each contiguous row (along the last axis) of the
+  /// active box. Rows are independent, so callers may run them in parallel.
+  template <class Fn>
+  void for_each_active_row(Fn&& fn) const {
+    if (empty()) return;
+    const int n = hi_[Dim - 1] - lo_[Dim - 1] + 1;
+    if constexpr (Dim == 2) {
+      for (int i = lo_[0]; i <= hi_[0]; ++i) fn(stride_[0] * i + lo_[1], n);
+    } else {
+      for (int i = lo_[0]; i <= hi_[0]; ++i)
+        for (int j = lo_[1]; j <= hi_[1]; ++j) fn(stride_[0] * i + stride_[1] * j + lo_[2], n);
+    }
+  }
+
+  /// Number of rows of the active box and the index of row r's first node (for parallel loops).
+  std::int64_t active_rows() const {
+    if (empty()) return 0;
+    std::int64_t r = 1;
+    for (int d = 0; d < Dim - 1; ++d) r *= hi_[d] - lo_[d] + 1;
+    return r;
+  }
+  std::int64_t active_row_start(std::int64_t r) const {
+    std::int64_t k = lo_[Dim - 1];
+    for (int d = Dim - 2; d >= 0; --d) {
+      const std::int64_t n = hi_[d] - lo_[d] + 1;
+      k += stride_[d] * (lo_[d] + r % n);
+      r /= n;
+    }
+    return k;
+  }
+  int active_row_length() const { return empty() ? 0 : hi_[Dim - 1] - lo_[Dim - 1] + 1; }
+  /// Grid coordinates of node index k.
+  IVec coord(std::int64_t k) const {
+    IVec i;
+    for (int d = 0; d < Dim; ++d) {
+      i[d] = int(k / stride_[d]);
+      k -= stride_[d] * i[d];
+    }
+    return i;
+  }
+
+ private:
+  Vec origin_ = Vec::Zero();
+  T dx_ = T(1), inv_dx_ = T(1);
+  IVec res_ = IVec::Zero();
+  std::array<std::int64_t, Dim> stride_{};
+  std::vector<Node> nodes_;
+  std::vector<Vec> old_;
+  IVec lo_ = IVec::Zero(), hi_ = IVec::Constant(-1);
+};
+
+}  // namespace slurry::transfer

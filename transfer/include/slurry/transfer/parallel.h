@@ -1,0 +1,139 @@
+#pragma once
+/// \file parallel.h
+/// The one place where Slurry's loops meet a threading library (OpenMP, oneTBB, or none, chosen
+/// at configure time with SLURRY_PARALLEL). Every parallel phase goes through `parallel_for`
+/// over independent indices, so its result does not depend on the thread count; reductions
+/// through `parallel_max` use an order-independent operation.
+#include <algorithm>
+#include <cstdint>
+
+#if defined(SLURRY_PARALLEL_OPENMP)
+#include <omp.h>
+#elif defined(SLURRY_PARALLEL_TBB)
+#include <tbb/blocked_range.h>
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
+#include <memory>
+#endif
+
+namespace slurry::parallel {
+
+/// Name of the compiled-in backend.
+inline const char* backend() {
+#if defined(SLURRY_PARALLEL_OPENMP)
+  return "OpenMP";
+#elif defined(SLURRY_PARALLEL_TBB)
+  return "TBB";
+#else
+  return "Serial";
+#endif
+}
+
+/// Limits the worker threads while alive (0 = leave the default). One per run, owned by the
+/// caller: no global state survives it.
+class ThreadLimit {
+ public:
+  explicit ThreadLimit(int threads) {
+    if (threads <= 0) return;
+#if defined(SLURRY_PARALLEL_OPENMP)
+    previous_ = omp_get_max_threads();
+    omp_set_num_threads(threads);
+#elif defined(SLURRY_PARALLEL_TBB)
+    control_ = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                                     std::size_t(threads));
+#endif
+  }
+  ~ThreadLimit() {
+#if defined(SLURRY_PARALLEL_OPENMP)
+    if (previous_ > 0) omp_set_num_threads(previous_);
+#endif
+  }
+  ThreadLimit(const ThreadLimit&) = delete;
+  ThreadLimit& operator=(const ThreadLimit&) = delete;
+
+ private:
+#if defined(SLURRY_PARALLEL_OPENMP)
+  int previous_ = 0;
+#elif defined(SLURRY_PARALLEL_TBB)
+  std::unique_ptr<tbb::global_control> control_;
+#endif
+};
+
+/// Threads the next parallel loop may use.
+inline int max_threads() {
+#if defined(SLURRY_PARALLEL_OPENMP)
+  return omp_get_max_threads();
+#elif defined(SLURRY_PARALLEL_TBB)
+  return int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+#else
+  return 1;
+#endif
+}
+
+/// fn(i) for i in [begin, end); the calls must be independent.
+template <class Fn>
+void parallel_for(std::int64_t begin, std::int64_t end, Fn&& fn) {
+  if (end <= begin) return;
+#if defined(SLURRY_PARALLEL_OPENMP)
+#pragma omp parallel for schedule(static)
+  for (std::int64_t i = begin; i < end; ++i) fn(i);
+#elif defined(SLURRY_PARALLEL_TBB)
+  tbb::parallel_for(tbb::blocked_range<std::int64_t>(begin, end, 1024),
+                    [&](const tbb::blocked_range<std::int64_t>& r) {
+                      for (std::int64_t i = r.begin(); i < r.end(); ++i) fn(i);
+                    });
+#else
+  for (std::int64_t i = begin; i < end; ++i) fn(i);
+#endif
+}
+
+/// fn(lo, hi) over contiguous chunks of [begin, end) (for loops that keep per-chunk state).
+template <class Fn>
+void parallel_chunks(std::int64_t begin, std::int64_t end, Fn&& fn) {
+  if (end <= begin) return;
+#if defined(SLURRY_PARALLEL_OPENMP)
+  const std::int64_t n = end - begin;
+#pragma omp parallel
+  {
+    const std::int64_t t = omp_get_thread_num(), nt = omp_get_num_threads();
+    const std::int64_t lo = begin + n * t / nt, hi = begin + n * (t + 1) / nt;
+    if (hi > lo) fn(lo, hi);
+  }
+#elif defined(SLURRY_PARALLEL_TBB)
+  tbb::parallel_for(tbb::blocked_range<std::int64_t>(begin, end, 1024),
+                    [&](const tbb::blocked_range<std::int64_t>& r) { fn(r.begin(), r.end()); });
+#else
+  fn(begin, end);
+#endif
+}
+
+/// max over i of fn(lo, hi) chunk results; max is order independent, so so is the result.
+template <class T, class Fn>
+T parallel_max(std::int64_t begin, std::int64_t end, T init, Fn&& chunk_max) {
+  if (end <= begin) return init;
+#if defined(SLURRY_PARALLEL_OPENMP)
+  T result = init;
+  const std::int64_t n = end - begin;
+#pragma omp parallel
+  {
+    const std::int64_t t = omp_get_thread_num(), nt = omp_get_num_threads();
+    const std::int64_t lo = begin + n * t / nt, hi = begin + n * (t + 1) / nt;
+    const T local = hi > lo ? chunk_max(lo, hi) : init;
+#pragma omp critical(slurry_parallel_max)
+    result = std::max(result, local);
+  }
+  return result;
+#elif defined(SLURRY_PARALLEL_TBB)
+  return tbb::parallel_reduce(
+      tbb::blocked_range<std::int64_t>(begin, end, 1024), init,
+      [&](const tbb::blocked_range<std::int64_t>& r, T acc) {
+        return std::max(acc, chunk_max(r.begin(), r.end()));
+      },
+      [](T a, T b) { return std::max(a, b); });
+#else
+  return std::max(init, chunk_max(begin, end));
+#endif
+}
+
+}  // namespace slurry::parallel

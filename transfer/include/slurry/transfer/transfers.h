@@ -1,0 +1,154 @@
+#pragma once
+/// \file transfers.h
+/// Particle-to-grid (P2G) and grid-to-particle (G2P) transfers of the hybrid particle-grid
+/// methods, for one range of particles:
+///  - PIC: v_p <- sum_i w_ip v_i (Harlow 1964), dissipative; loses angular momentum.
+///  - FLIP blend (Brackbill & Ruppel 1986; Zhu & Bridson 2005): v_p <- a (v_p + sum_i w_ip
+///    (v_i - v_i^old)) + (1 - a) sum_i w_ip v_i with flip ratio a in [0, 1].
+///  - APIC (Jiang et al. 2015, "The affine particle-in-cell method"): particles carry C_p = B_p
+///    D_p^{-1}; P2G adds w_ip m_p (v_p + C_p (x_i - x_p)), which conserves angular momentum, and
+///    an affine field is transferred exactly.
+///  - MLS-MPM (Hu et al. 2018, "A moving least squares material point method", eq. 29): the
+///    stress impulse joins the affine momentum, Q_p = m_p C_p - dt V_p D_p^{-1} tau_p, and the
+///    velocity gradient used to advance F is C_p itself.
+/// APIC, PIC and FLIP apply the internal force of the classic MPM discretization,
+/// f_i = -sum_p V_p tau_p grad w_ip (Stomakhin et al. 2013, eq. 6; tau = P F^T the Kirchhoff
+/// stress), as dt f_i added to the grid momentum.
+///
+/// Inputs are raw channel pointers (structure of arrays). `K[p]` is the stress impulse
+/// -dt V_p^0 tau_p computed by the caller; null means no stress.
+#include <Eigen/Core>
+#include <cassert>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+
+#include "slurry/transfer/kernels.h"
+#include "slurry/transfer/parallel.h"
+
+namespace slurry::transfer {
+
+enum class Scheme { PIC, FLIP, APIC, MLS };
+
+/// Whether particles of this scheme carry an affine matrix C.
+constexpr bool carries_affine(Scheme s) { return s == Scheme::APIC || s == Scheme::MLS; }
+
+/// Scatters mass and momentum (and the stress impulse) of particles [begin, end) to the grid and
+/// widens the grid's active box. Serial: the scatter writes shared nodes.
+template <int Order, Scheme S, class Grid, class T, int Dim>
+void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
+                       const Eigen::Matrix<T, Dim, 1>* v, const T* m,
+                       const Eigen::Matrix<T, Dim, Dim>* C, const Eigen::Matrix<T, Dim, Dim>* K,
+                       std::int64_t begin, std::int64_t end) {
+  using Vec = Eigen::Matrix<T, Dim, 1>;
+  using Mat = Eigen::Matrix<T, Dim, Dim>;
+  using IVec = Eigen::Matrix<int, Dim, 1>;
+  using St = Stencil<T, Dim, Order>;
+  static_assert(S != Scheme::MLS || Order > 1, "MLS-MPM needs a quadratic or cubic kernel");
+  if (end <= begin) return;
+  const Vec origin = grid.origin();
+  const T dx = grid.dx(), inv_dx = grid.inv_dx();
+  const T Dinv = BSpline<Order>::inverse_inertia(dx);
+  std::int64_t stride[Dim];
+  for (int d = 0; d < Dim; ++d) stride[d] = grid.stride(d);
+  IVec lo = IVec::Constant(std::numeric_limits<int>::max());
+  IVec hi = IVec::Constant(std::numeric_limits<int>::min());
+  auto* nodes = grid.data();
+
+  for (std::int64_t p = begin; p < end; ++p) {
+    const St s(x[p] - origin, inv_dx, dx);
+    const IVec base = Eigen::Map<const IVec>(s.base.data());
+    lo = lo.cwiseMin(base);
+    hi = hi.cwiseMax(base);
+    const T mp = m[p];
+    const Vec mv = mp * v[p];
+    Mat A = Mat::Zero();  // affine momentum, applied to (x_i - x_p)
+    Mat G = Mat::Zero();  // stress impulse, applied to grad w
+    if constexpr (carries_affine(S)) A = mp * C[p];
+    if (K) {
+      if constexpr (S == Scheme::MLS)
+        A += Dinv * K[p];
+      else
+        G = K[p];
+    }
+    const std::int64_t k0 = grid.index(s.base);
+    for_each_node(s, [&](int a, int b, int c, T w, const Vec& grad, const Vec& off) {
+      std::int64_t k = k0 + a * stride[0] + b * stride[1];
+      if constexpr (Dim == 3) k += c;
+      auto& n = nodes[k];
+      Vec mom = w * (mv + A * off);
+      if constexpr (S != Scheme::MLS) mom.noalias() += G * grad;
+      n.template head<Dim>() += mom;
+      n[Dim] += w * mp;
+    });
+  }
+  grid.touch(lo, hi + IVec::Constant(St::N - 1));
+}
+
+/// Gathers velocity (and C for APIC/MLS) back to particles [begin, end), advects them by
+/// dt * (PIC velocity), and calls `state(p, grad_v)` for the caller's deformation update.
+/// Reads the grid velocity from the node's first Dim entries and, for FLIP, the pre-update
+/// velocity from `grid.old_velocity(k)`. Runs in parallel (each particle writes only itself).
+/// Returns the largest squared particle speed, or +infinity if any velocity is not finite or
+/// any particle left the box [x_lo, x_hi] (the caller then finds and names the particle).
+template <int Order, Scheme S, class Grid, class T, int Dim, class StateFn>
+T grid_to_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<T, Dim, 1>* v,
+                    Eigen::Matrix<T, Dim, Dim>* C, T dt, T flip_ratio,
+                    const Eigen::Matrix<T, Dim, 1>& x_lo, const Eigen::Matrix<T, Dim, 1>& x_hi,
+                    std::int64_t begin, std::int64_t end, StateFn&& state) {
+  using Vec = Eigen::Matrix<T, Dim, 1>;
+  using Mat = Eigen::Matrix<T, Dim, Dim>;
+  using St = Stencil<T, Dim, Order>;
+  static_assert(S != Scheme::MLS || Order > 1, "MLS-MPM needs a quadratic or cubic kernel");
+  const Vec origin = grid.origin();
+  const T dx = grid.dx(), inv_dx = grid.inv_dx();
+  const T Dinv = BSpline<Order>::inverse_inertia(dx);
+  std::int64_t stride[Dim];
+  for (int d = 0; d < Dim; ++d) stride[d] = grid.stride(d);
+  const auto* nodes = grid.data();
+  // Which sums each scheme needs: C from B (APIC/MLS, Order > 1) or from grad w (linear APIC);
+  // grad v from grad w except for MLS, which uses C (Hu et al. 2018, eq. 17).
+  constexpr bool need_B = carries_affine(S) && Order > 1;
+  constexpr bool need_grad = S != Scheme::MLS;
+
+  return parallel::parallel_max<T>(begin, end, T(0), [&](std::int64_t lo, std::int64_t hi) {
+    T vmax2 = 0;
+    for (std::int64_t p = lo; p < hi; ++p) {
+      const St s(x[p] - origin, inv_dx, dx);
+      Vec vpic = Vec::Zero(), dv = Vec::Zero();
+      Mat B = Mat::Zero(), gv = Mat::Zero();
+      const std::int64_t k0 = grid.index(s.base);
+      for_each_node(s, [&](int a, int b, int c, T w, const Vec& grad, const Vec& off) {
+        std::int64_t k = k0 + a * stride[0] + b * stride[1];
+        if constexpr (Dim == 3) k += c;
+        const Vec vi = nodes[k].template head<Dim>();
+        vpic += w * vi;
+        if constexpr (need_B) B.noalias() += (w * vi) * off.transpose();
+        if constexpr (need_grad) gv.noalias() += vi * grad.transpose();
+        if constexpr (S == Scheme::FLIP) dv += w * (vi - grid.old_velocity(k));
+      });
+      if constexpr (carries_affine(S)) {
+        if constexpr (Order > 1)
+          C[p] = Dinv * B;
+        else
+          C[p] = gv;
+      }
+      Vec vnew = vpic;
+      if constexpr (S == Scheme::FLIP) vnew = flip_ratio * (v[p] + dv) + (T(1) - flip_ratio) * vpic;
+      v[p] = vnew;
+      x[p] += dt * vpic;
+      if (!((x[p].array() >= x_lo.array()).all() && (x[p].array() <= x_hi.array()).all()))
+        return std::numeric_limits<T>::infinity();
+      if constexpr (S == Scheme::MLS)
+        state(p, C[p]);
+      else
+        state(p, gv);
+      const T s2 = vnew.squaredNorm();
+      if (!(s2 <= std::numeric_limits<T>::max())) return std::numeric_limits<T>::infinity();
+      vmax2 = std::max(vmax2, s2);
+    }
+    return vmax2;
+  });
+}
+
+}  // namespace slurry::transfer
