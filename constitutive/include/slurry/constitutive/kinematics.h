@@ -1,0 +1,152 @@
+#pragma once
+/// \file kinematics.h
+/// Small tensor helpers shared by the constitutive models: the cofactor matrix J F^-T and its
+/// differential, the differential of the polar rotation, and the differential of an isotropic
+/// stress given through its singular values. Depends on Eigen only.
+#include <Eigen/Core>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+#include "svd.h"
+
+namespace slurry::constitutive {
+
+/// det F (2x2), without pulling in Eigen/LU.
+template <class T>
+inline T determinant(const Eigen::Matrix<T, 2, 2>& F) {
+  return F(0, 0) * F(1, 1) - F(0, 1) * F(1, 0);
+}
+
+/// det F (3x3), as the triple product of the columns.
+template <class T>
+inline T determinant(const Eigen::Matrix<T, 3, 3>& F) {
+  return F.col(0).dot(detail::cross<T>(F.col(1), F.col(2)));
+}
+
+/// cof(F) = det(F) F^-T = d det(F) / dF, defined (and smooth) for singular F too.
+template <class T>
+inline Eigen::Matrix<T, 2, 2> cofactor(const Eigen::Matrix<T, 2, 2>& F) {
+  Eigen::Matrix<T, 2, 2> C;
+  C << F(1, 1), -F(1, 0), -F(0, 1), F(0, 0);
+  return C;
+}
+
+/// cof(F) = det(F) F^-T: column k is the cross product of the other two columns of F.
+template <class T>
+inline Eigen::Matrix<T, 3, 3> cofactor(const Eigen::Matrix<T, 3, 3>& F) {
+  Eigen::Matrix<T, 3, 3> C;
+  C.col(0) = detail::cross<T>(F.col(1), F.col(2));
+  C.col(1) = detail::cross<T>(F.col(2), F.col(0));
+  C.col(2) = detail::cross<T>(F.col(0), F.col(1));
+  return C;
+}
+
+/// Differential of cof at F in direction dF. In 2D cof is linear, so this is cof(dF).
+template <class T>
+inline Eigen::Matrix<T, 2, 2> cofactor_differential(const Eigen::Matrix<T, 2, 2>& /*F*/,
+                                                    const Eigen::Matrix<T, 2, 2>& dF) {
+  return cofactor(dF);
+}
+
+/// Differential of cof at F in direction dF (product rule on the column cross products).
+template <class T>
+inline Eigen::Matrix<T, 3, 3> cofactor_differential(const Eigen::Matrix<T, 3, 3>& F,
+                                                    const Eigen::Matrix<T, 3, 3>& dF) {
+  Eigen::Matrix<T, 3, 3> C;
+  for (int k = 0; k < 3; ++k) {
+    const int i = (k + 1) % 3, j = (k + 2) % 3;
+    C.col(k) = detail::cross<T>(dF.col(i), F.col(j)) + detail::cross<T>(F.col(i), dF.col(j));
+  }
+  return C;
+}
+
+/// Differential dR of the rotation R = U V^T of the (rotation-variant) polar decomposition
+/// F = R S, given the SVD F = U diag(sigma) V^T, in direction dF.
+///
+/// From dF = dR S + R dS with R^T dR skew: writing A = U^T dF V and dR = U X V^T, X is skew with
+/// X_ij = (A_ij - A_ji) / (sigma_i + sigma_j) (see e.g. Sifakis and Barbic 2012, "FEM simulation
+/// of 3D deformable solids", Sec. 5, or the technical report of Stomakhin et al. 2012). R is not
+/// differentiable where sigma_i + sigma_j = 0 (an inverted F with two singular values of equal
+/// magnitude); the denominator is floored at eps there to stay finite.
+template <class T, int Dim>
+inline Eigen::Matrix<T, Dim, Dim> rotation_differential(const Eigen::Matrix<T, Dim, Dim>& U,
+                                                        const Eigen::Matrix<T, Dim, 1>& sigma,
+                                                        const Eigen::Matrix<T, Dim, Dim>& V,
+                                                        const Eigen::Matrix<T, Dim, Dim>& dF) {
+  const Eigen::Matrix<T, Dim, Dim> A = U.transpose() * dF * V;
+  Eigen::Matrix<T, Dim, Dim> X = Eigen::Matrix<T, Dim, Dim>::Zero();
+  for (int i = 0; i < Dim; ++i) {
+    for (int j = i + 1; j < Dim; ++j) {
+      const T den = std::max(sigma(i) + sigma(j), std::numeric_limits<T>::epsilon());
+      X(i, j) = (A(i, j) - A(j, i)) / den;
+      X(j, i) = -X(i, j);
+    }
+  }
+  return U * X * V.transpose();
+}
+
+/// Differential of an isotropic stress given in principal form, P = U diag(p(sigma)) V^T with
+/// F = U diag(sigma) V^T, in direction dF. With A = U^T dF V, dP = U M V^T where
+///   M_ii = sum_j (dp_i/dsigma_j) A_jj,
+///   M_ij = (a_ij + b_ij)/2 A_ij + (a_ij - b_ij)/2 A_ji   (i != j),
+///   a_ij = (p_i - p_j) / (sigma_i - sigma_j),  b_ij = (p_i + p_j) / (sigma_i + sigma_j).
+/// This is the formula of Xu, Sin, Zhu and Barbic 2015, "Nonlinear material design using
+/// principal stretches" (Sec. 4), with the two fractions split into a_ij and b_ij so that only
+/// a_ij is 0/0 at repeated singular values. The caller supplies dp/dsigma (hessian) and a_ij
+/// (divided_difference, read for i != j), evaluated stably for its own p.
+template <class T, int Dim>
+inline Eigen::Matrix<T, Dim, Dim> principal_stress_differential(
+    const Eigen::Matrix<T, Dim, Dim>& U, const Eigen::Matrix<T, Dim, 1>& sigma,
+    const Eigen::Matrix<T, Dim, Dim>& V, const Eigen::Matrix<T, Dim, 1>& p,
+    const Eigen::Matrix<T, Dim, Dim>& hessian, const Eigen::Matrix<T, Dim, Dim>& divided_difference,
+    const Eigen::Matrix<T, Dim, Dim>& dF) {
+  const Eigen::Matrix<T, Dim, Dim> A = U.transpose() * dF * V;
+  Eigen::Matrix<T, Dim, Dim> M;
+  for (int i = 0; i < Dim; ++i) {
+    M(i, i) = hessian.row(i).dot(A.diagonal().transpose());
+    for (int j = 0; j < Dim; ++j) {
+      if (j == i) continue;
+      const T a = divided_difference(i, j);
+      const T b = (p(i) + p(j)) / std::max(sigma(i) + sigma(j), std::numeric_limits<T>::epsilon());
+      M(i, j) = T(0.5) * ((a + b) * A(i, j) + (a - b) * A(j, i));
+    }
+  }
+  return U * M * V.transpose();
+}
+
+namespace detail {
+
+/// Throws std::invalid_argument naming the model, field and value unless lo <= value (or
+/// lo < value when strict) and value is finite.
+template <class T>
+inline void require_at_least(const char* model, const char* field, T value, T lo,
+                             bool strict = false) {
+  const bool ok = std::isfinite(value) && (strict ? value > lo : value >= lo);
+  if (!ok) {
+    std::ostringstream msg;
+    msg << model << ": " << field << " = " << value << ", expected a finite value "
+        << (strict ? "> " : ">= ") << lo;
+    throw std::invalid_argument(msg.str());
+  }
+}
+
+/// Validation shared by the models parametrised by Lame constants: mu >= 0 and a non-negative
+/// bulk modulus lambda + 2 mu / Dim (the energy is then convex near the rest state).
+template <class T, int Dim>
+inline void validate_lame(const char* model, T mu, T lambda) {
+  require_at_least(model, "mu", mu, T(0));
+  if (!std::isfinite(lambda) || !(lambda + T(2) * mu / T(Dim) >= T(0))) {
+    std::ostringstream msg;
+    msg << model << ": lambda = " << lambda << ", expected a finite value >= -2 mu / " << Dim
+        << " = " << -T(2) * mu / T(Dim);
+    throw std::invalid_argument(msg.str());
+  }
+}
+
+}  // namespace detail
+
+}  // namespace slurry::constitutive

@@ -1,0 +1,240 @@
+#pragma once
+/// \file plasticity.h
+/// Return mappings (plastic projections) applied to the elastic deformation gradient Fe after
+/// each step: F = Fe Fp, and project() replaces the trial Fe in place by its projection onto
+/// the yield surface, updating one scalar of plastic state per particle. Each returns whether the
+/// particle yielded. All use the rotation-variant SVD of svd.h; the projection only changes the
+/// singular values, so U and V (the rotations) are kept.
+///
+/// - SnowPlasticity: singular value clamping of Stomakhin et al. 2013.
+/// - DruckerPrager: cohesionless Drucker-Prager in Hencky strain, Klar et al. 2016.
+/// - VonMises: radial return in Hencky strain (J2 plasticity).
+///
+/// The Hencky-strain models assume the St. Venant-Kirchhoff-on-Hencky elasticity of
+/// hencky_stvk.h, whose principal Kirchhoff stress is tau = 2 mu eps + lambda tr(eps) 1 with
+/// eps = log(sigma); their yield functions take those principal stresses.
+#include <Eigen/Core>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+#include "kinematics.h"
+#include "svd.h"
+
+namespace slurry::constitutive {
+
+namespace detail {
+
+/// Hencky strain log(sigma) with singular values floored at min_sigma. An inverted Fe (negative
+/// last singular value) has no logarithmic strain; treating it as compressed to min_sigma along
+/// that direction is what the return mappings below do with it.
+template <class T, int Dim>
+inline Eigen::Matrix<T, Dim, 1> hencky_strain(const Eigen::Matrix<T, Dim, 1>& sigma, T min_sigma) {
+  return sigma.cwiseMax(min_sigma).array().log().matrix();
+}
+
+template <class T>
+inline void require_in(const char* model, const char* field, T value, T lo, T hi,
+                       const char* range) {
+  if (!(value >= lo && value <= hi)) {
+    std::ostringstream msg;
+    msg << model << ": " << field << " = " << value << ", expected " << range;
+    throw std::invalid_argument(msg.str());
+  }
+}
+
+}  // namespace detail
+
+/// Snow plasticity of Stomakhin, Schroeder, Chai, Teran and Selle 2013, "A material point method
+/// for snow simulation" (Sec. 5 and Eq. 8): the singular values of Fe are clamped to
+/// [1 - critical_compression, 1 + critical_stretch]; the deformation clamped away goes into
+/// Fp, so the plastic volume ratio Jp = det Fp is updated to keep Je Jp = det F unchanged.
+/// hardening_factor(Jp) = exp(hardening (1 - Jp)) multiplies mu and lambda (snow hardens when
+/// compacted, Jp < 1, and softens when it fractures, Jp > 1).
+template <class T>
+struct SnowPlasticity {
+
+  T critical_compression = T(2.5e-2);  ///< theta_c, dimensionless
+  T critical_stretch = T(7.5e-3);      ///< theta_s, dimensionless
+  T hardening = T(10);                 ///< xi, dimensionless
+  /// Upper bound of hardening_factor(): exp(xi (1 - Jp)) grows without bound under sustained
+  /// compaction, which would make the explicit time step collapse.
+  T max_hardening = T(20);
+
+  /// Clamps the singular values of Fe into the window and updates Jp (starts at 1) so that
+  /// det(Fe) Jp is preserved. An inverted Fe is un-inverted by the clamp; Jp is then updated with
+  /// |det Fe| so that it stays positive. Returns whether any singular value was clamped.
+  template <int Dim>
+  bool project(Eigen::Matrix<T, Dim, Dim>& Fe, T& Jp) const {
+    using Vec = Eigen::Matrix<T, Dim, 1>;
+    Eigen::Matrix<T, Dim, Dim> U, V;
+    Vec sigma;
+    svd(Fe, U, sigma, V);
+    const Vec clamped =
+        sigma.cwiseMax(T(1) - critical_compression).cwiseMin(T(1) + critical_stretch);
+    if (clamped == sigma) return false;
+    Jp *= std::abs(sigma.prod()) / clamped.prod();
+    Fe = U * clamped.asDiagonal() * V.transpose();
+    return true;
+  }
+
+  /// exp(xi (1 - Jp)), capped at max_hardening.
+  T hardening_factor(T Jp) const {
+    return std::exp(std::min(hardening * (T(1) - Jp), std::log(max_hardening)));
+  }
+
+  /// <= 0 inside the window; otherwise the largest distance of a singular value outside it.
+  /// 0 (to round-off) after a projection that yielded.
+  template <int Dim>
+  T yield_function(const Eigen::Matrix<T, Dim, 1>& sigma) const {
+    return std::max((sigma.array() - (T(1) + critical_stretch)).maxCoeff(),
+                    ((T(1) - critical_compression) - sigma.array()).maxCoeff());
+  }
+
+  /// Throws std::invalid_argument naming the field unless 0 <= theta_c < 1, theta_s >= 0,
+  /// xi >= 0 and max_hardening >= 1.
+  void validate() const {
+    detail::require_in("SnowPlasticity", "critical_compression", critical_compression, T(0),
+                       T(1) - std::numeric_limits<T>::epsilon(), "0 <= value < 1");
+    detail::require_at_least("SnowPlasticity", "critical_stretch", critical_stretch, T(0));
+    detail::require_at_least("SnowPlasticity", "hardening", hardening, T(0));
+    detail::require_at_least("SnowPlasticity", "max_hardening", max_hardening, T(1));
+  }
+};
+
+/// Cohesionless Drucker-Prager plasticity in Hencky strain, Klar, Gast, Pradhana, Fu, Schroeder,
+/// Jiang and Teran 2016, "Drucker-Prager elastoplasticity for sand animation" (Sec. 7.3,
+/// Algorithm 2), for the elasticity of hencky_stvk.h.
+///
+/// Yield function on principal Kirchhoff stresses (tension positive):
+///   y(tau) = ||dev tau||_F + alpha tr(tau) <= 0,
+///   alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi)),   phi = friction_angle.
+/// With eps = log(sigma), eps^ = dev eps and tau = 2 mu eps + lambda tr(eps) 1, the return map is
+///   delta_gamma = ||eps^|| + (d lambda + 2 mu)/(2 mu) tr(eps) alpha   (= y(tau) / (2 mu)),
+///   delta_gamma <= 0:  inside, unchanged;
+///   tr(eps) > 0:       tension, project to the tip sigma = 1 (Fe becomes the rotation U V^T),
+///                      state += ||eps||;
+///   otherwise:         eps -= delta_gamma eps^ / ||eps^|| (onto the cone, same volume),
+///                      state += delta_gamma.
+template <class T>
+struct DruckerPrager {
+
+  T friction_angle = T(30);  ///< phi, in degrees
+  /// Singular values of Fe are floored here before taking logs (an inverted or collapsed Fe is
+  /// treated as compressed to this stretch along its weakest direction).
+  T min_singular_value = T(1e-4);
+
+  /// alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi)).
+  T alpha() const {
+    const T s = std::sin(friction_angle * T(3.14159265358979323846) / T(180));
+    return std::sqrt(T(2) / T(3)) * T(2) * s / (T(3) - s);
+  }
+
+  /// Projects Fe onto the yield cone for the Hencky St. Venant-Kirchhoff elasticity with the
+  /// given mu > 0 and lambda; state accumulates the plastic strain. Returns whether it yielded.
+  template <int Dim>
+  bool project(Eigen::Matrix<T, Dim, Dim>& Fe, T& state, T mu, T lambda) const {
+    using Vec = Eigen::Matrix<T, Dim, 1>;
+    Eigen::Matrix<T, Dim, Dim> U, V;
+    Vec sigma;
+    svd(Fe, U, sigma, V);
+    Vec eps = detail::hencky_strain<T, Dim>(sigma, min_singular_value);
+    const T tr = eps.sum();
+    const Vec eps_hat = eps.array() - tr / T(Dim);
+    const T eps_hat_norm = eps_hat.norm();
+    const T delta_gamma =
+        eps_hat_norm + (T(Dim) * lambda + T(2) * mu) / (T(2) * mu) * tr * alpha();
+    if (delta_gamma <= T(0)) {
+      // Inside the cone. If a singular value was floored, store the floored Fe so that it is
+      // the one the elastic stress sees.
+      if (!(sigma(Dim - 1) < min_singular_value)) return false;
+    } else if (tr > T(0) || !(eps_hat_norm > T(0))) {  // the second only with alpha = 0
+      state += eps.norm();
+      Fe = U * V.transpose();
+      return true;
+    } else {
+      eps -= (delta_gamma / eps_hat_norm) * eps_hat;
+      state += delta_gamma;
+    }
+    Fe = U * eps.array().exp().matrix().asDiagonal() * V.transpose();
+    return true;
+  }
+
+  /// y(tau) = ||dev tau||_F + alpha tr(tau) for principal Kirchhoff stresses tau; <= 0 inside.
+  template <int Dim>
+  T yield_function(const Eigen::Matrix<T, Dim, 1>& tau) const {
+    const T tr = tau.sum();
+    return (tau.array() - tr / T(Dim)).matrix().norm() + alpha() * tr;
+  }
+
+  /// Throws std::invalid_argument unless 0 <= friction_angle < 90 and min_singular_value > 0.
+  void validate() const {
+    detail::require_in("DruckerPrager", "friction_angle", friction_angle, T(0),
+                       std::nextafter(T(90), T(0)), "0 <= value < 90 (degrees)");
+    detail::require_at_least("DruckerPrager", "min_singular_value", min_singular_value, T(0),
+                             /*strict=*/true);
+  }
+};
+
+/// Von Mises (J2) plasticity with radial return in Hencky strain, for the elasticity of
+/// hencky_stvk.h (e.g. Simo and Hughes 1998, "Computational inelasticity", Sec. 3.3, in the
+/// principal logarithmic-strain setting of Simo 1992; used for MPM metals in Gao et al. 2017).
+///
+/// Norm convention: the Frobenius norm of the deviatoric Kirchhoff stress,
+///   y(tau) = ||dev tau||_F - sqrt(2/3) tau_y <= 0,
+/// so tau_y is the yield stress in uniaxial tension (the von Mises equivalent stress is
+/// sqrt(3/2) ||dev tau||_F). Since dev tau = 2 mu dev(eps), the return map scales the deviatoric
+/// strain back onto the surface:
+///   delta_gamma = ||eps^|| - sqrt(2/3) tau_y / (2 mu),   eps -= delta_gamma eps^ / ||eps^||,
+/// leaving tr(eps), hence det Fe, unchanged; state accumulates the equivalent plastic strain
+/// sqrt(2/3) delta_gamma.
+template <class T>
+struct VonMises {
+
+  T yield_stress;  ///< tau_y [Pa], uniaxial
+  /// Floor for singular values before taking logs (see DruckerPrager::min_singular_value).
+  T min_singular_value = T(1e-4);
+
+  /// Radial return of Fe for shear modulus mu > 0; state accumulates the equivalent plastic
+  /// strain. Returns whether it yielded.
+  template <int Dim>
+  bool project(Eigen::Matrix<T, Dim, Dim>& Fe, T& state, T mu) const {
+    using Vec = Eigen::Matrix<T, Dim, 1>;
+    Eigen::Matrix<T, Dim, Dim> U, V;
+    Vec sigma;
+    svd(Fe, U, sigma, V);
+    Vec eps = detail::hencky_strain<T, Dim>(sigma, min_singular_value);
+    const T tr = eps.sum();
+    const Vec eps_hat = eps.array() - tr / T(Dim);
+    const T eps_hat_norm = eps_hat.norm();
+    const T delta_gamma = eps_hat_norm - std::sqrt(T(2) / T(3)) * yield_stress / (T(2) * mu);
+    if (delta_gamma <= T(0)) {
+      // Inside; store a floored Fe (see DruckerPrager::project).
+      if (!(sigma(Dim - 1) < min_singular_value)) return false;
+    } else {
+      eps -= (delta_gamma / eps_hat_norm) * eps_hat;
+      state += std::sqrt(T(2) / T(3)) * delta_gamma;
+    }
+    Fe = U * eps.array().exp().matrix().asDiagonal() * V.transpose();
+    return true;
+  }
+
+  /// y(tau) = ||dev tau||_F - sqrt(2/3) tau_y for principal Kirchhoff stresses tau; <= 0 inside.
+  template <int Dim>
+  T yield_function(const Eigen::Matrix<T, Dim, 1>& tau) const {
+    return (tau.array() - tau.sum() / T(Dim)).matrix().norm() -
+           std::sqrt(T(2) / T(3)) * yield_stress;
+  }
+
+  /// Throws std::invalid_argument unless yield_stress >= 0 and min_singular_value > 0.
+  void validate() const {
+    detail::require_at_least("VonMises", "yield_stress", yield_stress, T(0));
+    detail::require_at_least("VonMises", "min_singular_value", min_singular_value, T(0),
+                             /*strict=*/true);
+  }
+};
+
+}  // namespace slurry::constitutive

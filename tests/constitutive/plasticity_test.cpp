@@ -1,0 +1,274 @@
+// Tests for constitutive/plasticity.h: after a projection that yields the state is on the yield
+// surface; inside it nothing changes; the invariants each return map promises (Je Jp for snow,
+// volume for von Mises and for the Drucker-Prager cone) hold.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <cmath>
+#include <random>
+
+#include "slurry/constitutive/hencky_stvk.h"
+#include "slurry/constitutive/plasticity.h"
+#include "slurry/constitutive/svd.h"
+
+namespace {
+
+namespace sc = slurry::constitutive;
+
+constexpr double kMu = 3.0;
+constexpr double kLambda = 5.0;
+
+template <int D>
+Eigen::Matrix<double, D, D> random_rotation(std::mt19937& rng);
+template <>
+Eigen::Matrix2d random_rotation<2>(std::mt19937& rng) {
+  std::uniform_real_distribution<double> angle(-M_PI, M_PI);
+  return Eigen::Rotation2Dd(angle(rng)).toRotationMatrix();
+}
+template <>
+Eigen::Matrix3d random_rotation<3>(std::mt19937& rng) {
+  std::normal_distribution<double> n;
+  return Eigen::Quaterniond(n(rng), n(rng), n(rng), n(rng)).normalized().toRotationMatrix();
+}
+
+template <int D>
+Eigen::Matrix<double, D, 1> singular_values(const Eigen::Matrix<double, D, D>& F) {
+  Eigen::Matrix<double, D, D> U, V;
+  Eigen::Matrix<double, D, 1> s;
+  sc::svd(F, U, s, V);
+  return s;
+}
+
+/// Principal Kirchhoff stresses of the Hencky St. Venant-Kirchhoff model at Fe.
+template <int D>
+Eigen::Matrix<double, D, 1> principal_tau(const Eigen::Matrix<double, D, D>& Fe) {
+  const Eigen::Matrix<double, D, 1> eps = singular_values<D>(Fe).array().log().matrix();
+  return sc::HenckyStVK<double, D>{kMu, kLambda}.principal_kirchhoff(eps);
+}
+
+template <int D>
+Eigen::Matrix<double, D, D> with_singular_values(const Eigen::Matrix<double, D, 1>& s,
+                                                 std::mt19937& rng) {
+  return random_rotation<D>(rng) * s.asDiagonal() * random_rotation<D>(rng).transpose();
+}
+
+template <class C>
+class PlasticityTest : public ::testing::Test {};
+template <int D>
+struct Dim {
+  static constexpr int value = D;
+};
+using Dims = ::testing::Types<Dim<2>, Dim<3>>;
+TYPED_TEST_SUITE(PlasticityTest, Dims);
+
+// The projections are closed-form in the singular values, so their results are exact up to the
+// round-off of one SVD, a log and an exp (~1e-15 relative). 1e-9 relative is far below any
+// error of the projection itself (a wrong step size misses the surface by O(1) relative).
+constexpr double kTol = 1e-9;
+
+// --- snow ------------------------------------------------------------------------------------
+
+TYPED_TEST(PlasticityTest, SnowClampsIntoWindowKeepingJeJp) {
+  constexpr int D = TypeParam::value;
+  const sc::SnowPlasticity<double> snow;  // theta_c = 2.5e-2, theta_s = 7.5e-3
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<double> u(0.9, 1.1);
+  int yielded = 0;
+  for (int k = 0; k < 200; ++k) {
+    Eigen::Matrix<double, D, 1> s;
+    for (int i = 0; i < D; ++i) s(i) = u(rng);
+    Eigen::Matrix<double, D, D> Fe = with_singular_values<D>(s, rng);
+    const Eigen::Matrix<double, D, D> before = Fe;
+    const double Jp0 = 0.8 + 0.4 * k / 200.0;
+    double Jp = Jp0;
+    const bool y = snow.project(Fe, Jp);
+    EXPECT_EQ(y, snow.yield_function(s) > 0);
+    const Eigen::Matrix<double, D, 1> s_new = singular_values<D>(Fe);
+    if (y) {
+      ++yielded;
+      EXPECT_NEAR(snow.yield_function(s_new), 0, kTol);  // on the boundary of the window
+    } else {
+      EXPECT_EQ(Fe, before);  // untouched, bit for bit
+    }
+    EXPECT_LE(s_new.maxCoeff(), 1 + snow.critical_stretch + kTol);
+    EXPECT_GE(s_new.minCoeff(), 1 - snow.critical_compression - kTol);
+    EXPECT_NEAR(Fe.determinant() * Jp, before.determinant() * Jp0, kTol);
+  }
+  EXPECT_GT(yielded, 100);  // the sampling does exercise the projection
+}
+
+TEST(SnowPlasticity, ClampKeepsRotationsAndHardeningFactor) {
+  const sc::SnowPlasticity<double> snow;
+  std::mt19937 rng(22);
+  const Eigen::Matrix3d U = random_rotation<3>(rng), V = random_rotation<3>(rng);
+  Eigen::Matrix3d Fe = U * Eigen::Vector3d(1.2, 1.0, 0.5).asDiagonal() * V.transpose();
+  double Jp = 1;
+  EXPECT_TRUE(snow.project(Fe, Jp));
+  const Eigen::Vector3d clamped(1.0075, 1.0, 0.975);
+  EXPECT_LT((Fe - U * clamped.asDiagonal() * V.transpose()).norm(), 1e-14);
+  EXPECT_NEAR(Jp, 1.2 * 0.5 / (1.0075 * 0.975), 1e-14);
+  // Hardening exp(xi (1 - Jp)): 1 at rest, e at Jp = 0.9, capped at max_hardening.
+  EXPECT_DOUBLE_EQ(snow.hardening_factor(1.0), 1.0);
+  EXPECT_NEAR(snow.hardening_factor(0.9), std::exp(1.0), 1e-14);
+  EXPECT_NEAR(snow.hardening_factor(0.0), snow.max_hardening, 1e-12);
+  EXPECT_NEAR(snow.hardening_factor(1.5), std::exp(-5.0), 1e-16);
+}
+
+// --- Drucker-Prager -------------------------------------------------------------------------
+
+TEST(DruckerPrager, AlphaFromFrictionAngle) {
+  sc::DruckerPrager<double> dp;
+  dp.friction_angle = 30;  // sin = 1/2: alpha = sqrt(2/3) * 1 / 2.5
+  EXPECT_NEAR(dp.alpha(), std::sqrt(2.0 / 3.0) / 2.5, 1e-15);
+  dp.friction_angle = 0;
+  EXPECT_EQ(dp.alpha(), 0.0);
+  EXPECT_THROW((sc::DruckerPrager<double>{90}.validate()), std::invalid_argument);
+  EXPECT_NO_THROW((sc::DruckerPrager<double>{35}.validate()));
+}
+
+TYPED_TEST(PlasticityTest, DruckerPragerTensionReturnsToTip) {
+  constexpr int D = TypeParam::value;
+  const sc::DruckerPrager<double> dp;
+  std::mt19937 rng(23);
+  std::uniform_real_distribution<double> u(0.98, 1.1);
+  for (int k = 0; k < 100; ++k) {
+    Eigen::Matrix<double, D, 1> s;
+    for (int i = 0; i < D; ++i) s(i) = u(rng);
+    if (s.prod() <= 1) continue;  // tr(log s) > 0: net tension
+    Eigen::Matrix<double, D, D> U = random_rotation<D>(rng), V = random_rotation<D>(rng);
+    Eigen::Matrix<double, D, D> Fe = U * s.asDiagonal() * V.transpose();
+    double state = 0.25;
+    EXPECT_TRUE(dp.project(Fe, state, kMu, kLambda));
+    // Fe is the rotation U V^T: singular values 1, stress zero (the apex of the cone).
+    EXPECT_LT((Fe - U * V.transpose()).norm(), kTol);
+    EXPECT_LT((Fe.transpose() * Fe - Eigen::Matrix<double, D, D>::Identity()).norm(), kTol);
+    EXPECT_NEAR(state, 0.25 + s.array().log().matrix().norm(), kTol);
+  }
+}
+
+TYPED_TEST(PlasticityTest, DruckerPragerCompressionWithShearLandsOnCone) {
+  constexpr int D = TypeParam::value;
+  const sc::DruckerPrager<double> dp;
+  std::mt19937 rng(24);
+  std::uniform_real_distribution<double> u(-0.15, 0.15);
+  int on_cone = 0;
+  for (int k = 0; k < 300; ++k) {
+    Eigen::Matrix<double, D, 1> eps;
+    for (int i = 0; i < D; ++i) eps(i) = u(rng);
+    eps.array() -= 0.03;  // bias to compression
+    if (eps.sum() >= 0) continue;
+    const Eigen::Matrix<double, D, 1> s = eps.array().exp().matrix();
+    Eigen::Matrix<double, D, D> Fe = with_singular_values<D>(s, rng);
+    const Eigen::Matrix<double, D, D> before = Fe;
+    const Eigen::Matrix<double, D, 1> tau0 = principal_tau<D>(Fe);
+    const double scale = tau0.norm();
+    double state = 0;
+    const bool yielded = dp.project(Fe, state, kMu, kLambda);
+    EXPECT_EQ(yielded, dp.yield_function(tau0) > 0);
+    if (!yielded) {
+      EXPECT_EQ(Fe, before);
+      EXPECT_EQ(state, 0);
+      continue;
+    }
+    ++on_cone;
+    const Eigen::Matrix<double, D, 1> tau = principal_tau<D>(Fe);
+    EXPECT_NEAR(dp.yield_function(tau), 0, kTol * scale);  // on the cone
+    EXPECT_NEAR(Fe.determinant(), before.determinant(), kTol);  // the cone return keeps tr(eps)
+    // delta_gamma = y(tau0) / (2 mu) (the return map in strain units).
+    EXPECT_NEAR(state, dp.yield_function(tau0) / (2 * kMu), kTol);
+    // Projecting again changes nothing beyond round-off.
+    const Eigen::Matrix<double, D, D> once = Fe;
+    dp.project(Fe, state, kMu, kLambda);
+    EXPECT_LT((Fe - once).norm(), kTol);
+  }
+  EXPECT_GT(on_cone, 50);
+}
+
+TYPED_TEST(PlasticityTest, DruckerPragerInsideIsUnchanged) {
+  constexpr int D = TypeParam::value;
+  const sc::DruckerPrager<double> dp;
+  std::mt19937 rng(25);
+  // Pure compression (no shear) is always inside the cone.
+  Eigen::Matrix<double, D, 1> s;
+  s.setConstant(0.95);
+  Eigen::Matrix<double, D, D> Fe = with_singular_values<D>(s, rng);
+  const Eigen::Matrix<double, D, D> before = Fe;
+  double state = 0;
+  EXPECT_FALSE(dp.project(Fe, state, kMu, kLambda));
+  EXPECT_EQ(Fe, before);
+  EXPECT_EQ(state, 0);
+}
+
+TEST(DruckerPrager, InvertedFeIsUninverted) {
+  const sc::DruckerPrager<double> dp;
+  Eigen::Matrix3d Fe = Eigen::Vector3d(1.0, 0.9, -0.2).asDiagonal();
+  double state = 0;
+  EXPECT_TRUE(dp.project(Fe, state, kMu, kLambda));
+  EXPECT_TRUE(Fe.allFinite());
+  EXPECT_GT(Fe.determinant(), 0);
+  EXPECT_LE(dp.yield_function(principal_tau<3>(Fe)), kTol * kMu);
+}
+
+// --- von Mises -------------------------------------------------------------------------------
+
+TYPED_TEST(PlasticityTest, VonMisesReturnsToSurfaceAtConstantVolume) {
+  constexpr int D = TypeParam::value;
+  const sc::VonMises<double> vm{0.5};  // tau_y
+  std::mt19937 rng(26);
+  std::uniform_real_distribution<double> u(-0.2, 0.2);
+  int yielded_count = 0;
+  for (int k = 0; k < 300; ++k) {
+    Eigen::Matrix<double, D, 1> eps;
+    for (int i = 0; i < D; ++i) eps(i) = u(rng);
+    Eigen::Matrix<double, D, D> Fe = with_singular_values<D>(eps.array().exp().matrix(), rng);
+    const Eigen::Matrix<double, D, D> before = Fe;
+    const Eigen::Matrix<double, D, 1> tau0 = principal_tau<D>(Fe);
+    double state = 0;
+    const bool yielded = vm.project(Fe, state, kMu);
+    EXPECT_EQ(yielded, vm.yield_function(tau0) > 0);
+    if (!yielded) {
+      EXPECT_EQ(Fe, before);
+      continue;
+    }
+    ++yielded_count;
+    EXPECT_NEAR(vm.yield_function(principal_tau<D>(Fe)), 0, kTol * vm.yield_stress);
+    EXPECT_NEAR(Fe.determinant(), before.determinant(), kTol);
+    // Equivalent plastic strain sqrt(2/3) delta_gamma, delta_gamma = y(tau0) / (2 mu).
+    EXPECT_NEAR(state, std::sqrt(2.0 / 3.0) * vm.yield_function(tau0) / (2 * kMu), kTol);
+  }
+  EXPECT_GT(yielded_count, 50);
+}
+
+TEST(VonMises, PureShearAnalytic) {
+  // Fe = diag(e^a, e^-a, 1): eps^ = (a, -a, 0), ||dev tau|| = 2 mu a sqrt(2). On return,
+  // ||dev tau|| = sqrt(2/3) tau_y, so the remaining shear strain is a' = tau_y / (2 sqrt(3) mu).
+  const double tau_y = 0.6, a = 0.2;
+  const sc::VonMises<double> vm{tau_y};
+  Eigen::Matrix3d Fe = Eigen::Vector3d(std::exp(a), std::exp(-a), 1).asDiagonal();
+  double state = 0;
+  EXPECT_TRUE(vm.project(Fe, state, kMu));
+  const double a_new = tau_y / (2 * std::sqrt(3.0) * kMu);
+  EXPECT_NEAR(Fe(0, 0), std::exp(a_new), 1e-14);
+  EXPECT_NEAR(Fe(1, 1), std::exp(-a_new), 1e-14);
+  EXPECT_NEAR(Fe(2, 2), 1, 1e-14);
+  EXPECT_NEAR(state, std::sqrt(2.0 / 3.0) * std::sqrt(2.0) * (a - a_new), 1e-14);
+}
+
+TEST(Plasticity, FloatInstantiation) {
+  // The engine also runs in float; the same projections must compile and land on the surface
+  // to float precision (1e-4 relative: a few float eps amplified by log/exp of O(0.1) strains).
+  const sc::DruckerPrager<float> dp;
+  Eigen::Matrix3f Fe = Eigen::Vector3f(0.8f, 1.15f, 0.97f).asDiagonal();  // shear beyond the cone
+  float state = 0;
+  EXPECT_TRUE(dp.project(Fe, state, float(kMu), float(kLambda)));
+  const Eigen::Vector3d tau = principal_tau<3>(Fe.cast<double>());
+  EXPECT_NEAR(sc::DruckerPrager<double>{}.yield_function(tau), 0, 1e-4 * tau.norm());
+  const sc::VonMises<float> vm{0.5f};
+  Eigen::Matrix2f G = Eigen::Vector2f(1.2f, 0.8f).asDiagonal();
+  EXPECT_TRUE(vm.project(G, state, float(kMu)));
+  const sc::SnowPlasticity<float> snow;
+  float Jp = 1;
+  EXPECT_TRUE(snow.project(G, Jp));
+}
+
+}  // namespace

@@ -1,0 +1,326 @@
+// Tests for constitutive/svd.h: the rotation-variant SVD and polar decomposition, 2x2 and 3x3,
+// float and double, against their defining properties and against Eigen::JacobiSVD.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <Eigen/SVD>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <vector>
+
+#include "slurry/constitutive/svd.h"
+
+namespace {
+
+using slurry::constitutive::polar;
+using slurry::constitutive::svd;
+
+template <class T, int D>
+struct Case {
+  using Scalar = T;
+  static constexpr int dim = D;
+};
+
+/// Relative tolerance of every identity checked here. A backward-stable SVD gets
+/// ||U S V^T - F|| ~ c eps ||F|| with c ~ 10 (measured: 3e-15 in double, 1.7e-6 in float over
+/// 1e5 matrices of every kind below). 1e-12 (double) and 2e-5 (float) leave two orders of
+/// margin while still failing for an unconverged method (e.g. McAdams' 4 approximate sweeps:
+/// 2e-3 in the worst case).
+template <class T>
+double tol() {
+  return std::is_same<T, float>::value ? 2e-5 : 1e-12;
+}
+
+template <int D>
+Eigen::Matrix<double, D, D> random_rotation(std::mt19937& rng);
+
+template <>
+Eigen::Matrix2d random_rotation<2>(std::mt19937& rng) {
+  std::uniform_real_distribution<double> angle(-M_PI, M_PI);
+  return Eigen::Rotation2Dd(angle(rng)).toRotationMatrix();
+}
+
+template <>
+Eigen::Matrix3d random_rotation<3>(std::mt19937& rng) {
+  std::normal_distribution<double> n;
+  Eigen::Quaterniond q(n(rng), n(rng), n(rng), n(rng));
+  return q.normalized().toRotationMatrix();
+}
+
+/// R1 diag(s) R2 with random rotations, computed in double.
+template <int D>
+Eigen::Matrix<double, D, D> with_singular_values(const Eigen::Matrix<double, D, 1>& s,
+                                                 std::mt19937& rng) {
+  return random_rotation<D>(rng) * s.asDiagonal() * random_rotation<D>(rng).transpose();
+}
+
+/// Checks every property of the decomposition of F (given in double, rounded to T) and returns
+/// the relative reconstruction error.
+template <class T, int D>
+double check_svd(const Eigen::Matrix<double, D, D>& F_in, const char* what) {
+  using Mat = Eigen::Matrix<T, D, D>;
+  using MatD = Eigen::Matrix<double, D, D>;
+  const Mat F = F_in.template cast<T>();
+  const MatD Fd = F.template cast<double>();  // the matrix actually decomposed
+  Mat U, V;
+  Eigen::Matrix<T, D, 1> sigma;
+  svd(F, U, sigma, V);
+  const MatD Ud = U.template cast<double>(), Vd = V.template cast<double>();
+  const Eigen::Matrix<double, D, 1> s = sigma.template cast<double>();
+  const double scale = std::max(Fd.norm(), std::numeric_limits<double>::min());
+  const double t = tol<T>();
+
+  const double rec = (Ud * s.asDiagonal() * Vd.transpose() - Fd).norm() / scale;
+  EXPECT_LT(rec, t) << what << ": reconstruction\nF =\n" << Fd;
+  EXPECT_LT((Ud.transpose() * Ud - MatD::Identity()).norm(), t) << what << ": U orthogonal";
+  EXPECT_LT((Vd.transpose() * Vd - MatD::Identity()).norm(), t) << what << ": V orthogonal";
+  EXPECT_NEAR(Ud.determinant(), 1.0, t) << what << ": det U";
+  EXPECT_NEAR(Vd.determinant(), 1.0, t) << what << ": det V";
+
+  // Order: sigma_0 >= ... >= sigma_{D-2} >= |sigma_{D-1}|, all but the last non-negative.
+  const double slack = t * scale;
+  for (int i = 0; i + 1 < D; ++i) {
+    EXPECT_GE(s(i), -slack) << what << ": sigma_" << i << " negative";
+    EXPECT_GE(s(i) + slack, std::abs(s(i + 1))) << what << ": order at " << i;
+  }
+  // Values: the magnitudes agree with Eigen's SVD of the same matrix (in double).
+  Eigen::JacobiSVD<MatD> ref(Fd);
+  for (int i = 0; i < D; ++i)
+    EXPECT_NEAR(std::abs(s(i)), ref.singularValues()(i), slack) << what << ": sigma_" << i;
+  // Sign: the last singular value carries the sign of det F, whenever that sign is not lost in
+  // round-off (|sigma_min| well above eps sigma_max).
+  const double noise = 100 * std::numeric_limits<T>::epsilon() * ref.singularValues()(0);
+  if (ref.singularValues()(D - 1) > noise) {
+    EXPECT_EQ(s(D - 1) < 0, Fd.determinant() < 0) << what << ": sign of sigma_last\nF =\n" << Fd;
+  }
+  return rec;
+}
+
+template <class T, int D>
+void check_polar(const Eigen::Matrix<double, D, D>& F_in, const char* what) {
+  using Mat = Eigen::Matrix<T, D, D>;
+  using MatD = Eigen::Matrix<double, D, D>;
+  const Mat F = F_in.template cast<T>();
+  const MatD Fd = F.template cast<double>();
+  Mat R, S;
+  polar(F, R, S);
+  const MatD Rd = R.template cast<double>(), Sd = S.template cast<double>();
+  const double scale = std::max(Fd.norm(), std::numeric_limits<double>::min());
+  const double t = tol<T>();
+  EXPECT_LT((Rd * Sd - Fd).norm() / scale, t) << what << ": R S = F";
+  EXPECT_LT((Rd.transpose() * Rd - MatD::Identity()).norm(), t) << what << ": R orthogonal";
+  EXPECT_NEAR(Rd.determinant(), 1.0, t) << what << ": det R";
+  EXPECT_LT((Sd - Sd.transpose()).norm() / scale, t) << what << ": S symmetric";
+  // Consistency with the SVD: R = U V^T, S = V diag(sigma) V^T. R is unique where F has at most
+  // one zero singular value and sigma_{D-2} + sigma_{D-1} != 0; the inputs below are such.
+  Mat U, V;
+  Eigen::Matrix<T, D, 1> sigma;
+  svd(F, U, sigma, V);
+  const MatD UVt = (U * V.transpose()).template cast<double>();
+  EXPECT_LT((UVt - Rd).norm(), 100 * t) << what << ": R = U V^T";
+}
+
+template <class C>
+class SvdTest : public ::testing::Test {};
+using Cases = ::testing::Types<Case<float, 2>, Case<double, 2>, Case<float, 3>, Case<double, 3>>;
+TYPED_TEST_SUITE(SvdTest, Cases);
+
+TYPED_TEST(SvdTest, RandomMatrices) {
+  using T = typename TypeParam::Scalar;
+  constexpr int D = TypeParam::dim;
+  std::mt19937 rng(1);
+  std::uniform_real_distribution<double> u(-1, 1);
+  double worst = 0;
+  for (int k = 0; k < 2000; ++k) {
+    Eigen::Matrix<double, D, D> F;
+    for (int i = 0; i < D * D; ++i) F(i) = u(rng);
+    worst = std::max(worst, check_svd<T, D>(F, "random"));
+    if (::testing::Test::HasFailure()) break;
+  }
+  ::testing::Test::RecordProperty("worst_reconstruction", std::to_string(worst));
+}
+
+TYPED_TEST(SvdTest, DeformationGradientsNearRotations) {
+  // The MPM hot case: F = R1 diag(1 + small) R2; singular values nearly repeated.
+  using T = typename TypeParam::Scalar;
+  constexpr int D = TypeParam::dim;
+  std::mt19937 rng(2);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (double spread : {1e-1, 1e-3, 1e-6, 1e-9}) {
+    for (int k = 0; k < 300; ++k) {
+      Eigen::Matrix<double, D, 1> s;
+      for (int i = 0; i < D; ++i) s(i) = 1 + spread * u(rng);
+      check_svd<T, D>(with_singular_values<D>(s, rng), "near rotation");
+      check_polar<T, D>(with_singular_values<D>(s, rng), "near rotation");
+    }
+  }
+}
+
+TYPED_TEST(SvdTest, NearlySingular) {
+  using T = typename TypeParam::Scalar;
+  constexpr int D = TypeParam::dim;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(0.5, 2);
+  for (int k = 0; k < 500; ++k) {
+    Eigen::Matrix<double, D, 1> s;
+    for (int i = 0; i < D; ++i) s(i) = u(rng);
+    s(D - 1) = 1e-8;
+    check_svd<T, D>(with_singular_values<D>(s, rng), "one singular value 1e-8");
+    if (D == 3) {
+      // Two small singular values of different sizes: F^T F cannot separate them, the final
+      // 2x2 step of the 3x3 SVD must.
+      s(1) = 1e-4 * u(rng);
+      s(2) = 1e-7 * u(rng);
+      check_svd<T, D>(with_singular_values<D>(s, rng), "two small singular values");
+    }
+  }
+}
+
+TYPED_TEST(SvdTest, SingularAndRankOne) {
+  using T = typename TypeParam::Scalar;
+  constexpr int D = TypeParam::dim;
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (int k = 0; k < 500; ++k) {
+    Eigen::Matrix<double, D, D> F;
+    for (int i = 0; i < D * D; ++i) F(i) = u(rng);
+    F.row(D - 1) = F.row(0);  // exactly singular: two equal rows
+    check_svd<T, D>(F, "two equal rows");
+    Eigen::Matrix<double, D, 1> a, b;
+    for (int i = 0; i < D; ++i) {
+      a(i) = u(rng);
+      b(i) = u(rng);
+    }
+    check_svd<T, D>(a * b.transpose(), "rank one");
+    check_svd<T, D>(Eigen::Matrix<double, D, D>::Zero(), "zero");
+  }
+  // Exactly representable rank deficiency, with zero columns and rows.
+  Eigen::Matrix<double, D, D> F = Eigen::Matrix<double, D, D>::Zero();
+  F(0, D - 1) = 2;
+  check_svd<T, D>(F, "single entry");
+  Eigen::Matrix<T, D, D> U, V;
+  Eigen::Matrix<T, D, 1> sigma;
+  svd<T>(F.template cast<T>(), U, sigma, V);
+  EXPECT_EQ(sigma(0), T(2));
+  for (int i = 1; i < D; ++i) EXPECT_EQ(sigma(i), T(0));
+}
+
+TYPED_TEST(SvdTest, Inverted) {
+  using T = typename TypeParam::Scalar;
+  constexpr int D = TypeParam::dim;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(0.3, 3);
+  for (int k = 0; k < 1000; ++k) {
+    Eigen::Matrix<double, D, 1> s;
+    for (int i = 0; i < D; ++i) s(i) = u(rng);
+    s(k % D) *= -1;  // one negative factor anywhere: det < 0
+    const Eigen::Matrix<double, D, D> F = with_singular_values<D>(s, rng);
+    ASSERT_LT(F.determinant(), 0);
+    check_svd<T, D>(F, "inverted");
+    check_polar<T, D>(F, "inverted");
+    Eigen::Matrix<T, D, D> U, V;
+    Eigen::Matrix<T, D, 1> sigma;
+    svd<T>(F.template cast<T>(), U, sigma, V);
+    EXPECT_LT(sigma(D - 1), 0);
+  }
+}
+
+TYPED_TEST(SvdTest, IdentityRotationsAndReflections) {
+  using T = typename TypeParam::Scalar;
+  constexpr int D = TypeParam::dim;
+  using MatD = Eigen::Matrix<double, D, D>;
+  std::mt19937 rng(6);
+  check_svd<T, D>(MatD::Identity(), "identity");
+  check_svd<T, D>(-MatD::Identity(), "minus identity");
+  for (int k = 0; k < 200; ++k) {
+    const MatD R = random_rotation<D>(rng);
+    check_svd<T, D>(R, "rotation");
+    check_polar<T, D>(R, "rotation");
+    Eigen::Matrix<T, D, D> U, V, Rp, S;
+    Eigen::Matrix<T, D, 1> sigma;
+    svd<T>(R.template cast<T>(), U, sigma, V);
+    for (int i = 0; i < D; ++i) EXPECT_NEAR(sigma(i), 1, tol<T>());
+    // A reflection: det = -1, singular values (1, ..., 1, -1).
+    MatD Q = R;
+    Q.col(0) *= -1;
+    svd<T>(Q.template cast<T>(), U, sigma, V);
+    for (int i = 0; i + 1 < D; ++i) EXPECT_NEAR(sigma(i), 1, tol<T>());
+    EXPECT_NEAR(sigma(D - 1), -1, tol<T>());
+    check_svd<T, D>(Q, "reflection");
+  }
+  // Identity: exact.
+  Eigen::Matrix<T, D, D> U, V;
+  Eigen::Matrix<T, D, 1> sigma;
+  svd<T>(Eigen::Matrix<T, D, D>::Identity(), U, sigma, V);
+  EXPECT_EQ(sigma, (Eigen::Matrix<T, D, 1>::Ones()));
+}
+
+TYPED_TEST(SvdTest, RepeatedSingularValues) {
+  using T = typename TypeParam::Scalar;
+  constexpr int D = TypeParam::dim;
+  std::mt19937 rng(7);
+  std::vector<Eigen::Matrix<double, D, 1>> cases;
+  Eigen::Matrix<double, D, 1> s;
+  s.setConstant(2);
+  cases.push_back(s);
+  s(D - 1) = 0.5;
+  cases.push_back(s);
+  s.setConstant(0.5);
+  s(0) = 3;
+  cases.push_back(s);
+  s.setConstant(2);
+  s(D - 1) = -2;
+  cases.push_back(s);  // inverted, |sigma| all equal
+  for (const auto& c : cases) {
+    check_svd<T, D>(Eigen::Matrix<double, D, D>(c.asDiagonal()), "diagonal repeated");
+    for (int k = 0; k < 100; ++k) check_svd<T, D>(with_singular_values<D>(c, rng), "repeated");
+  }
+}
+
+TYPED_TEST(SvdTest, Scale) {
+  // Deformation gradients are O(1), but nothing in the method depends on the scale within the
+  // documented range.
+  using T = typename TypeParam::Scalar;
+  constexpr int D = TypeParam::dim;
+  std::mt19937 rng(8);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (double scale : {1e-6, 1e-3, 1e3, 1e6}) {
+    for (int k = 0; k < 100; ++k) {
+      Eigen::Matrix<double, D, D> F;
+      for (int i = 0; i < D * D; ++i) F(i) = scale * u(rng);
+      check_svd<T, D>(F, "scaled");
+    }
+  }
+}
+
+TEST(Svd2x2, KnownDecomposition) {
+  // F = Rot(a) diag(3, -1) Rot(b)^T: det < 0, so sigma = (3, -1) exactly as built.
+  const double a = 0.3, b = -1.1;
+  const Eigen::Matrix2d Ra = Eigen::Rotation2Dd(a).toRotationMatrix();
+  const Eigen::Matrix2d Rb = Eigen::Rotation2Dd(b).toRotationMatrix();
+  const Eigen::Matrix2d F = Ra * Eigen::Vector2d(3, -1).asDiagonal() * Rb.transpose();
+  Eigen::Matrix2d U, V;
+  Eigen::Vector2d sigma;
+  svd(F, U, sigma, V);
+  EXPECT_NEAR(sigma(0), 3, 1e-14);
+  EXPECT_NEAR(sigma(1), -1, 1e-14);
+  // With distinct |sigma|, U and V are unique up to a common sign of each column pair; as
+  // rotations in 2D, up to a common rotation by pi.
+  const double sign = U.col(0).dot(Ra.col(0)) > 0 ? 1 : -1;
+  EXPECT_LT((U - sign * Ra).norm(), 1e-14);
+  EXPECT_LT((V - sign * Rb).norm(), 1e-14);
+}
+
+TEST(Polar2x2, RotationAngle) {
+  // R is the rotation by atan2(F10 - F01, F00 + F11).
+  Eigen::Matrix2d F;
+  F << 1.5, -0.4, 0.9, 0.7;
+  Eigen::Matrix2d R, S;
+  polar(F, R, S);
+  const double angle = std::atan2(F(1, 0) - F(0, 1), F(0, 0) + F(1, 1));
+  EXPECT_LT((R - Eigen::Rotation2Dd(angle).toRotationMatrix()).norm(), 1e-15);
+  EXPECT_LT((R * S - F).norm(), 1e-15);
+}
+
+}  // namespace
