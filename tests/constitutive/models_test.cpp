@@ -21,6 +21,8 @@
 
 namespace {
 
+constexpr double kPi = 3.14159265358979323846;
+
 namespace sc = slurry::constitutive;
 
 // Stiffnesses of order one: every check below is relative, and mu != lambda catches a swap.
@@ -54,7 +56,7 @@ template <int D>
 Eigen::Matrix<double, D, D> random_rotation(std::mt19937& rng);
 template <>
 Eigen::Matrix2d random_rotation<2>(std::mt19937& rng) {
-  std::uniform_real_distribution<double> angle(-M_PI, M_PI);
+  std::uniform_real_distribution<double> angle(-kPi, kPi);
   return Eigen::Rotation2Dd(angle(rng)).toRotationMatrix();
 }
 template <>
@@ -96,13 +98,12 @@ std::vector<Eigen::Matrix<double, D, D>> test_deformations() {
 template <class M>
 class ModelTest : public ::testing::Test {};
 
-using Models =
-    ::testing::Types<sc::FixedCorotated<double, 2>, sc::FixedCorotated<double, 3>,
-                     sc::CorotatedLinear<double, 2>, sc::CorotatedLinear<double, 3>,
-                     sc::NeoHookean<double, 2>, sc::NeoHookean<double, 3>,
-                     sc::StVenantKirchhoff<double, 2>, sc::StVenantKirchhoff<double, 3>,
-                     sc::HenckyStVK<double, 2>, sc::HenckyStVK<double, 3>,
-                     sc::WeaklyCompressibleFluid<double, 2>, sc::WeaklyCompressibleFluid<double, 3>>;
+using Models = ::testing::Types<
+    sc::FixedCorotated<double, 2>, sc::FixedCorotated<double, 3>, sc::CorotatedLinear<double, 2>,
+    sc::CorotatedLinear<double, 3>, sc::NeoHookean<double, 2>, sc::NeoHookean<double, 3>,
+    sc::StVenantKirchhoff<double, 2>, sc::StVenantKirchhoff<double, 3>, sc::HenckyStVK<double, 2>,
+    sc::HenckyStVK<double, 3>, sc::WeaklyCompressibleFluid<double, 2>,
+    sc::WeaklyCompressibleFluid<double, 3>>;
 TYPED_TEST_SUITE(ModelTest, Models);
 
 // Central differences with step h have truncation error ~h^2 |psi'''| ~ 1e-10 and round-off
@@ -124,7 +125,10 @@ TYPED_TEST(ModelTest, PiolaIsEnergyGradient) {
       P_fd(i) = (model.energy(Fp) - model.energy(Fm)) / (2 * kStep);
     }
     const Eigen::Matrix<double, D, D> P = model.piola(F);
-    EXPECT_LT((P - P_fd).norm(), kFdTol * P.norm()) << "F =\n" << F << "\nP =\n" << P << "\nFD =\n" << P_fd;
+    EXPECT_LT((P - P_fd).norm(), kFdTol * P.norm()) << "F =\n"
+                                                    << F << "\nP =\n"
+                                                    << P << "\nFD =\n"
+                                                    << P_fd;
   }
 }
 
@@ -142,7 +146,10 @@ TYPED_TEST(ModelTest, DifferentialMatchesFiniteDifferenceOfPiola) {
       const Eigen::Matrix<double, D, D> fd =
           (model.piola(F + kStep * dF) - model.piola(F - kStep * dF)) / (2 * kStep);
       const Eigen::Matrix<double, D, D> dP = model.dP(F, dF);
-      EXPECT_LT((dP - fd).norm(), kFdTol * dP.norm()) << "F =\n" << F << "\ndP =\n" << dP << "\nFD =\n" << fd;
+      EXPECT_LT((dP - fd).norm(), kFdTol * dP.norm()) << "F =\n"
+                                                      << F << "\ndP =\n"
+                                                      << dP << "\nFD =\n"
+                                                      << fd;
     }
   }
 }
@@ -281,7 +288,8 @@ TEST(FixedCorotated, InvertedStressPushesBackTowardRest) {
   const sc::FixedCorotated<double, 3> model{kMu, kLambda};
   std::mt19937 rng(15);
   for (int k = 0; k < 10; ++k) {
-    const Eigen::Matrix3d F = random_rotation<3>(rng) * Eigen::Vector3d(1.2, 0.9, -0.3).asDiagonal() *
+    const Eigen::Matrix3d F = random_rotation<3>(rng) *
+                              Eigen::Vector3d(1.2, 0.9, -0.3).asDiagonal() *
                               random_rotation<3>(rng).transpose();
     Eigen::Matrix3d P_fd;
     for (int i = 0; i < 9; ++i) {
@@ -313,11 +321,13 @@ TEST(CorotatedLinear, EnergyOfPrincipalStretch) {
 }
 
 TEST(HenckyStVK, KirchhoffIsLinearInLogStrain) {
-  // Uniaxial stretch a along x: eps = (log a, 0, 0), tau = diag(2 mu + lambda, lambda, lambda) log a.
+  // Uniaxial stretch a along x: eps = (log a, 0, 0), tau = diag(2 mu + lambda, lambda, lambda) log
+  // a.
   const sc::HenckyStVK<double, 3> model{kMu, kLambda};
   const double a = 1.7;
   const Eigen::Matrix3d tau = model.kirchhoff(Eigen::Vector3d(a, 1, 1).asDiagonal());
-  const Eigen::Vector3d expected = std::log(a) * Eigen::Vector3d(2 * kMu + kLambda, kLambda, kLambda);
+  const Eigen::Vector3d expected =
+      std::log(a) * Eigen::Vector3d(2 * kMu + kLambda, kLambda, kLambda);
   EXPECT_LT((tau - Eigen::Matrix3d(expected.asDiagonal())).norm(), 1e-14);
 }
 
@@ -358,7 +368,8 @@ TEST(WeaklyCompressibleFluid, EquationOfState) {
   // The matrix versions use J = det F: tau = -J p I.
   const Eigen::Matrix3d F = Eigen::Vector3d(0.9, 1.0, 0.95).asDiagonal();
   const double J = 0.9 * 0.95;
-  EXPECT_LT((fluid.kirchhoff(F) + J * fluid.pressure(J) * Eigen::Matrix3d::Identity()).norm(), 1e-13);
+  EXPECT_LT((fluid.kirchhoff(F) + J * fluid.pressure(J) * Eigen::Matrix3d::Identity()).norm(),
+            1e-13);
 }
 
 }  // namespace

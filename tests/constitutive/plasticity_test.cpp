@@ -13,6 +13,8 @@
 
 namespace {
 
+constexpr double kPi = 3.14159265358979323846;
+
 namespace sc = slurry::constitutive;
 
 constexpr double kMu = 3.0;
@@ -22,7 +24,7 @@ template <int D>
 Eigen::Matrix<double, D, D> random_rotation(std::mt19937& rng);
 template <>
 Eigen::Matrix2d random_rotation<2>(std::mt19937& rng) {
-  std::uniform_real_distribution<double> angle(-M_PI, M_PI);
+  std::uniform_real_distribution<double> angle(-kPi, kPi);
   return Eigen::Rotation2Dd(angle(rng)).toRotationMatrix();
 }
 template <>
@@ -172,7 +174,7 @@ TYPED_TEST(PlasticityTest, DruckerPragerCompressionWithShearLandsOnCone) {
     }
     ++on_cone;
     const Eigen::Matrix<double, D, 1> tau = principal_tau<D>(Fe);
-    EXPECT_NEAR(dp.yield_function(tau), 0, kTol * scale);  // on the cone
+    EXPECT_NEAR(dp.yield_function(tau), 0, kTol * scale);       // on the cone
     EXPECT_NEAR(Fe.determinant(), before.determinant(), kTol);  // the cone return keeps tr(eps)
     // delta_gamma = y(tau0) / (2 mu) (the return map in strain units).
     EXPECT_NEAR(state, dp.yield_function(tau0) / (2 * kMu), kTol);

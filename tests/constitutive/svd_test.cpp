@@ -13,6 +13,8 @@
 
 namespace {
 
+constexpr double kPi = 3.14159265358979323846;
+
 using slurry::constitutive::polar;
 using slurry::constitutive::svd;
 
@@ -37,7 +39,7 @@ Eigen::Matrix<double, D, D> random_rotation(std::mt19937& rng);
 
 template <>
 Eigen::Matrix2d random_rotation<2>(std::mt19937& rng) {
-  std::uniform_real_distribution<double> angle(-M_PI, M_PI);
+  std::uniform_real_distribution<double> angle(-kPi, kPi);
   return Eigen::Rotation2Dd(angle(rng)).toRotationMatrix();
 }
 

@@ -33,13 +33,11 @@ struct WeaklyCompressibleFluid {
   using Mat = Eigen::Matrix<T, Dim, Dim>;
   static constexpr int dim = Dim;
 
-  T bulk_modulus;   ///< K [Pa]
-  T gamma = T(7);   ///< stiffness exponent (dimensionless)
+  T bulk_modulus;  ///< K [Pa]
+  T gamma = T(7);  ///< stiffness exponent (dimensionless)
 
   /// Pressure p(J) = K/gamma (J^-gamma - 1).
-  T pressure(T J) const {
-    return bulk_modulus / gamma * (std::pow(floor_J(J), -gamma) - T(1));
-  }
+  T pressure(T J) const { return bulk_modulus / gamma * (std::pow(floor_J(J), -gamma) - T(1)); }
 
   /// J p(J), so that the Kirchhoff stress is tau = -J p I.
   T kirchhoff_pressure(T J) const { return J * pressure(J); }

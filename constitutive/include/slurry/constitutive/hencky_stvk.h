@@ -82,8 +82,8 @@ struct HenckyStVK {
     Mat hessian, divided;
     for (int i = 0; i < Dim; ++i) {
       for (int j = 0; j < Dim; ++j) {
-        hessian(i, j) = ((i == j ? T(2) * mu : T(0)) + lambda) / (s(i) * s(j)) -
-                        (i == j ? p(i) / s(i) : T(0));
+        hessian(i, j) =
+            ((i == j ? T(2) * mu : T(0)) + lambda) / (s(i) * s(j)) - (i == j ? p(i) / s(i) : T(0));
         divided(i, j) = T(2) * mu * divided_log_over_x(s(i), s(j)) - lambda * tr / (s(i) * s(j));
       }
     }
@@ -111,9 +111,7 @@ struct HenckyStVK {
     return z == T(0) ? T(1) / b : std::log1p(z) / (z * b);
   }
   /// (log(a)/a - log(b)/b) / (a - b) = (b D[log](a, b) - log b) / (a b).
-  static T divided_log_over_x(T a, T b) {
-    return (b * divided_log(a, b) - std::log(b)) / (a * b);
-  }
+  static T divided_log_over_x(T a, T b) { return (b * divided_log(a, b) - std::log(b)) / (a * b); }
 };
 
 }  // namespace slurry::constitutive

@@ -21,7 +21,8 @@ template <class T>
 inline Lame<T> lame_from_young(T youngs_modulus, T poisson_ratio) {
   if (!(youngs_modulus >= T(0)) || !std::isfinite(youngs_modulus)) {
     std::ostringstream msg;
-    msg << "lame_from_young: youngs_modulus = " << youngs_modulus << ", expected a finite value >= 0";
+    msg << "lame_from_young: youngs_modulus = " << youngs_modulus
+        << ", expected a finite value >= 0";
     throw std::invalid_argument(msg.str());
   }
   if (!(poisson_ratio > T(-1) && poisson_ratio < T(0.5))) {

@@ -56,12 +56,12 @@ inline void require_in(const char* model, const char* field, T value, T lo, T hi
 /// compacted, Jp < 1, and softens when it fractures, Jp > 1).
 template <class T>
 struct SnowPlasticity {
-
   T critical_compression = T(2.5e-2);  ///< theta_c, dimensionless
   T critical_stretch = T(7.5e-3);      ///< theta_s, dimensionless
   T hardening = T(10);                 ///< xi, dimensionless
   /// Upper bound of hardening_factor(): exp(xi (1 - Jp)) grows without bound under sustained
-  /// compaction, which would make the explicit time step collapse.
+  /// compaction, and the explicit time step shrinks with 1/sqrt(factor). The default, 20, allows
+  /// compaction to Jp = 0.7 at xi = 10 before capping.
   T max_hardening = T(20);
 
   /// Clamps the singular values of Fe into the window and updates Jp (starts at 1) so that
@@ -81,9 +81,9 @@ struct SnowPlasticity {
     return true;
   }
 
-  /// exp(xi (1 - Jp)), capped at max_hardening.
+  /// exp(xi (1 - Jp)), capped at max_hardening (an overflow to +inf is capped too).
   T hardening_factor(T Jp) const {
-    return std::exp(std::min(hardening * (T(1) - Jp), std::log(max_hardening)));
+    return std::min(std::exp(hardening * (T(1) - Jp)), max_hardening);
   }
 
   /// <= 0 inside the window; otherwise the largest distance of a singular value outside it.
@@ -121,13 +121,12 @@ struct SnowPlasticity {
 ///                      state += delta_gamma.
 template <class T>
 struct DruckerPrager {
-
   T friction_angle = T(30);  ///< phi, in degrees
   /// Singular values of Fe are floored here before taking logs (an inverted or collapsed Fe is
   /// treated as compressed to this stretch along its weakest direction).
   T min_singular_value = T(1e-4);
 
-  /// alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi)).
+  /// alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi)). Evaluated in every project() call (one sin).
   T alpha() const {
     const T s = std::sin(friction_angle * T(3.14159265358979323846) / T(180));
     return std::sqrt(T(2) / T(3)) * T(2) * s / (T(3) - s);
@@ -145,8 +144,7 @@ struct DruckerPrager {
     const T tr = eps.sum();
     const Vec eps_hat = eps.array() - tr / T(Dim);
     const T eps_hat_norm = eps_hat.norm();
-    const T delta_gamma =
-        eps_hat_norm + (T(Dim) * lambda + T(2) * mu) / (T(2) * mu) * tr * alpha();
+    const T delta_gamma = eps_hat_norm + (T(Dim) * lambda + T(2) * mu) / (T(2) * mu) * tr * alpha();
     if (delta_gamma <= T(0)) {
       // Inside the cone. If a singular value was floored, store the floored Fe so that it is
       // the one the elastic stress sees.
@@ -193,7 +191,6 @@ struct DruckerPrager {
 /// sqrt(2/3) delta_gamma.
 template <class T>
 struct VonMises {
-
   T yield_stress;  ///< tau_y [Pa], uniaxial
   /// Floor for singular values before taking logs (see DruckerPrager::min_singular_value).
   T min_singular_value = T(1e-4);

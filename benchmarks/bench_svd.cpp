@@ -1,0 +1,114 @@
+// 3x3 SVD throughput: slurry::constitutive::svd against Eigen::JacobiSVD, float and double,
+// on a pool of deformation-gradient-like matrices (identity plus uniform noise of size 0.3,
+// i.e. rotations, stretches and shears of tens of percent). Counter "svd/s": decompositions per
+// second on one core.
+#include <benchmark/benchmark.h>
+
+#include <Eigen/SVD>
+#include <random>
+#include <vector>
+
+#include "slurry/constitutive/svd.h"
+
+namespace {
+
+constexpr int kPool = 4096;  // 4096 * 9 * 8 B = 288 KiB of doubles: mostly in L2, as in P2G
+
+template <class T>
+std::vector<Eigen::Matrix<T, 3, 3>> make_pool() {
+  std::mt19937 rng(42);
+  std::uniform_real_distribution<double> u(-0.3, 0.3);
+  std::vector<Eigen::Matrix<T, 3, 3>> pool(kPool);
+  for (auto& F : pool) {
+    F.setIdentity();
+    for (int i = 0; i < 9; ++i) F(i) += T(u(rng));
+  }
+  return pool;
+}
+
+template <class T>
+void BM_SlurrySvd3(benchmark::State& state) {
+  const auto pool = make_pool<T>();
+  std::int64_t n = 0;
+  for (auto _ : state) {
+    for (const auto& F : pool) {
+      Eigen::Matrix<T, 3, 3> U, V;
+      Eigen::Matrix<T, 3, 1> sigma;
+      slurry::constitutive::svd(F, U, sigma, V);
+      benchmark::DoNotOptimize(U.data());
+      benchmark::DoNotOptimize(V.data());
+      benchmark::DoNotOptimize(sigma.data());
+    }
+    n += kPool;
+  }
+  state.counters["svd/s"] = benchmark::Counter(double(n), benchmark::Counter::kIsRate);
+}
+
+template <class T>
+void BM_EigenJacobiSvd3(benchmark::State& state) {
+  const auto pool = make_pool<T>();
+  std::int64_t n = 0;
+  for (auto _ : state) {
+    for (const auto& F : pool) {
+      Eigen::JacobiSVD<Eigen::Matrix<T, 3, 3>> svd(F, Eigen::ComputeFullU | Eigen::ComputeFullV);
+      benchmark::DoNotOptimize(svd.matrixU().data());
+      benchmark::DoNotOptimize(svd.matrixV().data());
+      benchmark::DoNotOptimize(svd.singularValues().data());
+    }
+    n += kPool;
+  }
+  state.counters["svd/s"] = benchmark::Counter(double(n), benchmark::Counter::kIsRate);
+}
+
+template <class T>
+void BM_SlurryPolar3(benchmark::State& state) {
+  const auto pool = make_pool<T>();
+  std::int64_t n = 0;
+  for (auto _ : state) {
+    for (const auto& F : pool) {
+      Eigen::Matrix<T, 3, 3> R, S;
+      slurry::constitutive::polar(F, R, S);
+      benchmark::DoNotOptimize(R.data());
+      benchmark::DoNotOptimize(S.data());
+    }
+    n += kPool;
+  }
+  state.counters["svd/s"] = benchmark::Counter(double(n), benchmark::Counter::kIsRate);
+}
+
+template <class T>
+void BM_SlurrySvd2(benchmark::State& state) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(-0.3, 0.3);
+  std::vector<Eigen::Matrix<T, 2, 2>> pool(kPool);
+  for (auto& F : pool) {
+    F.setIdentity();
+    for (int i = 0; i < 4; ++i) F(i) += T(u(rng));
+  }
+  std::int64_t n = 0;
+  for (auto _ : state) {
+    for (const auto& F : pool) {
+      Eigen::Matrix<T, 2, 2> U, V;
+      Eigen::Matrix<T, 2, 1> sigma;
+      slurry::constitutive::svd(F, U, sigma, V);
+      benchmark::DoNotOptimize(U.data());
+      benchmark::DoNotOptimize(V.data());
+      benchmark::DoNotOptimize(sigma.data());
+    }
+    n += kPool;
+  }
+  state.counters["svd/s"] = benchmark::Counter(double(n), benchmark::Counter::kIsRate);
+}
+
+BENCHMARK_TEMPLATE(BM_SlurrySvd3, float);
+BENCHMARK_TEMPLATE(BM_EigenJacobiSvd3, float);
+BENCHMARK_TEMPLATE(BM_SlurrySvd3, double);
+BENCHMARK_TEMPLATE(BM_EigenJacobiSvd3, double);
+BENCHMARK_TEMPLATE(BM_SlurryPolar3, float);
+BENCHMARK_TEMPLATE(BM_SlurryPolar3, double);
+BENCHMARK_TEMPLATE(BM_SlurrySvd2, float);
+BENCHMARK_TEMPLATE(BM_SlurrySvd2, double);
+
+}  // namespace
+
+BENCHMARK_MAIN();
