@@ -1,1 +1,515 @@
-// placeholder: being written
+// Scene files: JSON -> Scene structs, with every key type-checked and range-checked.
+#include "slurry/engine/scene.h"
+
+#include <cmath>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <set>
+#include <sstream>
+#include <utility>
+
+namespace slurry {
+namespace {
+
+using json = nlohmann::json;
+
+template <class E>
+using NameTable = std::vector<std::pair<std::string_view, E>>;
+
+const NameTable<Precision> kPrecision{{"float", Precision::Float}, {"double", Precision::Double}};
+const NameTable<TransferKind> kTransfer{{"pic", TransferKind::PIC},
+                                        {"flip", TransferKind::FLIP},
+                                        {"apic", TransferKind::APIC},
+                                        {"mls", TransferKind::MLS}};
+const NameTable<KernelKind> kKernel{
+    {"linear", KernelKind::Linear}, {"quadratic", KernelKind::Quadratic}, {"cubic", KernelKind::Cubic}};
+const NameTable<Integrator> kIntegrator{{"explicit", Integrator::Explicit}};
+const NameTable<ElasticModel> kElastic{{"corotated_linear", ElasticModel::CorotatedLinear},
+                                       {"fixed_corotated", ElasticModel::FixedCorotated},
+                                       {"neo_hookean", ElasticModel::NeoHookean},
+                                       {"stvk", ElasticModel::StVK},
+                                       {"hencky_stvk", ElasticModel::HenckyStVK},
+                                       {"fluid", ElasticModel::Fluid}};
+const NameTable<PlasticModel> kPlastic{{"none", PlasticModel::None},
+                                       {"snow", PlasticModel::Snow},
+                                       {"drucker_prager", PlasticModel::DruckerPrager},
+                                       {"von_mises", PlasticModel::VonMises}};
+const NameTable<Shape> kShape{{"box", Shape::Box}, {"sphere", Shape::Sphere}, {"cylinder", Shape::Cylinder}};
+const NameTable<Sampling> kSampling{{"regular", Sampling::Regular}, {"jittered", Sampling::Jittered}};
+const NameTable<ColliderShape> kColliderShape{{"half_space", ColliderShape::HalfSpace},
+                                              {"box", ColliderShape::Box},
+                                              {"sphere", ColliderShape::Sphere}};
+const NameTable<Condition> kCondition{
+    {"sticky", Condition::Sticky}, {"slip", Condition::Slip}, {"separate", Condition::Separate}};
+const NameTable<PlyEncoding> kEncoding{{"binary", PlyEncoding::Binary}, {"ascii", PlyEncoding::Ascii}};
+const std::vector<std::string> kAttributes{"position", "velocity", "material", "J", "plastic"};
+
+template <class E>
+std::string_view name_of(const NameTable<E>& table, E value) {
+  for (const auto& [name, v] : table)
+    if (v == value) return name;
+  return "?";
+}
+
+template <class E>
+std::string choices(const NameTable<E>& table) {
+  std::string s;
+  for (const auto& [name, v] : table) s += (s.empty() ? "\"" : ", \"") + std::string(name) + "\"";
+  return s;
+}
+
+std::string fmt_num(double x) {
+  std::ostringstream o;
+  o.precision(12);
+  o << x;
+  return o.str();
+}
+
+std::string dump_short(const json& j) {
+  std::string s = j.dump();
+  return s.size() > 60 ? s.substr(0, 57) + "..." : s;
+}
+
+[[noreturn]] void fail(const std::string& source, const std::string& path, const std::string& what) {
+  throw SceneError(source + ": " + path + ": " + what);
+}
+
+/// Reads one JSON object, remembering which keys were used so that unknown ones are reported.
+class ObjectReader {
+ public:
+  ObjectReader(const json& j, std::string path, const std::string& source, int dim)
+      : j_(j), path_(std::move(path)), source_(source), dim_(dim) {
+    if (!j_.is_object()) fail(source_, path_.empty() ? "(top level)" : path_, "expected an object, got " + dump_short(j_));
+  }
+
+  std::string at(const std::string& key) const { return path_.empty() ? key : path_ + "." + key; }
+  bool has(const std::string& key) const { return j_.contains(key); }
+  const json* raw(const std::string& key) {
+    seen_.insert(key);
+    auto it = j_.find(key);
+    return it == j_.end() ? nullptr : &*it;
+  }
+
+  void number(const std::string& key, double& out) {
+    if (const json* v = raw(key)) {
+      if (!v->is_number()) fail(source_, at(key), "expected a number, got " + dump_short(*v));
+      out = v->get<double>();
+      if (!std::isfinite(out)) fail(source_, at(key), "expected a finite number");
+    }
+  }
+  template <class I>
+  void integer(const std::string& key, I& out) {
+    if (const json* v = raw(key)) {
+      if (!v->is_number_integer()) fail(source_, at(key), "expected an integer, got " + dump_short(*v));
+      if (v->is_number_unsigned())
+        out = static_cast<I>(v->get<std::uint64_t>());
+      else
+        out = static_cast<I>(v->get<std::int64_t>());
+    }
+  }
+  void string(const std::string& key, std::string& out) {
+    if (const json* v = raw(key)) {
+      if (!v->is_string()) fail(source_, at(key), "expected a string, got " + dump_short(*v));
+      out = v->get<std::string>();
+    }
+  }
+  template <class E>
+  void choice(const std::string& key, const NameTable<E>& table, E& out) {
+    if (const json* v = raw(key)) {
+      if (v->is_string())
+        for (const auto& [name, value] : table)
+          if (name == v->get<std::string>()) {
+            out = value;
+            return;
+          }
+      fail(source_, at(key), "expected one of " + choices(table) + ", got " + dump_short(*v));
+    }
+  }
+  void vector(const std::string& key, Eigen::Vector3d& out) {
+    if (const json* v = raw(key)) {
+      if (!v->is_array() || int(v->size()) != dim_)
+        fail(source_, at(key),
+             "expected an array of " + std::to_string(dim_) + " numbers (the scene's dimension), got " +
+                 dump_short(*v));
+      for (int d = 0; d < dim_; ++d) {
+        if (!(*v)[d].is_number())
+          fail(source_, at(key) + "[" + std::to_string(d) + "]", "expected a number, got " + dump_short((*v)[d]));
+        out[d] = (*v)[d].get<double>();
+      }
+      if (dim_ == 2) out[2] = 0;
+    }
+  }
+  void strings(const std::string& key, std::vector<std::string>& out) {
+    if (const json* v = raw(key)) {
+      if (!v->is_array()) fail(source_, at(key), "expected an array of strings, got " + dump_short(*v));
+      out.clear();
+      for (std::size_t i = 0; i < v->size(); ++i) {
+        if (!(*v)[i].is_string())
+          fail(source_, at(key) + "[" + std::to_string(i) + "]", "expected a string, got " + dump_short((*v)[i]));
+        out.push_back((*v)[i].get<std::string>());
+      }
+    }
+  }
+  /// Calls fn(reader) for each element of an optional array of objects.
+  template <class Fn>
+  void objects(const std::string& key, Fn&& fn) {
+    if (const json* v = raw(key)) {
+      if (!v->is_array()) fail(source_, at(key), "expected an array of objects, got " + dump_short(*v));
+      for (std::size_t i = 0; i < v->size(); ++i) {
+        ObjectReader r((*v)[i], at(key) + "[" + std::to_string(i) + "]", source_, dim_);
+        fn(r, i);
+        r.finish();
+      }
+    }
+  }
+  template <class Fn>
+  void object(const std::string& key, Fn&& fn) {
+    if (const json* v = raw(key)) {
+      ObjectReader r(*v, at(key), source_, dim_);
+      fn(r);
+      r.finish();
+    }
+  }
+  /// Rejects keys that were never asked for.
+  void finish() const {
+    for (auto it = j_.begin(); it != j_.end(); ++it)
+      if (!seen_.count(it.key())) {
+        std::string known;
+        for (const auto& k : seen_) known += (known.empty() ? "" : ", ") + k;
+        fail(source_, at(it.key()), "unknown key (expected one of: " + known + ")");
+      }
+  }
+
+ private:
+  const json& j_;
+  std::string path_;
+  const std::string& source_;
+  int dim_;
+  std::set<std::string> seen_;
+};
+
+/// Range checks shared by validate(): each names the path and what was expected.
+struct Checker {
+  const std::string& source;
+  void positive(const std::string& path, double v) const {
+    if (!(v > 0)) fail(source, path, "expected a number > 0, got " + fmt_num(v));
+  }
+  void non_negative(const std::string& path, double v) const {
+    if (!(v >= 0)) fail(source, path, "expected a number >= 0, got " + fmt_num(v));
+  }
+  void in_range(const std::string& path, double v, double lo, double hi, bool lo_open, bool hi_open) const {
+    const bool ok = (lo_open ? v > lo : v >= lo) && (hi_open ? v < hi : v <= hi);
+    if (!ok)
+      fail(source, path,
+           "expected a number in " + std::string(lo_open ? "(" : "[") + fmt_num(lo) + ", " + fmt_num(hi) +
+               (hi_open ? ")" : "]") + ", got " + fmt_num(v));
+  }
+};
+
+std::string vec_str(const Eigen::Vector3d& v, int dim) {
+  std::string s = "[";
+  for (int d = 0; d < dim; ++d) s += (d ? ", " : "") + fmt_num(v[d]);
+  return s + "]";
+}
+
+}  // namespace
+
+std::string_view to_string(ElasticModel m) { return name_of(kElastic, m); }
+std::string_view to_string(PlasticModel m) { return name_of(kPlastic, m); }
+std::string_view to_string(TransferKind m) { return name_of(kTransfer, m); }
+std::string_view to_string(KernelKind m) { return name_of(kKernel, m); }
+
+int Scene::material_index(std::string_view name) const {
+  for (std::size_t i = 0; i < materials.size(); ++i)
+    if (materials[i].name == name) return int(i);
+  return -1;
+}
+
+void Scene::validate() const {
+  const Checker c{source};
+  const int dim = solver.dimension;
+  if (dim != 2 && dim != 3) fail(source, "solver.dimension", "expected 2 or 3, got " + std::to_string(dim));
+
+  // Domain.
+  c.positive("domain.dx", domain.dx);
+  for (int d = 0; d < dim; ++d)
+    if (!(domain.max[d] > domain.min[d]))
+      fail(source, "domain.max", "expected every component greater than domain.min " + vec_str(domain.min, dim) +
+                                     ", got " + vec_str(domain.max, dim));
+  double cells = 1;
+  for (int d = 0; d < dim; ++d) {
+    const double n = std::ceil((domain.max[d] - domain.min[d]) / domain.dx - 1e-9);
+    if (n < 4) fail(source, "domain.dx", "expected at least 4 cells along each axis, got " + fmt_num(n));
+    cells *= n + 7;
+  }
+  if (cells > 2.0e9)
+    fail(source, "domain.dx", "the dense grid would have " + fmt_num(cells) + " nodes (limit 2e9); use a larger dx");
+
+  // Solver.
+  if (solver.transfer == TransferKind::MLS && solver.kernel == KernelKind::Linear)
+    fail(source, "solver.kernel",
+         "transfer \"mls\" needs kernel \"quadratic\" or \"cubic\" (its D_p^-1 is not constant for the linear kernel)");
+  c.in_range("solver.flip_ratio", solver.flip_ratio, 0, 1, false, false);
+  c.in_range("solver.cfl", solver.cfl, 0, 1, true, false);
+  c.in_range("solver.elastic_cfl", solver.elastic_cfl, 0, 1, true, false);
+  c.positive("solver.max_dt", solver.max_dt);
+
+  // Materials.
+  if (materials.empty()) fail(source, "materials", "expected at least one material");
+  for (std::size_t i = 0; i < materials.size(); ++i) {
+    const auto& m = materials[i];
+    const std::string p = "materials[" + std::to_string(i) + "]";
+    if (m.name.empty()) fail(source, p + ".name", "expected a non-empty name");
+    for (std::size_t j = 0; j < i; ++j)
+      if (materials[j].name == m.name) fail(source, p + ".name", "duplicate material name \"" + m.name + "\"");
+    c.positive(p + ".density", m.density);
+    if (m.model == ElasticModel::Fluid) {
+      c.positive(p + ".bulk_modulus", m.bulk_modulus);
+      c.in_range(p + ".gamma", m.gamma, 1, 20, false, false);
+      if (m.plasticity != PlasticModel::None)
+        fail(source, p + ".plasticity", "a \"fluid\" material takes no plasticity (expected \"none\")");
+    } else {
+      c.positive(p + ".E", m.E);
+      c.in_range(p + ".nu", m.nu, -1, 0.5, true, true);
+    }
+    switch (m.plasticity) {
+      case PlasticModel::Snow:
+        c.in_range(p + ".critical_compression", m.critical_compression, 0, 1, true, true);
+        c.positive(p + ".critical_stretch", m.critical_stretch);
+        c.non_negative(p + ".hardening", m.hardening);
+        break;
+      case PlasticModel::DruckerPrager:
+        c.in_range(p + ".friction_angle", m.friction_angle, 0, 90, true, true);
+        break;
+      case PlasticModel::VonMises:
+        c.positive(p + ".yield_stress", m.yield_stress);
+        break;
+      case PlasticModel::None:
+        break;
+    }
+  }
+
+  // Bodies.
+  if (bodies.empty()) fail(source, "bodies", "expected at least one body");
+  for (std::size_t i = 0; i < bodies.size(); ++i) {
+    const auto& b = bodies[i];
+    const std::string p = "bodies[" + std::to_string(i) + "]";
+    if (material_index(b.material) < 0) {
+      std::string known;
+      for (const auto& m : materials) known += (known.empty() ? "\"" : ", \"") + m.name + "\"";
+      fail(source, p + ".material", "expected the name of a material (" + known + "), got \"" + b.material + "\"");
+    }
+    c.positive(p + ".particles_per_cell", b.particles_per_cell);
+    if (b.particles_per_cell > 512) fail(source, p + ".particles_per_cell", "expected at most 512, got " + fmt_num(b.particles_per_cell));
+    Eigen::Vector3d lo = b.min, hi = b.max;
+    switch (b.shape) {
+      case Shape::Box:
+        for (int d = 0; d < dim; ++d)
+          if (!(b.max[d] > b.min[d]))
+            fail(source, p + ".max", "expected every component greater than min " + vec_str(b.min, dim) +
+                                         " (an empty box), got " + vec_str(b.max, dim));
+        break;
+      case Shape::Sphere:
+        c.positive(p + ".radius", b.radius);
+        lo = b.center.array() - b.radius;
+        hi = b.center.array() + b.radius;
+        break;
+      case Shape::Cylinder:
+        c.positive(p + ".radius", b.radius);
+        c.positive(p + ".height", b.height);
+        if (b.axis < 0 || b.axis >= dim)
+          fail(source, p + ".axis", "expected an axis index in [0, " + std::to_string(dim - 1) + "], got " + std::to_string(b.axis));
+        lo = b.center.array() - b.radius;
+        hi = b.center.array() + b.radius;
+        lo[b.axis] = b.center[b.axis] - 0.5 * b.height;
+        hi[b.axis] = b.center[b.axis] + 0.5 * b.height;
+        break;
+    }
+    for (int d = 0; d < dim; ++d)
+      if (lo[d] < domain.min[d] || hi[d] > domain.max[d])
+        fail(source, p, "the body spans " + vec_str(lo, dim) + " to " + vec_str(hi, dim) +
+                            ", expected it inside the domain " + vec_str(domain.min, dim) + " to " +
+                            vec_str(domain.max, dim));
+  }
+
+  // Boundaries and colliders.
+  c.non_negative("boundaries.friction", boundaries.friction);
+  if (boundaries.friction > 0 && boundaries.walls != Condition::Separate)
+    fail(source, "boundaries.friction", "friction applies to walls \"separate\" only");
+  if (boundaries.thickness < 1 || boundaries.thickness > 8)
+    fail(source, "boundaries.thickness", "expected an integer in [1, 8], got " + std::to_string(boundaries.thickness));
+  for (std::size_t i = 0; i < colliders.size(); ++i) {
+    const auto& k = colliders[i];
+    const std::string p = "colliders[" + std::to_string(i) + "]";
+    c.non_negative(p + ".friction", k.friction);
+    if (k.friction > 0 && k.condition != Condition::Separate)
+      fail(source, p + ".friction", "friction applies to condition \"separate\" only");
+    switch (k.shape) {
+      case ColliderShape::HalfSpace:
+        if (!(k.normal.head(dim).norm() > 0)) fail(source, p + ".normal", "expected a non-zero vector");
+        break;
+      case ColliderShape::Box:
+        for (int d = 0; d < dim; ++d)
+          if (!(k.max[d] > k.min[d]))
+            fail(source, p + ".max", "expected every component greater than min " + vec_str(k.min, dim) + ", got " + vec_str(k.max, dim));
+        break;
+      case ColliderShape::Sphere:
+        c.positive(p + ".radius", k.radius);
+        break;
+    }
+  }
+
+  // Output.
+  c.positive("output.fps", output.fps);
+  if (output.frames < 0) fail(source, "output.frames", "expected an integer >= 0, got " + std::to_string(output.frames));
+  if (output.directory.empty()) fail(source, "output.directory", "expected a non-empty path");
+  for (std::size_t i = 0; i < output.attributes.size(); ++i) {
+    const auto& a = output.attributes[i];
+    const std::string p = "output.attributes[" + std::to_string(i) + "]";
+    bool known = false;
+    for (const auto& k : kAttributes) known = known || k == a;
+    if (!known) fail(source, p, "expected one of \"position\", \"velocity\", \"material\", \"J\", \"plastic\", got \"" + a + "\"");
+    for (std::size_t j = 0; j < i; ++j)
+      if (output.attributes[j] == a) fail(source, p, "duplicate attribute \"" + a + "\"");
+    if (a == "plastic") {
+      bool any = false;
+      for (const auto& m : materials) any = any || m.plasticity != PlasticModel::None;
+      if (!any) fail(source, p, "\"plastic\" needs a material with plasticity; this scene has none");
+    }
+  }
+}
+
+Scene parse_scene(std::string_view text, const std::string& source) {
+  json j;
+  try {
+    j = json::parse(text.begin(), text.end());
+  } catch (const json::parse_error& e) {
+    throw SceneError(source + ": not valid JSON: " + e.what());
+  }
+  Scene s;
+  s.source = source;
+  // The dimension decides the length of every vector, so it is read first.
+  if (j.is_object() && j.contains("solver") && j["solver"].is_object() && j["solver"].contains("dimension")) {
+    const json& d = j["solver"]["dimension"];
+    if (!d.is_number_integer() || (d.get<int>() != 2 && d.get<int>() != 3))
+      fail(source, "solver.dimension", "expected 2 or 3, got " + dump_short(d));
+    s.solver.dimension = d.get<int>();
+  }
+  const int dim = s.solver.dimension;
+  if (dim == 2) s.solver.gravity = {0, -9.81, 0};
+
+  ObjectReader top(j, "", source, dim);
+  top.object("domain", [&](ObjectReader& r) {
+    r.vector("min", s.domain.min);
+    r.vector("max", s.domain.max);
+    r.number("dx", s.domain.dx);
+  });
+  top.object("solver", [&](ObjectReader& r) {
+    r.integer("dimension", s.solver.dimension);
+    r.choice("precision", kPrecision, s.solver.precision);
+    r.choice("transfer", kTransfer, s.solver.transfer);
+    r.choice("kernel", kKernel, s.solver.kernel);
+    r.number("flip_ratio", s.solver.flip_ratio);
+    r.number("cfl", s.solver.cfl);
+    r.number("elastic_cfl", s.solver.elastic_cfl);
+    r.vector("gravity", s.solver.gravity);
+    r.number("max_dt", s.solver.max_dt);
+    r.choice("integrator", kIntegrator, s.solver.integrator);
+  });
+  if (!top.has("materials")) fail(source, "materials", "missing (expected an array of materials)");
+  top.objects("materials", [&](ObjectReader& r, std::size_t) {
+    MaterialParams m;
+    r.string("name", m.name);
+    r.choice("model", kElastic, m.model);
+    r.number("density", m.density);
+    r.choice("plasticity", kPlastic, m.plasticity);
+    // Keys that belong to another model are errors, not silently ignored.
+    if (m.model == ElasticModel::Fluid) {
+      r.number("bulk_modulus", m.bulk_modulus);
+      r.number("gamma", m.gamma);
+    } else {
+      r.number("E", m.E);
+      r.number("nu", m.nu);
+    }
+    if (m.plasticity == PlasticModel::Snow) {
+      r.number("critical_compression", m.critical_compression);
+      r.number("critical_stretch", m.critical_stretch);
+      r.number("hardening", m.hardening);
+    } else if (m.plasticity == PlasticModel::DruckerPrager) {
+      r.number("friction_angle", m.friction_angle);
+    } else if (m.plasticity == PlasticModel::VonMises) {
+      r.number("yield_stress", m.yield_stress);
+    }
+    s.materials.push_back(m);
+  });
+  if (!top.has("bodies")) fail(source, "bodies", "missing (expected an array of bodies)");
+  top.objects("bodies", [&](ObjectReader& r, std::size_t) {
+    BodyParams b;
+    r.choice("shape", kShape, b.shape);
+    if (b.shape == Shape::Box) {
+      if (!r.has("min") || !r.has("max")) fail(source, r.at("min"), "a box needs \"min\" and \"max\"");
+      r.vector("min", b.min);
+      r.vector("max", b.max);
+    } else {
+      if (!r.has("center") || !r.has("radius")) fail(source, r.at("radius"), "a sphere or cylinder needs \"center\" and \"radius\"");
+      r.vector("center", b.center);
+      r.number("radius", b.radius);
+      if (b.shape == Shape::Cylinder) {
+        r.number("height", b.height);
+        r.integer("axis", b.axis);
+      }
+    }
+    if (!r.has("material")) fail(source, r.at("material"), "missing (expected the name of a material)");
+    r.string("material", b.material);
+    r.vector("velocity", b.velocity);
+    r.number("particles_per_cell", b.particles_per_cell);
+    r.choice("sampling", kSampling, b.sampling);
+    r.integer("seed", b.seed);
+    s.bodies.push_back(b);
+  });
+  top.object("boundaries", [&](ObjectReader& r) {
+    r.choice("walls", kCondition, s.boundaries.walls);
+    r.number("friction", s.boundaries.friction);
+    r.integer("thickness", s.boundaries.thickness);
+  });
+  top.objects("colliders", [&](ObjectReader& r, std::size_t) {
+    ColliderParams k;
+    r.choice("shape", kColliderShape, k.shape);
+    if (k.shape == ColliderShape::HalfSpace) {
+      r.vector("point", k.point);
+      r.vector("normal", k.normal);
+    } else if (k.shape == ColliderShape::Box) {
+      r.vector("min", k.min);
+      r.vector("max", k.max);
+    } else {
+      r.vector("center", k.center);
+      r.number("radius", k.radius);
+    }
+    r.vector("velocity", k.velocity);
+    r.choice("condition", kCondition, k.condition);
+    r.number("friction", k.friction);
+    s.colliders.push_back(k);
+  });
+  top.object("output", [&](ObjectReader& r) {
+    r.string("directory", s.output.directory);
+    r.number("fps", s.output.fps);
+    r.integer("frames", s.output.frames);
+    r.strings("attributes", s.output.attributes);
+    r.choice("format", kEncoding, s.output.format);
+  });
+  top.raw("description");  // free text for people, ignored
+  top.finish();
+  s.validate();
+  return s;
+}
+
+Scene load_scene(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw IoError(path.string() + ": cannot open the scene file (does it exist and is it readable?)");
+  std::ostringstream text;
+  text << in.rdbuf();
+  if (in.bad()) throw IoError(path.string() + ": read error");
+  return parse_scene(text.str(), path.string());
+}
+
+}  // namespace slurry

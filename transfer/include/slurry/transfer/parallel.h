@@ -76,7 +76,9 @@ template <class Fn>
 void parallel_for(std::int64_t begin, std::int64_t end, Fn&& fn) {
   if (end <= begin) return;
 #if defined(SLURRY_PARALLEL_OPENMP)
-#pragma omp parallel for schedule(static)
+  // Dynamic chunks: on a shared machine a descheduled thread then holds up one chunk, not a
+  // fixed half of the loop. Which thread runs an index never changes the result.
+#pragma omp parallel for schedule(dynamic, 256)
   for (std::int64_t i = begin; i < end; ++i) fn(i);
 #elif defined(SLURRY_PARALLEL_TBB)
   tbb::parallel_for(tbb::blocked_range<std::int64_t>(begin, end, 1024),
@@ -93,13 +95,10 @@ template <class Fn>
 void parallel_chunks(std::int64_t begin, std::int64_t end, Fn&& fn) {
   if (end <= begin) return;
 #if defined(SLURRY_PARALLEL_OPENMP)
-  const std::int64_t n = end - begin;
-#pragma omp parallel
-  {
-    const std::int64_t t = omp_get_thread_num(), nt = omp_get_num_threads();
-    const std::int64_t lo = begin + n * t / nt, hi = begin + n * (t + 1) / nt;
-    if (hi > lo) fn(lo, hi);
-  }
+  constexpr std::int64_t grain = 2048;
+  const std::int64_t chunks = (end - begin + grain - 1) / grain;
+#pragma omp parallel for schedule(dynamic, 1)
+  for (std::int64_t c = 0; c < chunks; ++c) fn(begin + c * grain, std::min(end, begin + (c + 1) * grain));
 #elif defined(SLURRY_PARALLEL_TBB)
   tbb::parallel_for(tbb::blocked_range<std::int64_t>(begin, end, 1024),
                     [&](const tbb::blocked_range<std::int64_t>& r) { fn(r.begin(), r.end()); });
@@ -114,15 +113,11 @@ T parallel_max(std::int64_t begin, std::int64_t end, T init, Fn&& chunk_max) {
   if (end <= begin) return init;
 #if defined(SLURRY_PARALLEL_OPENMP)
   T result = init;
-  const std::int64_t n = end - begin;
-#pragma omp parallel
-  {
-    const std::int64_t t = omp_get_thread_num(), nt = omp_get_num_threads();
-    const std::int64_t lo = begin + n * t / nt, hi = begin + n * (t + 1) / nt;
-    const T local = hi > lo ? chunk_max(lo, hi) : init;
-#pragma omp critical(slurry_parallel_max)
-    result = std::max(result, local);
-  }
+  constexpr std::int64_t grain = 2048;
+  const std::int64_t chunks = (end - begin + grain - 1) / grain;
+#pragma omp parallel for schedule(dynamic, 1) reduction(max : result)
+  for (std::int64_t c = 0; c < chunks; ++c)
+    result = std::max(result, chunk_max(begin + c * grain, std::min(end, begin + (c + 1) * grain)));
   return result;
 #elif defined(SLURRY_PARALLEL_TBB)
   return tbb::parallel_reduce(

@@ -7,7 +7,10 @@
 ///    (v_i - v_i^old)) + (1 - a) sum_i w_ip v_i with flip ratio a in [0, 1].
 ///  - APIC (Jiang et al. 2015, "The affine particle-in-cell method"): particles carry C_p = B_p
 ///    D_p^{-1}; P2G adds w_ip m_p (v_p + C_p (x_i - x_p)), which conserves angular momentum, and
-///    an affine field is transferred exactly.
+///    an affine field is transferred exactly. For the linear kernel D_p depends on the position,
+///    so the channel holds B_p itself and P2G adds m_p B_p grad w_ip, using
+///    w_ip D_p^{-1} (x_i - x_p) = grad w_ip (Jiang et al. 2015, sec. 5.3); storing C_p instead and
+///    applying it at the next position is unstable.
 ///  - MLS-MPM (Hu et al. 2018, "A moving least squares material point method", eq. 29): the
 ///    stress impulse joins the affine momentum, Q_p = m_p C_p - dt V_p D_p^{-1} tau_p, and the
 ///    velocity gradient used to advance F is C_p itself.
@@ -30,6 +33,16 @@ namespace slurry::transfer {
 
 enum class Scheme { PIC, FLIP, APIC, MLS };
 
+namespace detail {
+/// Keeps a parameter out of template argument deduction (so nullptr can be passed).
+template <class X>
+struct NonDeduced {
+  using type = X;
+};
+template <class T, int Dim>
+using MatPtr = typename NonDeduced<Eigen::Matrix<T, Dim, Dim>>::type;
+}  // namespace detail
+
 /// Whether particles of this scheme carry an affine matrix C.
 constexpr bool carries_affine(Scheme s) { return s == Scheme::APIC || s == Scheme::MLS; }
 
@@ -38,7 +51,7 @@ constexpr bool carries_affine(Scheme s) { return s == Scheme::APIC || s == Schem
 template <int Order, Scheme S, class Grid, class T, int Dim>
 void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
                        const Eigen::Matrix<T, Dim, 1>* v, const T* m,
-                       const Eigen::Matrix<T, Dim, Dim>* C, const Eigen::Matrix<T, Dim, Dim>* K,
+                       const detail::MatPtr<T, Dim>* C, const detail::MatPtr<T, Dim>* K,
                        std::int64_t begin, std::int64_t end) {
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using Mat = Eigen::Matrix<T, Dim, Dim>;
@@ -63,13 +76,18 @@ void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
     const T mp = m[p];
     const Vec mv = mp * v[p];
     Mat A = Mat::Zero();  // affine momentum, applied to (x_i - x_p)
-    Mat G = Mat::Zero();  // stress impulse, applied to grad w
-    if constexpr (carries_affine(S)) A = mp * C[p];
+    Mat G = Mat::Zero();  // stress impulse (and linear-kernel B_p), applied to grad w
+    if constexpr (carries_affine(S)) {
+      if constexpr (Order > 1)
+        A = mp * C[p];
+      else
+        G = mp * C[p];
+    }
     if (K) {
       if constexpr (S == Scheme::MLS)
         A += Dinv * K[p];
       else
-        G = K[p];
+        G += K[p];
     }
     const std::int64_t k0 = grid.index(s.base);
     for_each_node(s, [&](int a, int b, int c, T w, const Vec& grad, const Vec& off) {
@@ -93,7 +111,7 @@ void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
 /// any particle left the box [x_lo, x_hi] (the caller then finds and names the particle).
 template <int Order, Scheme S, class Grid, class T, int Dim, class StateFn>
 T grid_to_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<T, Dim, 1>* v,
-                    Eigen::Matrix<T, Dim, Dim>* C, T dt, T flip_ratio,
+                    detail::MatPtr<T, Dim>* C, T dt, T flip_ratio,
                     const Eigen::Matrix<T, Dim, 1>& x_lo, const Eigen::Matrix<T, Dim, 1>& x_hi,
                     std::int64_t begin, std::int64_t end, StateFn&& state) {
   using Vec = Eigen::Matrix<T, Dim, 1>;
@@ -106,9 +124,9 @@ T grid_to_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix
   std::int64_t stride[Dim];
   for (int d = 0; d < Dim; ++d) stride[d] = grid.stride(d);
   const auto* nodes = grid.data();
-  // Which sums each scheme needs: C from B (APIC/MLS, Order > 1) or from grad w (linear APIC);
-  // grad v from grad w except for MLS, which uses C (Hu et al. 2018, eq. 17).
-  constexpr bool need_B = carries_affine(S) && Order > 1;
+  // Which sums each scheme needs: B for APIC/MLS (stored as C = B D^-1 for Order > 1, as B for
+  // the linear kernel); grad v from grad w except for MLS, which uses C (Hu et al. 2018, eq. 17).
+  constexpr bool need_B = carries_affine(S);
   constexpr bool need_grad = S != Scheme::MLS;
 
   return parallel::parallel_max<T>(begin, end, T(0), [&](std::int64_t lo, std::int64_t hi) {
@@ -131,7 +149,7 @@ T grid_to_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix
         if constexpr (Order > 1)
           C[p] = Dinv * B;
         else
-          C[p] = gv;
+          C[p] = B;
       }
       Vec vnew = vpic;
       if constexpr (S == Scheme::FLIP) vnew = flip_ratio * (v[p] + dv) + (T(1) - flip_ratio) * vpic;

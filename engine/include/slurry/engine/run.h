@@ -1,0 +1,55 @@
+#pragma once
+/// \file run.h
+/// The one-call API: run a scene and write its PLY frame sequence.
+///
+/// Frame 0 is the initial state; frame f is the state at t = f / output.fps. Each frame is
+/// written atomically (temporary name, then rename) as `<directory>/frame_NNNN.ply`, so a killed
+/// or failed run leaves every frame it finished intact and no partial one. If the simulation
+/// becomes unstable, SimulationError is thrown after the last good frame: a frame with
+/// non-finite values is never written.
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <optional>
+
+#include "slurry/engine/scene.h"
+
+namespace slurry {
+
+/// Overrides of the scene's output block and the run's resources.
+struct RunOptions {
+  std::optional<std::filesystem::path> directory;  ///< replaces output.directory
+  std::optional<int> frames;                       ///< replaces output.frames
+  std::optional<PlyEncoding> format;               ///< replaces output.format
+  int threads = 0;                                 ///< worker threads; 0 = all cores
+};
+
+/// Progress after each written frame.
+struct FrameReport {
+  int frame = 0;               ///< index of the frame just written
+  int frames = 0;              ///< last frame index of the run
+  std::int64_t substeps = 0;   ///< substeps taken for this frame
+  double seconds = 0;          ///< wall time for this frame (simulation and writing)
+  double elapsed = 0;          ///< wall time since the run started
+  std::size_t particles = 0;
+  std::filesystem::path file;  ///< the frame written
+};
+
+struct RunSummary {
+  int frames_written = 0;  ///< including frame 0
+  std::int64_t substeps = 0;
+  double wall_seconds = 0;
+  double particle_steps_per_second = 0;  ///< particles x substeps / simulation wall time
+  std::size_t particles = 0;
+  std::size_t bytes = 0;  ///< particles and grid
+  std::filesystem::path directory;
+};
+
+/// Runs `scene` to its last frame. Throws SceneError, IoError or SimulationError.
+RunSummary run_scene(const Scene& scene, const RunOptions& options = {},
+                     const std::function<void(const FrameReport&)>& on_frame = {});
+
+/// The file name of frame f: frame_NNNN.ply.
+std::filesystem::path frame_file(const std::filesystem::path& directory, int frame);
+
+}  // namespace slurry

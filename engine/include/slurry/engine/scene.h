@@ -1,0 +1,139 @@
+#pragma once
+/// \file scene.h
+/// A scene: domain, solver settings, materials, bodies, boundaries, colliders and output.
+///
+/// Every struct field is named exactly as its key in the scene JSON file (README, "Scene file
+/// reference"); defaults are the values a key takes when it is absent. `validate()` checks
+/// ranges and cross references and throws slurry::SceneError naming the source, the JSON path
+/// (e.g. `materials[0].nu`), the value and what was expected. Vectors are stored with three
+/// components; in 2D the third is ignored and the JSON arrays have two entries.
+#include <Eigen/Core>
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "slurry/engine/errors.h"
+
+namespace slurry {
+
+enum class Precision { Float, Double };
+enum class TransferKind { PIC, FLIP, APIC, MLS };
+enum class KernelKind { Linear, Quadratic, Cubic };
+enum class Integrator { Explicit };
+enum class ElasticModel { CorotatedLinear, FixedCorotated, NeoHookean, StVK, HenckyStVK, Fluid };
+enum class PlasticModel { None, Snow, DruckerPrager, VonMises };
+enum class Shape { Box, Sphere, Cylinder };
+enum class Sampling { Regular, Jittered };
+enum class ColliderShape { HalfSpace, Box, Sphere };
+/// Boundary conditions on grid velocity relative to the boundary's velocity:
+/// sticky (v = v_b), slip (normal part removed), separate (normal part removed only when
+/// approaching, tangential part reduced by Coulomb friction mu |v_n|).
+enum class Condition { Sticky, Slip, Separate };
+enum class PlyEncoding { Binary, Ascii };
+
+struct DomainParams {
+  Eigen::Vector3d min{0, 0, 0};  ///< lower corner (m)
+  Eigen::Vector3d max{1, 1, 1};  ///< upper corner (m); rounded up to whole cells of dx
+  double dx = 0.02;              ///< grid spacing (m), > 0
+};
+
+struct SolverParams {
+  int dimension = 3;                     ///< 2 or 3
+  Precision precision = Precision::Float;
+  TransferKind transfer = TransferKind::MLS;
+  KernelKind kernel = KernelKind::Quadratic;
+  double flip_ratio = 0.95;  ///< FLIP share of the FLIP/PIC blend, [0, 1]; transfer "flip" only
+  double cfl = 0.5;          ///< max particle displacement per substep in cells, (0, 1]
+  double elastic_cfl = 0.5;  ///< dt <= elastic_cfl dx / c with c = sqrt((lambda + 2 mu) / rho)
+  Eigen::Vector3d gravity{0, -9.81, 0};  ///< m/s^2
+  double max_dt = 1e-3;                  ///< upper bound on the substep (s)
+  Integrator integrator = Integrator::Explicit;
+};
+
+struct MaterialParams {
+  std::string name;
+  ElasticModel model = ElasticModel::FixedCorotated;
+  double density = 1000;  ///< kg/m^3 (per unit area in 2D)
+  double E = 1e5;         ///< Young's modulus (Pa), solids
+  double nu = 0.3;        ///< Poisson ratio in (-1, 0.5), solids
+  double bulk_modulus = 1e5;  ///< K (Pa), fluid
+  double gamma = 7;           ///< Tait exponent, fluid
+  PlasticModel plasticity = PlasticModel::None;
+  double critical_compression = 2.5e-2;  ///< snow theta_c
+  double critical_stretch = 7.5e-3;      ///< snow theta_s
+  double hardening = 10;                 ///< snow xi
+  double friction_angle = 30;            ///< Drucker-Prager, degrees in (0, 90)
+  double yield_stress = 1e4;             ///< von Mises (Pa)
+};
+
+struct BodyParams {
+  Shape shape = Shape::Box;
+  Eigen::Vector3d min{0, 0, 0}, max{0, 0, 0};  ///< box
+  Eigen::Vector3d center{0, 0, 0};             ///< sphere, cylinder (centre of the axis)
+  double radius = 0;                           ///< sphere, cylinder
+  double height = 0;                           ///< cylinder, along `axis`
+  int axis = 1;                                ///< cylinder axis: 0, 1 or 2
+  std::string material;                        ///< name of a material
+  Eigen::Vector3d velocity{0, 0, 0};           ///< initial velocity (m/s)
+  double particles_per_cell = 8;  ///< seeding density; spacing dx / ppc^(1/dimension)
+  Sampling sampling = Sampling::Regular;
+  std::uint64_t seed = 1;  ///< jittered sampling only
+};
+
+struct BoundaryParams {
+  Condition walls = Condition::Separate;  ///< on the six (four) domain faces
+  double friction = 0;                    ///< Coulomb coefficient, condition "separate" only
+  int thickness = 2;  ///< cells next to each face whose nodes the wall condition holds
+};
+
+struct ColliderParams {
+  ColliderShape shape = ColliderShape::HalfSpace;
+  Eigen::Vector3d point{0, 0, 0}, normal{0, 1, 0};  ///< half_space: solid where (x-point).n < 0
+  Eigen::Vector3d min{0, 0, 0}, max{0, 0, 0};       ///< box
+  Eigen::Vector3d center{0, 0, 0};                  ///< sphere
+  double radius = 0;                                ///< sphere
+  Eigen::Vector3d velocity{0, 0, 0};  ///< the collider translates at this velocity (m/s)
+  Condition condition = Condition::Separate;
+  double friction = 0;
+};
+
+struct OutputParams {
+  std::string directory = "frames";  ///< relative paths are relative to the working directory
+  double fps = 24;
+  int frames = 24;  ///< frames written after the initial one (frame 0)
+  std::vector<std::string> attributes{"position"};  ///< position, velocity, material, J, plastic
+  PlyEncoding format = PlyEncoding::Binary;
+};
+
+struct Scene {
+  std::string source = "<scene>";  ///< the file it came from, for messages
+  DomainParams domain;
+  SolverParams solver;
+  std::vector<MaterialParams> materials;
+  std::vector<BodyParams> bodies;
+  BoundaryParams boundaries;
+  std::vector<ColliderParams> colliders;
+  OutputParams output;
+
+  /// Throws SceneError for the first invalid field.
+  void validate() const;
+  /// Index of the material named `name`, or -1.
+  int material_index(std::string_view name) const;
+  /// The frame duration 1 / output.fps.
+  double frame_dt() const { return 1.0 / output.fps; }
+};
+
+/// Reads, parses and validates a scene file. Throws SceneError (invalid content) or IoError.
+Scene load_scene(const std::filesystem::path& path);
+/// Parses and validates scene JSON text; `source` names it in messages.
+Scene parse_scene(std::string_view json_text, const std::string& source);
+
+/// Names used in scene files, for messages and the README.
+std::string_view to_string(ElasticModel);
+std::string_view to_string(PlasticModel);
+std::string_view to_string(TransferKind);
+std::string_view to_string(KernelKind);
+
+}  // namespace slurry

@@ -1,0 +1,128 @@
+#pragma once
+/// \file simulation.h
+/// The explicit Material Point Method solver: one substep is
+///
+///   compute_stress  K_p = -dt V_p^0 tau(F_p)           (per material; snow hardening here)
+///   particles_to_grid  mass, momentum, affine momentum, stress impulse -> nodes
+///   update_grid     v_i = p_i / m_i + dt g; walls and colliders
+///   grid_to_particles  v_p, C_p, F_p <- (I + dt grad v) F_p (or J_p), x_p += dt v_p
+///   return_mapping  plastic projection of F_p (per plastic material)
+///   check_health    non-finite state, CFL violation, particle outside the domain -> SimulationError
+///
+/// following Stomakhin et al. 2013 ("A material point method for snow simulation") for the
+/// explicit MPM step, Jiang et al. 2015 (APIC) and Hu et al. 2018 (MLS-MPM) for the transfers.
+/// The time step is the smallest of solver.max_dt, cfl dx / max |v_p| and
+/// elastic_cfl dx / max_materials sqrt((lambda + 2 mu) / rho) (sqrt(K / rho) for fluids).
+///
+/// Two API levels: `run_scene` (run.h) for the common case, and this class for control.
+#include <Eigen/Core>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "slurry/engine/colliders.h"
+#include "slurry/engine/material.h"
+#include "slurry/engine/particles.h"
+#include "slurry/engine/ply.h"
+#include "slurry/engine/scene.h"
+#include "slurry/transfer/grid.h"
+
+namespace slurry {
+
+/// Dimension- and precision-independent face of a simulation, for the run loop and the CLI.
+class SimulationBase {
+ public:
+  virtual ~SimulationBase() = default;
+  /// Simulated time (s).
+  virtual double time() const = 0;
+  /// Substeps taken so far.
+  virtual std::int64_t steps() const = 0;
+  virtual std::size_t particle_count() const = 0;
+  /// Bytes held by particles and grid.
+  virtual std::size_t bytes() const = 0;
+  /// Takes substeps until time() reaches t_end exactly; returns how many it took.
+  virtual std::int64_t advance_to(double t_end) = 0;
+  /// The particles' current state as a PLY "vertex" element with the named attributes
+  /// (position, velocity, material, J, plastic).
+  virtual io::PlyData frame(const std::vector<std::string>& attributes) const = 0;
+};
+
+/// Builds the simulation a scene asks for (its dimension and precision). Validates the scene.
+std::unique_ptr<SimulationBase> make_simulation(const Scene& scene);
+
+template <class T, int Dim>
+class Simulation final : public SimulationBase {
+ public:
+  using Vec = Eigen::Matrix<T, Dim, 1>;
+  using Mat = Eigen::Matrix<T, Dim, Dim>;
+  using Grid = transfer::DenseGrid<T, Dim>;
+
+  /// Validates the scene and seeds its bodies with particles.
+  explicit Simulation(const Scene& scene);
+
+  /// The substep the stability limits allow now (not clipped to a frame boundary).
+  T stable_dt() const;
+  /// One substep of length dt. Throws SimulationError if the state becomes unhealthy.
+  void step(T dt);
+
+  double time() const override { return time_; }
+  std::int64_t steps() const override { return steps_; }
+  std::size_t particle_count() const override { return particles_.size(); }
+  std::size_t bytes() const override;
+  std::int64_t advance_to(double t_end) override;
+  io::PlyData frame(const std::vector<std::string>& attributes) const override;
+
+  Particles<T, Dim>& particles() { return particles_; }
+  const Particles<T, Dim>& particles() const { return particles_; }
+  const Grid& grid() const { return grid_; }
+  const Scene& scene() const { return scene_; }
+  /// Largest particle speed after the last substep (m/s).
+  T max_speed() const { return max_speed_; }
+  /// Total kinetic energy sum_p m_p |v_p|^2 / 2.
+  T kinetic_energy() const;
+  /// Total elastic energy sum_p V_p^0 psi(F_p) (zero for fluids).
+  T elastic_energy() const;
+
+ private:
+  /// A contiguous range of particles made of one material.
+  struct MaterialRange {
+    int material;
+    std::int64_t begin, end;
+  };
+
+  void seed_bodies();
+  void compute_stress(T dt);
+  void particles_to_grid();
+  void update_grid(T dt);
+  void grid_to_particles(T dt);
+  void return_mapping();
+  [[noreturn]] void diagnose(T dt) const;
+
+  template <int Order>
+  void particles_to_grid_order();
+  template <int Order>
+  void grid_to_particles_order(T dt);
+
+  Scene scene_;
+  std::vector<Material<T, Dim>> materials_;
+  std::vector<MaterialRange> ranges_;
+  std::vector<Collider<T, Dim>> colliders_;
+  Particles<T, Dim> particles_;
+  std::vector<Mat> stress_;  // K_p = -dt V_p^0 tau_p, scratch of the current substep
+  Grid grid_;
+  Vec gravity_;
+  Vec x_lo_, x_hi_;  // particles must stay in this box (the domain plus one cell)
+  double time_ = 0;
+  std::int64_t steps_ = 0;
+  T max_speed_ = 0;
+  T max_wave_speed_ = 0;
+  T last_dt_ = 0;
+};
+
+extern template class Simulation<float, 2>;
+extern template class Simulation<float, 3>;
+extern template class Simulation<double, 2>;
+extern template class Simulation<double, 3>;
+
+}  // namespace slurry

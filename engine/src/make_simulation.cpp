@@ -1,0 +1,16 @@
+#include "slurry/engine/simulation.h"
+
+namespace slurry {
+
+std::unique_ptr<SimulationBase> make_simulation(const Scene& scene) {
+  scene.validate();
+  const bool dbl = scene.solver.precision == Precision::Double;
+  if (scene.solver.dimension == 2) {
+    if (dbl) return std::make_unique<Simulation<double, 2>>(scene);
+    return std::make_unique<Simulation<float, 2>>(scene);
+  }
+  if (dbl) return std::make_unique<Simulation<double, 3>>(scene);
+  return std::make_unique<Simulation<float, 3>>(scene);
+}
+
+}  // namespace slurry
