@@ -2,8 +2,8 @@
 /// \file corotated_linear.h
 /// Corotated linear elasticity as defined in Sifakis and Barbic 2012, "FEM simulation of 3D
 /// deformable solids: a practitioner's guide to theory, discretization and model reduction"
-/// (SIGGRAPH course notes), Sec. 3.4: with the polar decomposition F = Q F~ (Q a rotation,
-/// F~ symmetric; rotation-variant, so F~ is indefinite when det F < 0),
+/// (SIGGRAPH course notes), section on corotated linear elasticity: with the polar decomposition F
+/// = Q F~ (Q a rotation, F~ symmetric; rotation-variant, so F~ is indefinite when det F < 0),
 ///
 ///   eps = (F~ + F~^T)/2 - I = F~ - I,     sigma_c = lambda tr(eps) I + 2 mu eps,
 ///   psi = mu eps:eps + lambda/2 tr(eps)^2 = mu sum_i (s_i - 1)^2 + lambda/2 (sum_i (s_i - 1))^2,

@@ -1,9 +1,9 @@
 #pragma once
 /// \file fluid.h
 /// Weakly compressible fluid with a Tait-type equation of state on the volume ratio J = det F,
-/// as in Becker and Teschner 2007, "Weakly compressible SPH for free surface flows" (Eq. 7, with
-/// density ratio rho/rho0 = 1/J), and in MPM by Tampubolon, Gast, Klar, Fu, Teran, Jiang and
-/// Museth 2017, "Multi-species simulation of porous sand and water mixtures" (Sec. 4.1):
+/// as in Becker and Teschner 2007, "Weakly compressible SPH for free surface flows" (Tait
+/// equation, with density ratio rho/rho0 = 1/J), and in MPM by Tampubolon, Gast, Klar, Fu, Teran,
+/// Jiang and Museth 2017, "Multi-species simulation of porous sand and water mixtures":
 ///
 ///   p(J) = K/gamma (J^-gamma - 1),       tau = -J p I,       P = -p J F^-T = -p cof(F),
 ///   psi(J) = K/gamma ((J - 1) - (J^(1-gamma) - 1)/(1 - gamma))   (gamma != 1),

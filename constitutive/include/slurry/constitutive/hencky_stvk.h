@@ -2,7 +2,7 @@
 /// \file hencky_stvk.h
 /// St. Venant-Kirchhoff elasticity on the Hencky (logarithmic) strain, the elastic part of the
 /// sand model of Klar, Gast, Pradhana, Fu, Schroeder, Jiang and Teran 2016, "Drucker-Prager
-/// elastoplasticity for sand animation" (Sec. 6.1). With F = U Sigma V^T and eps = log Sigma:
+/// elastoplasticity for sand animation". With F = U Sigma V^T and eps = log Sigma:
 ///
 ///   psi = mu tr(eps^2) + lambda/2 tr(eps)^2,
 ///   P = U (2 mu Sigma^-1 eps + lambda tr(eps) Sigma^-1) V^T,

@@ -69,7 +69,7 @@ inline Eigen::Matrix<T, 3, 3> cofactor_differential(const Eigen::Matrix<T, 3, 3>
 ///
 /// From dF = dR S + R dS with R^T dR skew: writing A = U^T dF V and dR = U X V^T, X is skew with
 /// X_ij = (A_ij - A_ji) / (sigma_i + sigma_j) (see e.g. Sifakis and Barbic 2012, "FEM simulation
-/// of 3D deformable solids", Sec. 5, or the technical report of Stomakhin et al. 2012). R is not
+/// of 3D deformable solids", or the technical report of Stomakhin et al. 2012). R is not
 /// differentiable where sigma_i + sigma_j = 0 (an inverted F with two singular values of equal
 /// magnitude); the denominator is floored at eps there to stay finite.
 template <class T, int Dim>
@@ -95,7 +95,7 @@ inline Eigen::Matrix<T, Dim, Dim> rotation_differential(const Eigen::Matrix<T, D
 ///   M_ij = (a_ij + b_ij)/2 A_ij + (a_ij - b_ij)/2 A_ji   (i != j),
 ///   a_ij = (p_i - p_j) / (sigma_i - sigma_j),  b_ij = (p_i + p_j) / (sigma_i + sigma_j).
 /// This is the formula of Xu, Sin, Zhu and Barbic 2015, "Nonlinear material design using
-/// principal stretches" (Sec. 4), with the two fractions split into a_ij and b_ij so that only
+/// principal stretches", with the two fractions split into a_ij and b_ij so that only
 /// a_ij is 0/0 at repeated singular values. The caller supplies dp/dsigma (hessian) and a_ij
 /// (divided_difference, read for i != j), evaluated stably for its own p.
 template <class T, int Dim>

@@ -1,7 +1,8 @@
 #pragma once
 /// \file neo_hookean.h
 /// Compressible neo-Hookean elasticity in the form used by Bonet and Wood, "Nonlinear continuum
-/// mechanics for finite element analysis" (Sec. 6.4.3), and by most graphics MPM codes:
+/// mechanics for finite element analysis" (compressible neo-Hookean), and by most graphics MPM
+/// codes:
 ///
 ///   psi(F) = mu/2 (tr(F^T F) - d) - mu log J + lambda/2 (log J)^2,   J = det F,
 ///   P = mu (F - F^-T) + lambda log J F^-T,

@@ -49,7 +49,7 @@ inline void require_in(const char* model, const char* field, T value, T lo, T hi
 }  // namespace detail
 
 /// Snow plasticity of Stomakhin, Schroeder, Chai, Teran and Selle 2013, "A material point method
-/// for snow simulation" (Sec. 5 and Eq. 8): the singular values of Fe are clamped to
+/// for snow simulation": the singular values of Fe are clamped to
 /// [1 - critical_compression, 1 + critical_stretch]; the deformation clamped away goes into
 /// Fp, so the plastic volume ratio Jp = det Fp is updated to keep Je Jp = det F unchanged.
 /// hardening_factor(Jp) = exp(hardening (1 - Jp)) multiplies mu and lambda (snow hardens when
@@ -106,8 +106,8 @@ struct SnowPlasticity {
 };
 
 /// Cohesionless Drucker-Prager plasticity in Hencky strain, Klar, Gast, Pradhana, Fu, Schroeder,
-/// Jiang and Teran 2016, "Drucker-Prager elastoplasticity for sand animation" (Sec. 7.3,
-/// Algorithm 2), for the elasticity of hencky_stvk.h.
+/// Jiang and Teran 2016, "Drucker-Prager elastoplasticity for sand animation" (their
+/// projection algorithm), for the elasticity of hencky_stvk.h.
 ///
 /// Yield function on principal Kirchhoff stresses (tension positive):
 ///   y(tau) = ||dev tau||_F + alpha tr(tau) <= 0,
@@ -178,8 +178,8 @@ struct DruckerPrager {
 };
 
 /// Von Mises (J2) plasticity with radial return in Hencky strain, for the elasticity of
-/// hencky_stvk.h (e.g. Simo and Hughes 1998, "Computational inelasticity", Sec. 3.3, in the
-/// principal logarithmic-strain setting of Simo 1992; used for MPM metals in Gao et al. 2017).
+/// hencky_stvk.h (radial return, e.g. Simo and Hughes 1998, "Computational inelasticity", in the
+/// principal logarithmic-strain setting of Simo 1992, CMAME 99:61-112).
 ///
 /// Norm convention: the Frobenius norm of the deviatoric Kirchhoff stress,
 ///   y(tau) = ||dev tau||_F - sqrt(2/3) tau_y <= 0,

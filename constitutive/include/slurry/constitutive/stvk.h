@@ -1,7 +1,7 @@
 #pragma once
 /// \file stvk.h
 /// St. Venant-Kirchhoff elasticity: linear stress-strain law on the Green-Lagrange strain
-/// (e.g. Sifakis and Barbic 2012, "FEM simulation of 3D deformable solids", Sec. 3.2):
+/// (e.g. Sifakis and Barbic 2012, "FEM simulation of 3D deformable solids"):
 ///
 ///   E = (F^T F - I)/2,   psi = mu E:E + lambda/2 tr(E)^2,
 ///   S = 2 mu E + lambda tr(E) I (second Piola-Kirchhoff),   P = F S,   tau = F S F^T,

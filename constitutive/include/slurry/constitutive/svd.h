@@ -84,8 +84,9 @@ namespace detail {
 /// [[app, apq], [apq, aqq]]: with G = [[c, -s], [s, c]], G^T A G is diagonal. The angle solves
 /// tan(2t) = 2 apq / (app - aqq), |t| <= pi/4, and (c, s) is the normalised half-angle vector
 /// (r + |x|, +-y) of (x, y) = (app - aqq, 2 apq), r = |(x, y)|, whose squared length is
-/// 2 r (r + |x|): no trigonometry and no cancellation (Golub and Van Loan, Sec. 8.5.2).
-/// Returns c = 1, s = 0 when apq is negligible, where the squares would underflow.
+/// 2 r (r + |x|): no trigonometry and no cancellation (Golub and Van Loan, "Matrix computations",
+/// the 2x2 symmetric Schur decomposition). Returns c = 1, s = 0 when apq is negligible, where the
+/// squares would underflow.
 template <class T>
 inline void jacobi_rotation(T app, T aqq, T apq, T& c, T& s) {
   using std::abs;
@@ -103,7 +104,7 @@ inline void jacobi_rotation(T app, T aqq, T apq, T& c, T& s) {
 
 /// Right-handed orthonormal basis (u, w) of the plane orthogonal to the unit vector v, without
 /// branches or square roots: Duff, Burgess, Christensen, Hery, Kensler, Liani and Villemin 2017,
-/// "Building an orthonormal basis, revisited", JCGT 6(1), Listing 3.
+/// "Building an orthonormal basis, revisited", JCGT 6(1).
 template <class T>
 inline void orthonormal_basis(const Eigen::Matrix<T, 3, 1>& v, Eigen::Matrix<T, 3, 1>& u,
                               Eigen::Matrix<T, 3, 1>& w) {
