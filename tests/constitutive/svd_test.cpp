@@ -9,6 +9,7 @@
 #include <random>
 #include <vector>
 
+#include "slurry/constitutive/kinematics.h"
 #include "slurry/constitutive/svd.h"
 
 namespace {
@@ -325,4 +326,31 @@ TEST(Polar2x2, RotationAngle) {
   EXPECT_LT((R * S - F).norm(), 1e-15);
 }
 
+}  // namespace
+
+namespace {
+// polar_rotation (Newton, Higham 1986) agrees with the SVD polar factor for non-inverted F,
+// including stretches of 3x and near-singular J, and falls back to the rotation-variant SVD
+// (det R = +1) for inverted F.
+template <class T, int Dim>
+void check_polar_rotation(T tol) {
+  using Mat = Eigen::Matrix<T, Dim, Dim>;
+  std::mt19937 rng(42);
+  std::uniform_real_distribution<double> U(-1.0, 1.0);
+  for (int trial = 0; trial < 500; ++trial) {
+    Mat F;
+    for (int i = 0; i < Dim * Dim; ++i) F.data()[i] = T((trial % 3 == 0 ? 1.5 : 0.3) * U(rng));
+    F += Mat::Identity();
+    if (trial % 5 == 0) F.col(0) *= T(-1);  // inverted
+    if (trial % 7 == 0) F.col(1) *= T(0.01);  // nearly singular
+    Mat R_ref, S, R;
+    slurry::constitutive::polar(F, R_ref, S);
+    slurry::constitutive::polar_rotation<T, Dim>(F, R);
+    EXPECT_LT((R - R_ref).norm(), tol) << "trial " << trial << "\n" << F;
+    EXPECT_NEAR(R.determinant(), T(1), tol);
+  }
+}
+TEST(PolarRotation, MatchesSvdPolarDouble2D) { check_polar_rotation<double, 2>(1e-10); }
+TEST(PolarRotation, MatchesSvdPolarDouble3D) { check_polar_rotation<double, 3>(1e-10); }
+TEST(PolarRotation, MatchesSvdPolarFloat3D) { check_polar_rotation<float, 3>(2e-4); }
 }  // namespace

@@ -46,14 +46,13 @@ struct FixedCorotated {
     return T(2) * mu * (F - R) + lambda * (J - T(1)) * cofactor(F);
   }
 
-  /// Kirchhoff stress tau = P F^T, from the SVD without forming R.
+  /// Kirchhoff stress tau = P F^T = 2 mu (F - R) F^T + lambda (J - 1) J I, with R from the
+  /// Newton polar iteration (the hot path of MPM's P2G).
   Mat kirchhoff(const Mat& F) const {
-    Mat U, V;
-    Vec sigma;
-    svd(F, U, sigma, V);
-    const T J = sigma.prod();
-    const Vec d = T(2) * mu * (sigma.array() - T(1)) * sigma.array();
-    Mat tau = U * d.asDiagonal() * U.transpose();
+    Mat R;
+    polar_rotation<T, Dim>(F, R);
+    const T J = determinant(F);
+    Mat tau = T(2) * mu * (F - R) * F.transpose();
     tau.diagonal().array() += lambda * (J - T(1)) * J;
     return tau;
   }

@@ -140,9 +140,14 @@ T grid_to_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix
         std::int64_t k = k0 + a * stride[0] + b * stride[1];
         if constexpr (Dim == 3) k += c;
         const Vec vi = nodes[k].template head<Dim>();
-        vpic += w * vi;
-        if constexpr (need_B) B.noalias() += (w * vi) * off.transpose();
-        if constexpr (need_grad) gv.noalias() += vi * grad.transpose();
+        const Vec wv = w * vi;
+        vpic += wv;
+        // Outer products written out: Eigen's generic product path is not inlined here.
+        for (int j = 0; j < Dim; ++j)
+          for (int i = 0; i < Dim; ++i) {
+            if constexpr (need_B) B(i, j) += wv[i] * off[j];
+            if constexpr (need_grad) gv(i, j) += vi[i] * grad[j];
+          }
         if constexpr (S == Scheme::FLIP) dv += w * (vi - grid.old_velocity(k));
       });
       if constexpr (carries_affine(S)) {
