@@ -183,7 +183,6 @@ void Simulation<T, Dim>::step(T dt) {
   return_mapping();
   time_ += double(dt);
   ++steps_;
-  last_dt_ = dt;
 }
 
 template <class T, int Dim>

@@ -117,7 +117,6 @@ class Simulation final : public SimulationBase {
   std::int64_t steps_ = 0;
   T max_speed_ = 0;
   T max_wave_speed_ = 0;
-  T last_dt_ = 0;
 };
 
 extern template class Simulation<float, 2>;
