@@ -26,54 +26,50 @@ std::vector<Eigen::Matrix<T, 3, 3>> make_pool() {
   return pool;
 }
 
-template <class T>
-void BM_SlurrySvd3(benchmark::State& state) {
-  const auto pool = make_pool<T>();
+/// Times fn(F) over the pool; counter: decompositions per second.
+template <class Pool, class Fn>
+void time_pool(benchmark::State& state, const Pool& pool, Fn&& fn) {
   std::int64_t n = 0;
   for (auto _ : state) {
-    for (const auto& F : pool) {
-      Eigen::Matrix<T, 3, 3> U, V;
-      Eigen::Matrix<T, 3, 1> sigma;
-      slurry::constitutive::svd(F, U, sigma, V);
-      benchmark::DoNotOptimize(U.data());
-      benchmark::DoNotOptimize(V.data());
-      benchmark::DoNotOptimize(sigma.data());
-    }
-    n += kPool;
+    for (const auto& F : pool) fn(F);
+    n += std::int64_t(pool.size());
   }
   state.counters["svd/s"] = benchmark::Counter(double(n), benchmark::Counter::kIsRate);
+}
+
+template <class T, int D>
+void our_svd(const Eigen::Matrix<T, D, D>& F) {
+  Eigen::Matrix<T, D, D> U, V;
+  Eigen::Matrix<T, D, 1> sigma;
+  slurry::constitutive::svd(F, U, sigma, V);
+  benchmark::DoNotOptimize(U.data());
+  benchmark::DoNotOptimize(V.data());
+  benchmark::DoNotOptimize(sigma.data());
+}
+
+template <class T>
+void BM_SlurrySvd3(benchmark::State& state) {
+  time_pool(state, make_pool<T>(), [](const auto& F) { our_svd<T, 3>(F); });
 }
 
 template <class T>
 void BM_EigenJacobiSvd3(benchmark::State& state) {
-  const auto pool = make_pool<T>();
-  std::int64_t n = 0;
-  for (auto _ : state) {
-    for (const auto& F : pool) {
-      Eigen::JacobiSVD<Eigen::Matrix<T, 3, 3>> svd(F, Eigen::ComputeFullU | Eigen::ComputeFullV);
-      benchmark::DoNotOptimize(svd.matrixU().data());
-      benchmark::DoNotOptimize(svd.matrixV().data());
-      benchmark::DoNotOptimize(svd.singularValues().data());
-    }
-    n += kPool;
-  }
-  state.counters["svd/s"] = benchmark::Counter(double(n), benchmark::Counter::kIsRate);
+  time_pool(state, make_pool<T>(), [](const auto& F) {
+    Eigen::JacobiSVD<Eigen::Matrix<T, 3, 3>> svd(F, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    benchmark::DoNotOptimize(svd.matrixU().data());
+    benchmark::DoNotOptimize(svd.matrixV().data());
+    benchmark::DoNotOptimize(svd.singularValues().data());
+  });
 }
 
 template <class T>
 void BM_SlurryPolar3(benchmark::State& state) {
-  const auto pool = make_pool<T>();
-  std::int64_t n = 0;
-  for (auto _ : state) {
-    for (const auto& F : pool) {
-      Eigen::Matrix<T, 3, 3> R, S;
-      slurry::constitutive::polar(F, R, S);
-      benchmark::DoNotOptimize(R.data());
-      benchmark::DoNotOptimize(S.data());
-    }
-    n += kPool;
-  }
-  state.counters["svd/s"] = benchmark::Counter(double(n), benchmark::Counter::kIsRate);
+  time_pool(state, make_pool<T>(), [](const auto& F) {
+    Eigen::Matrix<T, 3, 3> R, S;
+    slurry::constitutive::polar(F, R, S);
+    benchmark::DoNotOptimize(R.data());
+    benchmark::DoNotOptimize(S.data());
+  });
 }
 
 template <class T>
@@ -85,19 +81,7 @@ void BM_SlurrySvd2(benchmark::State& state) {
     F.setIdentity();
     for (int i = 0; i < 4; ++i) F(i) += T(u(rng));
   }
-  std::int64_t n = 0;
-  for (auto _ : state) {
-    for (const auto& F : pool) {
-      Eigen::Matrix<T, 2, 2> U, V;
-      Eigen::Matrix<T, 2, 1> sigma;
-      slurry::constitutive::svd(F, U, sigma, V);
-      benchmark::DoNotOptimize(U.data());
-      benchmark::DoNotOptimize(V.data());
-      benchmark::DoNotOptimize(sigma.data());
-    }
-    n += kPool;
-  }
-  state.counters["svd/s"] = benchmark::Counter(double(n), benchmark::Counter::kIsRate);
+  time_pool(state, pool, [](const auto& F) { our_svd<T, 2>(F); });
 }
 
 BENCHMARK_TEMPLATE(BM_SlurrySvd3, float);

@@ -59,10 +59,7 @@ Simulation<T, Dim>::Simulation(const Scene& scene) : scene_(scene) {
 template <class T, int Dim>
 void Simulation<T, Dim>::seed_bodies() {
   auto& P = particles_;
-  P.channels.C = transfer::carries_affine(
-      scene_.solver.transfer == TransferKind::MLS    ? transfer::Scheme::MLS
-      : scene_.solver.transfer == TransferKind::APIC ? transfer::Scheme::APIC
-                                                     : transfer::Scheme::PIC);
+  P.channels.C = scene_.solver.transfer == TransferKind::MLS || scene_.solver.transfer == TransferKind::APIC;
   P.channels.material = scene_.materials.size() > 1;
   for (const auto& m : materials_) {
     P.channels.F = P.channels.F || !m.fluid;
@@ -261,14 +258,16 @@ void Simulation<T, Dim>::update_grid(T dt) {
   parallel::parallel_for(0, grid_.active_rows(), [&](std::int64_t r) {
     const std::int64_t k0 = grid_.active_row_start(r);
     Grid& g = grid_;
+    auto idx = g.coord(k0);  // once per row; the last coordinate advances with k
+    --idx[Dim - 1];
     for (std::int64_t k = k0; k < k0 + row_len; ++k) {
+      ++idx[Dim - 1];
       auto& node = g.node(k);
       const T m = node[Dim];
       if (m <= T(0)) continue;
       Vec v = node.template head<Dim>() / m;
       if (flip) g.old_velocity(k) = v;
       v += dt * gravity_;
-      const auto idx = g.coord(k);
       for (int d = 0; d < Dim; ++d) {
         if (idx[d] < cells_lo) v = apply_condition<T, Dim>(v, Vec::Zero(), Vec::Unit(d), bc.walls, friction);
         if (idx[d] > cells_hi[d]) v = apply_condition<T, Dim>(v, Vec::Zero(), -Vec::Unit(d), bc.walls, friction);

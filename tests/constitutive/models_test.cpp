@@ -3,6 +3,8 @@
 // with linear elasticity at small strain.
 #include <gtest/gtest.h>
 
+#include "test_util.h"
+
 #include <Eigen/Geometry>
 #include <cmath>
 #include <random>
@@ -21,7 +23,8 @@
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using slurry::test::kPi;
+using slurry::test::random_rotation;
 
 namespace sc = slurry::constitutive;
 
@@ -52,18 +55,6 @@ M make_model() {
     return M{T(kMu), T(kLambda)};
 }
 
-template <int D>
-Eigen::Matrix<double, D, D> random_rotation(std::mt19937& rng);
-template <>
-Eigen::Matrix2d random_rotation<2>(std::mt19937& rng) {
-  std::uniform_real_distribution<double> angle(-kPi, kPi);
-  return Eigen::Rotation2Dd(angle(rng)).toRotationMatrix();
-}
-template <>
-Eigen::Matrix3d random_rotation<3>(std::mt19937& rng) {
-  std::normal_distribution<double> n;
-  return Eigen::Quaterniond(n(rng), n(rng), n(rng), n(rng)).normalized().toRotationMatrix();
-}
 
 /// Test deformation gradients, all with J in [0.5, 2]: near the identity, moderately deformed
 /// with random rotations, and with exactly repeated singular values (where the SVD-based

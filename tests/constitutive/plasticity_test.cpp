@@ -3,6 +3,8 @@
 // volume for von Mises and for the Drucker-Prager cone) hold.
 #include <gtest/gtest.h>
 
+#include "test_util.h"
+
 #include <Eigen/Geometry>
 #include <cmath>
 #include <random>
@@ -13,25 +15,14 @@
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using slurry::test::kPi;
+using slurry::test::random_rotation;
 
 namespace sc = slurry::constitutive;
 
 constexpr double kMu = 3.0;
 constexpr double kLambda = 5.0;
 
-template <int D>
-Eigen::Matrix<double, D, D> random_rotation(std::mt19937& rng);
-template <>
-Eigen::Matrix2d random_rotation<2>(std::mt19937& rng) {
-  std::uniform_real_distribution<double> angle(-kPi, kPi);
-  return Eigen::Rotation2Dd(angle(rng)).toRotationMatrix();
-}
-template <>
-Eigen::Matrix3d random_rotation<3>(std::mt19937& rng) {
-  std::normal_distribution<double> n;
-  return Eigen::Quaterniond(n(rng), n(rng), n(rng), n(rng)).normalized().toRotationMatrix();
-}
 
 template <int D>
 Eigen::Matrix<double, D, 1> singular_values(const Eigen::Matrix<double, D, D>& F) {

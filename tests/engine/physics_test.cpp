@@ -11,29 +11,44 @@ namespace {
 
 using slurry::Scene;
 
-Scene block_scene(int dim, slurry::TransferKind transfer, slurry::KernelKind kernel) {
+/// A double-precision scene over [0, max] with one elastic material named `material`; bodies
+/// are the caller's.
+Scene elastic_scene(const char* material, int dim, slurry::TransferKind transfer, const Eigen::Vector3d& max,
+                    double dx, slurry::ElasticModel model, double density, double E, double nu) {
   Scene s;
   s.source = "test";
   s.solver.dimension = dim;
   s.solver.precision = slurry::Precision::Double;
   s.solver.transfer = transfer;
-  s.solver.kernel = kernel;
   s.domain.min = {0, 0, 0};
-  s.domain.max = {1, 1, 1};
-  s.domain.dx = dim == 3 ? 1.0 / 32 : 1.0 / 64;
+  s.domain.max = max;
+  s.domain.dx = dx;
   slurry::MaterialParams m;
-  m.name = "jelly";
-  m.model = slurry::ElasticModel::FixedCorotated;
-  m.density = 1000;
-  m.E = 1e5;
-  m.nu = 0.3;
+  m.name = material;
+  m.model = model;
+  m.density = density;
+  m.E = E;
+  m.nu = nu;
   s.materials = {m};
+  return s;
+}
+
+/// A body of `material` seeded at `ppc` particles per cell.
+slurry::BodyParams body(slurry::Shape shape, const char* material, double ppc) {
   slurry::BodyParams b;
-  b.shape = slurry::Shape::Box;
+  b.shape = shape;
+  b.material = material;
+  b.particles_per_cell = ppc;
+  return b;
+}
+
+Scene block_scene(int dim, slurry::TransferKind transfer, slurry::KernelKind kernel) {
+  Scene s = elastic_scene("jelly", dim, transfer, {1, 1, 1}, dim == 3 ? 1.0 / 32 : 1.0 / 64,
+                          slurry::ElasticModel::FixedCorotated, 1000, 1e5, 0.3);
+  s.solver.kernel = kernel;
+  slurry::BodyParams b = body(slurry::Shape::Box, "jelly", dim == 3 ? 8 : 4);
   b.min = {0.4, 0.6, 0.4};
   b.max = {0.6, 0.8, 0.6};
-  b.material = "jelly";
-  b.particles_per_cell = dim == 3 ? 8 : 4;
   s.bodies = {b};
   return s;
 }
@@ -113,30 +128,16 @@ TEST(Physics, BlockSettlesOnFloor) {
 // T = 2 L / c (e.g. Sulsky et al. 1994's bar problem, free-free variant).
 template <slurry::TransferKind Transfer>
 double bar_period_error() {
-  Scene s;
-  s.source = "bar";
-  s.solver.dimension = 2;
-  s.solver.precision = slurry::Precision::Double;
-  s.solver.transfer = Transfer;
+  const double E = 1e4, rho = 1;
+  Scene s = elastic_scene("bar", 2, Transfer, {2, 0.5, 0}, 1.0 / 64, slurry::ElasticModel::FixedCorotated, rho, E, 0);
   s.solver.gravity = {0, 0, 0};
   s.solver.elastic_cfl = 0.3;
-  s.domain.min = {0, 0, 0};
-  s.domain.max = {2, 0.5, 0};
-  s.domain.dx = 1.0 / 64;
-  slurry::MaterialParams m;
-  m.name = "bar";
-  m.density = 1;
-  m.E = 1e4;
-  m.nu = 0;
-  s.materials = {m};
-  slurry::BodyParams b;
+  slurry::BodyParams b = body(slurry::Shape::Box, "bar", 4);
   b.min = {0.5, 0.2, 0};
   b.max = {1.5, 0.3, 0};
-  b.material = "bar";
-  b.particles_per_cell = 4;
   s.bodies = {b};
   slurry::Simulation<double, 2> sim(s);
-  const double L = 1.0, c = std::sqrt(m.E / m.density), T = 2 * L / c, v0 = 0.05;
+  const double L = 1.0, c = std::sqrt(E / rho), T = 2 * L / c, v0 = 0.05;
   auto& P = sim.particles();
   for (std::size_t p = 0; p < P.size(); ++p) P.v[p] = Eigen::Vector2d(v0 * std::cos(M_PI * (P.x[p][0] - 0.5) / L), 0);
   // Mean velocity of the left quarter: v0' cos(2 pi t / T); find its downward zero crossings.
@@ -190,29 +191,13 @@ struct DiskRun {
 };
 
 DiskRun colliding_disks(double dx) {
-  Scene s;
-  s.source = "disks";
-  s.solver.dimension = 2;
-  s.solver.precision = slurry::Precision::Double;
-  s.solver.transfer = slurry::TransferKind::APIC;
+  Scene s = elastic_scene("disk", 2, slurry::TransferKind::APIC, {1, 1, 0}, dx, slurry::ElasticModel::CorotatedLinear,
+                          1000, 1000, 0.3);
   s.solver.gravity = {0, 0, 0};
-  s.domain.min = {0, 0, 0};
-  s.domain.max = {1, 1, 0};
-  s.domain.dx = dx;
-  slurry::MaterialParams m;
-  m.name = "disk";
-  m.model = slurry::ElasticModel::CorotatedLinear;
-  m.density = 1000;
-  m.E = 1000;
-  m.nu = 0.3;
-  s.materials = {m};
-  slurry::BodyParams a;
-  a.shape = slurry::Shape::Sphere;
+  slurry::BodyParams a = body(slurry::Shape::Sphere, "disk", 4);
   a.center = {0.25, 0.25, 0};
   a.radius = 0.2;
   a.velocity = {0.1, 0.1, 0};
-  a.material = "disk";
-  a.particles_per_cell = 4;
   slurry::BodyParams b = a;
   b.center = {0.75, 0.75, 0};
   b.velocity = {-0.1, -0.1, 0};

@@ -84,28 +84,17 @@ class DenseGrid {
 
   /// Zeroes the nodes of the active box and empties it.
   void clear() {
-    if (!empty()) for_each_active_row([&](std::int64_t k0, int n) {
-        std::fill(nodes_.begin() + k0, nodes_.begin() + k0 + n, Node::Zero());
-      });
+    const int n = active_row_length();
+    for (std::int64_t r = 0; r < active_rows(); ++r) {
+      const auto first = nodes_.begin() + active_row_start(r);
+      std::fill(first, first + n, Node::Zero());
+    }
     lo_ = res_;
     hi_ = IVec::Constant(-1);
   }
 
-  /// Calls fn(first node index, count) for each contiguous row (along the last axis) of the
-  /// active box. Rows are independent, so callers may run them in parallel.
-  template <class Fn>
-  void for_each_active_row(Fn&& fn) const {
-    if (empty()) return;
-    const int n = hi_[Dim - 1] - lo_[Dim - 1] + 1;
-    if constexpr (Dim == 2) {
-      for (int i = lo_[0]; i <= hi_[0]; ++i) fn(stride_[0] * i + lo_[1], n);
-    } else {
-      for (int i = lo_[0]; i <= hi_[0]; ++i)
-        for (int j = lo_[1]; j <= hi_[1]; ++j) fn(stride_[0] * i + stride_[1] * j + lo_[2], n);
-    }
-  }
-
-  /// Number of rows of the active box and the index of row r's first node (for parallel loops).
+  /// Number of rows (along the last axis) of the active box, and the index of row r's first
+  /// node. Rows are independent, so callers may run them in parallel.
   std::int64_t active_rows() const {
     if (empty()) return 0;
     std::int64_t r = 1;

@@ -21,7 +21,6 @@
 /// Inputs are raw channel pointers (structure of arrays). `K[p]` is the stress impulse
 /// -dt V_p^0 tau_p computed by the caller; null means no stress.
 #include <Eigen/Core>
-#include <cassert>
 #include <cmath>
 #include <cstdint>
 #include <limits>
