@@ -23,7 +23,8 @@ const NameTable<TransferKind> kTransfer{{"pic", TransferKind::PIC},
                                         {"mls", TransferKind::MLS}};
 const NameTable<KernelKind> kKernel{
     {"linear", KernelKind::Linear}, {"quadratic", KernelKind::Quadratic}, {"cubic", KernelKind::Cubic}};
-const NameTable<Integrator> kIntegrator{{"explicit", Integrator::Explicit}};
+const NameTable<Integrator> kIntegrator{{"explicit", Integrator::Explicit}, {"implicit", Integrator::Implicit}};
+const NameTable<SolverType> kSolverType{{"mpm", SolverType::MPM}, {"flip", SolverType::FLIP}, {"fem", SolverType::FEM}};
 const NameTable<ElasticModel> kElastic{{"corotated_linear", ElasticModel::CorotatedLinear},
                                        {"fixed_corotated", ElasticModel::FixedCorotated},
                                        {"neo_hookean", ElasticModel::NeoHookean},
@@ -218,6 +219,8 @@ std::string_view to_string(ElasticModel m) { return name_of(kElastic, m); }
 std::string_view to_string(PlasticModel m) { return name_of(kPlastic, m); }
 std::string_view to_string(TransferKind m) { return name_of(kTransfer, m); }
 std::string_view to_string(KernelKind m) { return name_of(kKernel, m); }
+std::string_view to_string(SolverType m) { return name_of(kSolverType, m); }
+std::string_view to_string(Integrator m) { return name_of(kIntegrator, m); }
 
 int Scene::material_index(std::string_view name) const {
   for (std::size_t i = 0; i < materials.size(); ++i)
@@ -229,6 +232,14 @@ void Scene::validate() const {
   const Checker c{source};
   const int dim = solver.dimension;
   if (dim != 2 && dim != 3) fail(source, "solver.dimension", "expected 2 or 3, got " + std::to_string(dim));
+  // Solvers and integrators this build provides (each branch of the engine enables its own).
+  if (solver.type != SolverType::MPM)
+    fail(source, "solver.type", "expected \"mpm\" (\"" + std::string(to_string(solver.type)) + "\" is not available in this build)");
+  if (solver.integrator != Integrator::Explicit)
+    fail(source, "solver.integrator", "expected \"explicit\" (\"implicit\" is not available in this build)");
+  for (std::size_t i = 0; i < bodies.size(); ++i)
+    if (!bodies[i].mesh.empty())
+      fail(source, "bodies[" + std::to_string(i) + "].mesh", "meshes are read by solver.type \"fem\" only");
 
   // Domain.
   c.positive("domain.dx", domain.dx);
@@ -405,6 +416,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.number("dx", s.domain.dx);
   });
   top.object("solver", [&](ObjectReader& r) {
+    r.choice("type", kSolverType, s.solver.type);
     r.integer("dimension", s.solver.dimension);
     r.choice("precision", kPrecision, s.solver.precision);
     r.choice("transfer", kTransfer, s.solver.transfer);
@@ -465,6 +477,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.number("particles_per_cell", b.particles_per_cell);
     r.choice("sampling", kSampling, b.sampling);
     r.integer("seed", b.seed);
+    r.string("mesh", b.mesh);
     s.bodies.push_back(b);
   });
   top.object("boundaries", [&](ObjectReader& r) {

@@ -21,7 +21,11 @@ namespace slurry {
 enum class Precision { Float, Double };
 enum class TransferKind { PIC, FLIP, APIC, MLS };
 enum class KernelKind { Linear, Quadratic, Cubic };
-enum class Integrator { Explicit };
+/// Which solver runs the scene: MPM (particles on a collocated grid), FLIP/APIC liquid
+/// (particles on a staggered grid with pressure projection), or a Lagrangian FEM mesh.
+enum class SolverType { MPM, FLIP, FEM };
+/// Grid (MPM) or node (FEM) update: symplectic Euler, or linearly implicit backward Euler.
+enum class Integrator { Explicit, Implicit };
 enum class ElasticModel { CorotatedLinear, FixedCorotated, NeoHookean, StVK, HenckyStVK, Fluid };
 enum class PlasticModel { None, Snow, DruckerPrager, VonMises };
 enum class Shape { Box, Sphere, Cylinder };
@@ -40,6 +44,7 @@ struct DomainParams {
 };
 
 struct SolverParams {
+  SolverType type = SolverType::MPM;     ///< "mpm", "flip" or "fem"
   int dimension = 3;                     ///< 2 or 3
   Precision precision = Precision::Float;
   TransferKind transfer = TransferKind::MLS;
@@ -80,6 +85,9 @@ struct BodyParams {
   double particles_per_cell = 8;  ///< seeding density; spacing dx / ppc^(1/dimension)
   Sampling sampling = Sampling::Regular;
   std::uint64_t seed = 1;  ///< jittered sampling only
+  /// FEM only: TetGen mesh (path of the .node file, or of its stem; the .ele file sits beside
+  /// it), relative to the scene file. Empty: the body's shape is meshed by the solver.
+  std::string mesh;
 };
 
 struct BoundaryParams {
@@ -135,5 +143,7 @@ std::string_view to_string(ElasticModel);
 std::string_view to_string(PlasticModel);
 std::string_view to_string(TransferKind);
 std::string_view to_string(KernelKind);
+std::string_view to_string(SolverType);
+std::string_view to_string(Integrator);
 
 }  // namespace slurry
