@@ -42,6 +42,7 @@ const NameTable<ColliderShape> kColliderShape{{"half_space", ColliderShape::Half
                                               {"sphere", ColliderShape::Sphere}};
 const NameTable<Condition> kCondition{
     {"sticky", Condition::Sticky}, {"slip", Condition::Slip}, {"separate", Condition::Separate}};
+const NameTable<GridKind> kGrid{{"sparse", GridKind::Sparse}, {"dense", GridKind::Dense}};
 const NameTable<PlyEncoding> kEncoding{{"binary", PlyEncoding::Binary}, {"ascii", PlyEncoding::Ascii}};
 const std::vector<std::string> kAttributes{"position", "velocity", "material", "J", "plastic"};
 
@@ -247,14 +248,20 @@ void Scene::validate() const {
     if (!(domain.max[d] > domain.min[d]))
       fail(source, "domain.max", "expected every component greater than domain.min " + vec_str(domain.min, dim) +
                                      ", got " + vec_str(domain.max, dim));
-  double cells = 1;
+  double nodes = 1, blocks = 1;
   for (int d = 0; d < dim; ++d) {
     const double n = std::ceil((domain.max[d] - domain.min[d]) / domain.dx - 1e-9);
     if (n < 4) fail(source, "domain.dx", "expected at least 4 cells along each axis, got " + fmt_num(n));
-    cells *= n + 7;
+    nodes *= n + 7;
+    blocks *= std::ceil((n + 7) / (dim == 3 ? 4 : 8));
   }
-  if (cells > 2.0e9)
-    fail(source, "domain.dx", "the dense grid would have " + fmt_num(cells) + " nodes (limit 2e9); use a larger dx");
+  if (domain.grid == GridKind::Dense && nodes > 2.0e9)
+    fail(source, "domain.dx",
+         "the dense grid would have " + fmt_num(nodes) + " nodes (limit 2e9); use a larger dx or domain.grid \"sparse\"");
+  // The sparse grid's page table holds one int32 per block of the domain (two tables: grid and
+  // particle bins), so 2^28 blocks cost 2 GiB.
+  if (blocks > double(1 << 28))
+    fail(source, "domain.dx", "the sparse grid's page table would have " + fmt_num(blocks) + " blocks (limit 2^28); use a larger dx");
 
   // Solver.
   if (solver.transfer == TransferKind::MLS && solver.kernel == KernelKind::Linear)
@@ -414,6 +421,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.vector("min", s.domain.min);
     r.vector("max", s.domain.max);
     r.number("dx", s.domain.dx);
+    r.choice("grid", kGrid, s.domain.grid);
   });
   top.object("solver", [&](ObjectReader& r) {
     r.choice("type", kSolverType, s.solver.type);

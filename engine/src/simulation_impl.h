@@ -45,12 +45,24 @@ Simulation<T, Dim>::Simulation(const Scene& scene) : scene_(scene) {
     x_lo_[d] = T(dom.min[d] - dom.dx);
     x_hi_[d] = T(dom.min[d] + (cells + 1) * dom.dx);
   }
-  grid_.resize(origin, dx, res);
-  grid_.keep_old_velocity(scene_.solver.transfer == TransferKind::FLIP);
+  dx_ = dx;
+  origin_ = origin;
+  const bool flip = scene_.solver.transfer == TransferKind::FLIP;
+  if (dom.grid == GridKind::Sparse) {
+    sparse_.resize(origin, dx, res);
+    sparse_.keep_old_velocity(flip);
+  } else {
+    dense_.resize(origin, dx, res);
+    dense_.keep_old_velocity(flip);
+  }
+  bins_.resize(res);
   gravity_ = scene_.solver.gravity.head<Dim>().template cast<T>();
   for (const auto& m : scene_.materials) materials_.push_back(make_material<T, Dim>(m));
   for (const auto& c : scene_.colliders) colliders_.emplace_back(c);
-  for (const auto& m : materials_) max_wave_speed_ = std::max(max_wave_speed_, m.wave_speed);
+  for (const auto& m : materials_) {
+    max_wave_speed_ = std::max(max_wave_speed_, m.wave_speed);
+    fluid_.push_back(m.fluid ? 1 : 0);
+  }
   seed_bodies();
   stress_.resize(particles_.size());
   for (const auto& v : particles_.v) max_speed_ = std::max(max_speed_, v.norm());
@@ -133,13 +145,12 @@ void Simulation<T, Dim>::seed_bodies() {
 
 template <class T, int Dim>
 std::size_t Simulation<T, Dim>::bytes() const {
-  return particles_.bytes() + stress_.capacity() * sizeof(Mat) +
-         grid_.size() * (sizeof(typename Grid::Node) + (grid_.keeps_old_velocity() ? sizeof(Vec) : 0));
+  return particles_.bytes() + stress_.capacity() * sizeof(Mat) + bins_.bytes() + dense_.bytes() + sparse_.bytes();
 }
 
 template <class T, int Dim>
 T Simulation<T, Dim>::stable_dt() const {
-  const T dx = grid_.dx();
+  const T dx = dx_;
   T dt = T(scene_.solver.max_dt);
   if (max_speed_ > T(0)) dt = std::min(dt, T(scene_.solver.cfl) * dx / max_speed_);
   // The linear B-spline tolerates a smaller elastic Courant number: free fall with APIC grows
@@ -173,13 +184,23 @@ std::int64_t Simulation<T, Dim>::advance_to(double t_end) {
 
 template <class T, int Dim>
 void Simulation<T, Dim>::step(T dt) {
-  compute_stress(dt);
-  particles_to_grid();
-  update_grid(dt);
-  grid_to_particles(dt);
-  return_mapping();
+  if (scene_.domain.grid == GridKind::Sparse)
+    step_on(sparse_, dt);
+  else
+    step_on(dense_, dt);
   time_ += double(dt);
   ++steps_;
+}
+
+template <class T, int Dim>
+template <class G>
+void Simulation<T, Dim>::step_on(G& grid, T dt) {
+  compute_stress(dt);
+  bin_particles();
+  particles_to_grid(grid);
+  update_grid(grid, dt);
+  grid_to_particles(grid, dt);
+  return_mapping();
 }
 
 template <class T, int Dim>
@@ -212,130 +233,168 @@ void Simulation<T, Dim>::compute_stress(T dt) {
 }
 
 template <class T, int Dim>
-void Simulation<T, Dim>::particles_to_grid() {
-  grid_.clear();
+void Simulation<T, Dim>::bin_particles() {
   switch (scene_.solver.kernel) {
-    case KernelKind::Linear: particles_to_grid_order<1>(); break;
-    case KernelKind::Quadratic: particles_to_grid_order<2>(); break;
-    case KernelKind::Cubic: particles_to_grid_order<3>(); break;
+    case KernelKind::Linear: bin_particles_order<1>(); break;
+    case KernelKind::Quadratic: bin_particles_order<2>(); break;
+    case KernelKind::Cubic: bin_particles_order<3>(); break;
   }
 }
 
 template <class T, int Dim>
 template <int Order>
-void Simulation<T, Dim>::particles_to_grid_order() {
-  using transfer::Scheme;
-  auto& P = particles_;
-  const std::int64_t n = std::int64_t(P.size());
-  switch (scene_.solver.transfer) {
-    case TransferKind::PIC:
-    case TransferKind::FLIP:
-      transfer::particles_to_grid<Order, Scheme::PIC>(grid_, P.x.data(), P.v.data(), P.m.data(), nullptr,
-                                                      stress_.data(), 0, n);
-      break;
-    case TransferKind::APIC:
-      transfer::particles_to_grid<Order, Scheme::APIC>(grid_, P.x.data(), P.v.data(), P.m.data(),
-                                                       P.C.data(), stress_.data(), 0, n);
-      break;
-    case TransferKind::MLS:
-      if constexpr (Order > 1)
-        transfer::particles_to_grid<Order, Scheme::MLS>(grid_, P.x.data(), P.v.data(), P.m.data(),
-                                                        P.C.data(), stress_.data(), 0, n);
-      break;
-  }
-}
-
-template <class T, int Dim>
-void Simulation<T, Dim>::update_grid(T dt) {
-  const auto& bc = scene_.boundaries;
-  const int cells_lo = detail::kPad + bc.thickness;  // nodes with index < this are in the wall
-  Eigen::Matrix<int, Dim, 1> cells_hi;
-  for (int d = 0; d < Dim; ++d) cells_hi[d] = grid_.res()[d] - 1 - detail::kPad - bc.thickness;
-  const T t = T(time_) + dt;
-  const T friction = T(bc.friction);
-  const bool flip = grid_.keeps_old_velocity();
-  const int row_len = grid_.active_row_length();
-  parallel::parallel_for(0, grid_.active_rows(), [&](std::int64_t r) {
-    const std::int64_t k0 = grid_.active_row_start(r);
-    Grid& g = grid_;
-    auto idx = g.coord(k0);  // once per row; the last coordinate advances with k
-    --idx[Dim - 1];
-    for (std::int64_t k = k0; k < k0 + row_len; ++k) {
-      ++idx[Dim - 1];
-      auto& node = g.node(k);
-      const T m = node[Dim];
-      if (m <= T(0)) continue;
-      Vec v = node.template head<Dim>() / m;
-      if (flip) g.old_velocity(k) = v;
-      v += dt * gravity_;
-      for (int d = 0; d < Dim; ++d) {
-        if (idx[d] < cells_lo) v = apply_condition<T, Dim>(v, Vec::Zero(), Vec::Unit(d), bc.walls, friction);
-        if (idx[d] > cells_hi[d]) v = apply_condition<T, Dim>(v, Vec::Zero(), -Vec::Unit(d), bc.walls, friction);
-      }
-      if (!colliders_.empty()) {
-        const Vec xi = g.position(idx);
-        Vec n;
-        for (const auto& c : colliders_)
-          if (c.inside(xi, t, n)) v = apply_condition<T, Dim>(v, c.velocity, n, c.condition, c.friction);
-      }
-      node.template head<Dim>() = v;
-    }
+void Simulation<T, Dim>::bin_particles_order() {
+  using IVec = Eigen::Matrix<int, Dim, 1>;
+  const Vec* x = particles_.x.data();
+  const T inv_dx = T(1) / dx_;
+  bins_.build(std::int64_t(particles_.size()), [&](std::int64_t p) {
+    IVec b;
+    for (int d = 0; d < Dim; ++d) b[d] = transfer::BSpline<Order>::base((x[p][d] - origin_[d]) * inv_dx);
+    return b;
   });
 }
 
 template <class T, int Dim>
-void Simulation<T, Dim>::grid_to_particles(T dt) {
+template <class G>
+void Simulation<T, Dim>::particles_to_grid(G& grid) {
+  grid.activate(bins_.bins());
   switch (scene_.solver.kernel) {
-    case KernelKind::Linear: grid_to_particles_order<1>(dt); break;
-    case KernelKind::Quadratic: grid_to_particles_order<2>(dt); break;
-    case KernelKind::Cubic: grid_to_particles_order<3>(dt); break;
+    case KernelKind::Linear: particles_to_grid_order<1>(grid); break;
+    case KernelKind::Quadratic: particles_to_grid_order<2>(grid); break;
+    case KernelKind::Cubic: particles_to_grid_order<3>(grid); break;
   }
 }
 
 template <class T, int Dim>
-template <int Order>
-void Simulation<T, Dim>::grid_to_particles_order(T dt) {
+template <int Order, class G>
+void Simulation<T, Dim>::particles_to_grid_order(G& grid) {
+  using transfer::Scheme;
+  auto& P = particles_;
+  const Mat* C = P.C.empty() ? nullptr : P.C.data();
+  const auto& bins = bins_.bins();
+  const std::uint32_t* order = bins_.order();
+  const T inv_dx = T(1) / dx_;
+  auto scatter = [&](auto scheme) {
+    constexpr Scheme S = decltype(scheme)::value;
+    if constexpr (S == Scheme::MLS && Order == 1) {
+      return;  // rejected by Scene::validate
+    } else {
+      // Colour by colour; within a colour no two blocks write the same node (blocks.h).
+      for (int c = 0; c < transfer::BlockShape<Dim>::colours; ++c) {
+        const auto& list = bins_.colour(c);
+        parallel::parallel_tasks(0, std::int64_t(list.size()), [&](std::int64_t i) {
+          const auto& bin = bins[list[std::size_t(i)]];
+          transfer::Patch<T, Dim, Order> patch(bin.block, origin_, dx_, inv_dx);
+          patch.zero();
+          transfer::scatter_particles<Order, S>(patch, P.x.data(), P.v.data(), P.m.data(), C, stress_.data(), order,
+                                                bin.begin, bin.end);
+          grid.add_patch(patch);
+        });
+      }
+    }
+  };
+  switch (scene_.solver.transfer) {
+    case TransferKind::PIC:
+    case TransferKind::FLIP: scatter(std::integral_constant<Scheme, Scheme::PIC>{}); break;
+    case TransferKind::APIC: scatter(std::integral_constant<Scheme, Scheme::APIC>{}); break;
+    case TransferKind::MLS: scatter(std::integral_constant<Scheme, Scheme::MLS>{}); break;
+  }
+}
+
+template <class T, int Dim>
+template <class G>
+void Simulation<T, Dim>::update_grid(G& grid, T dt) {
+  using IVec = Eigen::Matrix<int, Dim, 1>;
+  const auto& bc = scene_.boundaries;
+  const int cells_lo = detail::kPad + bc.thickness;  // nodes with index < this are in the wall
+  IVec cells_hi;
+  for (int d = 0; d < Dim; ++d) cells_hi[d] = grid.res()[d] - 1 - detail::kPad - bc.thickness;
+  const T t = T(time_) + dt;
+  const T friction = T(bc.friction);
+  grid.for_each_active_node([&](typename G::Node& node, const IVec& idx, Vec* old) {
+    const T m = node[Dim];
+    if (m <= T(0)) return;
+    Vec v = node.template head<Dim>() / m;
+    if (old) *old = v;
+    v += dt * gravity_;
+    for (int d = 0; d < Dim; ++d) {
+      if (idx[d] < cells_lo) v = apply_condition<T, Dim>(v, Vec::Zero(), Vec::Unit(d), bc.walls, friction);
+      if (idx[d] > cells_hi[d]) v = apply_condition<T, Dim>(v, Vec::Zero(), -Vec::Unit(d), bc.walls, friction);
+    }
+    if (!colliders_.empty()) {
+      const Vec xi = origin_ + dx_ * idx.template cast<T>();
+      Vec n;
+      for (const auto& c : colliders_)
+        if (c.inside(xi, t, n)) v = apply_condition<T, Dim>(v, c.velocity, n, c.condition, c.friction);
+    }
+    node.template head<Dim>() = v;
+  });
+}
+
+template <class T, int Dim>
+template <class G>
+void Simulation<T, Dim>::grid_to_particles(G& grid, T dt) {
+  switch (scene_.solver.kernel) {
+    case KernelKind::Linear: grid_to_particles_order<1>(grid, dt); break;
+    case KernelKind::Quadratic: grid_to_particles_order<2>(grid, dt); break;
+    case KernelKind::Cubic: grid_to_particles_order<3>(grid, dt); break;
+  }
+}
+
+template <class T, int Dim>
+template <int Order, class G>
+void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
   using transfer::Scheme;
   auto& P = particles_;
   const T flip = T(scene_.solver.flip_ratio);
   Mat* C = P.C.empty() ? nullptr : P.C.data();
-  T vmax2 = 0;
-  for (const auto& r : ranges_) {
-    const bool fluid = materials_[r.material].fluid;
-    auto run = [&](auto scheme, auto&& state) {
-      constexpr Scheme S = decltype(scheme)::value;
-      if constexpr (S == Scheme::MLS && Order == 1) {
-        return T(0);  // rejected by Scene::validate
-      } else {
-        return transfer::grid_to_particles<Order, S>(grid_, P.x.data(), P.v.data(), C, dt, flip, x_lo_,
-                                                     x_hi_, r.begin, r.end, state);
-      }
-    };
-    auto with_state = [&](auto scheme) {
-      if (fluid) {
-        T* J = P.J.data();
-        return run(scheme, [=](std::int64_t p, const Mat& gv) {
-          J[p] *= (Mat::Identity() + dt * gv).determinant();
-        });
-      }
-      Mat* F = P.F.data();
-      return run(scheme, [=](std::int64_t p, const Mat& gv) {
-        F[p] = (Mat::Identity() + dt * gv) * F[p];
-      });
-    };
-    T r2 = 0;
-    switch (scene_.solver.transfer) {
-      case TransferKind::PIC: r2 = with_state(std::integral_constant<Scheme, Scheme::PIC>{}); break;
-      case TransferKind::FLIP: r2 = with_state(std::integral_constant<Scheme, Scheme::FLIP>{}); break;
-      case TransferKind::APIC: r2 = with_state(std::integral_constant<Scheme, Scheme::APIC>{}); break;
-      case TransferKind::MLS: r2 = with_state(std::integral_constant<Scheme, Scheme::MLS>{}); break;
+  Mat* F = P.F.empty() ? nullptr : P.F.data();
+  T* J = P.J.empty() ? nullptr : P.J.data();
+  const std::uint16_t* material = P.material.empty() ? nullptr : P.material.data();
+  const std::uint8_t* fluid = fluid_.data();
+  const auto& bins = bins_.bins();
+  const std::uint32_t* order = bins_.order();
+  const T inv_dx = T(1) / dx_;
+  // F <- (I + dt grad v) F for solids, J <- det(I + dt grad v) J for fluids (a particle's
+  // material decides; a block may hold several).
+  auto state = [=](std::int64_t p, const Mat& gv) {
+    if (fluid[material ? material[p] : 0])
+      J[p] *= (Mat::Identity() + dt * gv).determinant();
+    else
+      F[p] = (Mat::Identity() + dt * gv) * F[p];
+  };
+  auto gather = [&](auto scheme) {
+    constexpr Scheme S = decltype(scheme)::value;
+    if constexpr (S == Scheme::MLS && Order == 1) {
+      return T(0);  // rejected by Scene::validate
+    } else {
+      return parallel::parallel_max<T>(
+          0, std::int64_t(bins.size()), T(0),
+          [&](std::int64_t lo, std::int64_t hi) {
+            T r2 = 0;
+            for (std::int64_t b = lo; b < hi; ++b) {
+              const auto& bin = bins[std::size_t(b)];
+              transfer::Patch<T, Dim, Order> patch(bin.block, origin_, dx_, inv_dx);
+              grid.read_patch(patch);
+              r2 = std::max(r2, transfer::gather_particles<Order, S>(patch, P.x.data(), P.v.data(), C, dt, flip, x_lo_,
+                                                                     x_hi_, order, bin.begin, bin.end, state));
+            }
+            return r2;
+          },
+          1);
     }
-    vmax2 = std::max(vmax2, r2);
+  };
+  T vmax2 = 0;
+  switch (scene_.solver.transfer) {
+    case TransferKind::PIC: vmax2 = gather(std::integral_constant<Scheme, Scheme::PIC>{}); break;
+    case TransferKind::FLIP: vmax2 = gather(std::integral_constant<Scheme, Scheme::FLIP>{}); break;
+    case TransferKind::APIC: vmax2 = gather(std::integral_constant<Scheme, Scheme::APIC>{}); break;
+    case TransferKind::MLS: vmax2 = gather(std::integral_constant<Scheme, Scheme::MLS>{}); break;
   }
   max_speed_ = std::sqrt(vmax2);
   // A particle moving more than a cell in one substep (or non-finite, or outside the domain)
   // means the step was unstable: stop with a diagnosis rather than write garbage.
-  const T limit = std::max(T(1), T(2 * scene_.solver.cfl)) * grid_.dx();
+  const T limit = std::max(T(1), T(2 * scene_.solver.cfl)) * dx_;
   if (!(max_speed_ * dt <= limit)) diagnose(dt);
 }
 
@@ -364,7 +423,7 @@ void Simulation<T, Dim>::return_mapping() {
 template <class T, int Dim>
 void Simulation<T, Dim>::diagnose(T dt) const {
   const auto& P = particles_;
-  const T limit = std::max(T(1), T(2 * scene_.solver.cfl)) * grid_.dx();
+  const T limit = std::max(T(1), T(2 * scene_.solver.cfl)) * dx_;
   std::int64_t worst = -1;
   std::string what;
   T worst_speed = -1;
@@ -378,9 +437,9 @@ void Simulation<T, Dim>::diagnose(T dt) const {
     }
   }
   if (what.empty())
-    what = "moved " + detail::fmt(double(worst_speed * dt / grid_.dx())) + " cells in one substep (speed " +
+    what = "moved " + detail::fmt(double(worst_speed * dt / dx_)) + " cells in one substep (speed " +
            detail::fmt(double(worst_speed)) + " m/s, dt " + detail::fmt(double(dt)) + " s; limit " +
-           detail::fmt(double(limit / grid_.dx())) + " cells): CFL violation";
+           detail::fmt(double(limit / dx_)) + " cells): CFL violation";
   int mat = 0;
   for (const auto& r : ranges_)
     if (worst >= r.begin && worst < r.end) mat = r.material;

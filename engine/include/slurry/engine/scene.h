@@ -36,11 +36,16 @@ enum class ColliderShape { HalfSpace, Box, Sphere };
 /// approaching, tangential part reduced by Coulomb friction mu |v_n|).
 enum class Condition { Sticky, Slip, Separate };
 enum class PlyEncoding { Binary, Ascii };
+/// Background grid storage: blocks allocated where particles are (sparse), or one box.
+enum class GridKind { Sparse, Dense };
 
 struct DomainParams {
   Eigen::Vector3d min{0, 0, 0};  ///< lower corner (m)
   Eigen::Vector3d max{1, 1, 1};  ///< upper corner (m); rounded up to whole cells of dx
   double dx = 0.02;              ///< grid spacing (m), > 0
+  /// "sparse": 4^3 (2D: 8^2) node blocks allocated each step where particles reach, memory
+  /// follows the occupied volume; "dense": one array over the domain (same results).
+  GridKind grid = GridKind::Sparse;
 };
 
 struct SolverParams {

@@ -3,7 +3,9 @@
 /// The explicit Material Point Method solver: one substep is
 ///
 ///   compute_stress  K_p = -dt V_p^0 tau(F_p)           (per material; snow hardening here)
-///   particles_to_grid  mass, momentum, affine momentum, stress impulse -> nodes
+///   bin_particles   particle indices sorted by grid block (blocks.h)
+///   particles_to_grid  mass, momentum, affine momentum, stress impulse -> nodes, block by
+///                   block in 2^Dim colour phases (race-free, same sums on any thread count)
 ///   update_grid     v_i = p_i / m_i + dt g; walls and colliders
 ///   grid_to_particles  v_p, C_p, F_p <- (I + dt grad v) F_p (or J_p), x_p += dt v_p
 ///   return_mapping  plastic projection of F_p (per plastic material)
@@ -26,7 +28,9 @@
 #include "slurry/engine/particles.h"
 #include "slurry/engine/ply.h"
 #include "slurry/engine/scene.h"
+#include "slurry/transfer/blocks.h"
 #include "slurry/transfer/grid.h"
+#include "slurry/transfer/sparse_grid.h"
 
 namespace slurry {
 
@@ -56,7 +60,8 @@ class Simulation final : public SimulationBase {
  public:
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using Mat = Eigen::Matrix<T, Dim, Dim>;
-  using Grid = transfer::DenseGrid<T, Dim>;
+  using DenseGrid = transfer::DenseGrid<T, Dim>;
+  using SparseGrid = transfer::SparseGrid<T, Dim>;
 
   /// Validates the scene and seeds its bodies with particles.
   explicit Simulation(const Scene& scene);
@@ -75,7 +80,6 @@ class Simulation final : public SimulationBase {
 
   Particles<T, Dim>& particles() { return particles_; }
   const Particles<T, Dim>& particles() const { return particles_; }
-  const Grid& grid() const { return grid_; }
   const Scene& scene() const { return scene_; }
   /// Largest particle speed after the last substep (m/s).
   T max_speed() const { return max_speed_; }
@@ -92,17 +96,25 @@ class Simulation final : public SimulationBase {
   };
 
   void seed_bodies();
+  template <class G>
+  void step_on(G& grid, T dt);
   void compute_stress(T dt);
-  void particles_to_grid();
-  void update_grid(T dt);
-  void grid_to_particles(T dt);
+  void bin_particles();
+  template <class G>
+  void particles_to_grid(G& grid);
+  template <class G>
+  void update_grid(G& grid, T dt);
+  template <class G>
+  void grid_to_particles(G& grid, T dt);
   void return_mapping();
   [[noreturn]] void diagnose(T dt) const;
 
   template <int Order>
-  void particles_to_grid_order();
-  template <int Order>
-  void grid_to_particles_order(T dt);
+  void bin_particles_order();
+  template <int Order, class G>
+  void particles_to_grid_order(G& grid);
+  template <int Order, class G>
+  void grid_to_particles_order(G& grid, T dt);
 
   Scene scene_;
   std::vector<Material<T, Dim>> materials_;
@@ -110,7 +122,12 @@ class Simulation final : public SimulationBase {
   std::vector<Collider<T, Dim>> colliders_;
   Particles<T, Dim> particles_;
   std::vector<Mat> stress_;  // K_p = -dt V_p^0 tau_p, scratch of the current substep
-  Grid grid_;
+  std::vector<std::uint8_t> fluid_;  // per material: advances J instead of F
+  transfer::ParticleBins<Dim> bins_;
+  DenseGrid dense_;    // domain.grid "dense"
+  SparseGrid sparse_;  // domain.grid "sparse" (the unused one stays empty)
+  T dx_ = T(1);
+  Vec origin_;
   Vec gravity_;
   Vec x_lo_, x_hi_;  // particles must stay in this box (the domain plus one cell)
   double time_ = 0;

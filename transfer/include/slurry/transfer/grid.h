@@ -7,13 +7,19 @@
 /// nodes touched since the last clear, so clearing and the grid update cost the occupied box,
 /// not the whole domain.
 ///
-/// This is the grid interface the transfers use (`origin()`, `dx()`, `inv_dx()`, `res()`,
-/// `index()`, `stride()`, `node()`, `touch()`); a sparse blocked grid can stand in its place.
+/// Two interfaces: the whole-grid one of the serial transfers (`origin()`, `dx()`, `inv_dx()`,
+/// `res()`, `index()`, `stride()`, `node()`, `touch()`), and the block one of the engine's
+/// parallel transfers, shared with SparseGrid (sparse_grid.h): `activate(bins)`,
+/// `add_patch`, `read_patch`, `for_each_active_node`.
 #include <Eigen/Core>
 #include <algorithm>
 #include <array>
 #include <cstdint>
+#include <limits>
 #include <vector>
+
+#include "slurry/transfer/blocks.h"
+#include "slurry/transfer/parallel.h"
 
 namespace slurry::transfer {
 
@@ -111,6 +117,51 @@ class DenseGrid {
     return k;
   }
   int active_row_length() const { return empty() ? 0 : hi_[Dim - 1] - lo_[Dim - 1] + 1; }
+  /// Block interface (see SparseGrid): zeroes the previous active box and makes the active box
+  /// the nodes that the particles of `bins` reach.
+  void activate(const std::vector<typename ParticleBins<Dim>::Bin>& bins) {
+    clear();
+    if (bins.empty()) return;
+    IVec lo = IVec::Constant(std::numeric_limits<int>::max()), hi = IVec::Constant(-1);
+    for (const auto& b : bins) {
+      lo = lo.cwiseMin(b.block);
+      hi = hi.cwiseMax(b.block);
+    }
+    constexpr int S = BlockShape<Dim>::size;
+    touch(lo * S, (hi * S + IVec::Constant(2 * S - 1)).cwiseMin(res_ - IVec::Ones()));
+  }
+
+  template <int Order>
+  void add_patch(const Patch<T, Dim, Order>& patch) {
+    walk_patch<Order>(patch.first, [&](int pk, std::int64_t k) { nodes_[std::size_t(k)] += patch.nodes[std::size_t(pk)]; });
+  }
+
+  template <int Order>
+  void read_patch(Patch<T, Dim, Order>& patch) const {
+    patch.zero();
+    const bool old = keeps_old_velocity();
+    walk_patch<Order>(patch.first, [&](int pk, std::int64_t k) {
+      patch.nodes[std::size_t(pk)] = nodes_[std::size_t(k)];
+      if (old) patch.old[std::size_t(pk)] = old_[std::size_t(k)];
+    });
+  }
+
+  /// fn(node, node coordinates, old velocity slot or nullptr) for every node of the active box,
+  /// in parallel over rows.
+  template <class Fn>
+  void for_each_active_node(Fn&& fn) {
+    const int n = active_row_length();
+    parallel::parallel_for(0, active_rows(), [&](std::int64_t r) {
+      const std::int64_t k0 = active_row_start(r);
+      IVec idx = coord(k0);
+      for (std::int64_t k = k0; k < k0 + n; ++k, ++idx[Dim - 1])
+        fn(nodes_[std::size_t(k)], idx, old_.empty() ? nullptr : &old_[std::size_t(k)]);
+    });
+  }
+
+  /// Bytes held.
+  std::size_t bytes() const { return nodes_.capacity() * sizeof(Node) + old_.capacity() * sizeof(Vec); }
+
   /// Grid coordinates of node index k.
   IVec coord(std::int64_t k) const {
     IVec i;
@@ -122,6 +173,28 @@ class DenseGrid {
   }
 
  private:
+  /// fn(patch index, grid index) over the patch nodes inside the lattice.
+  template <int Order, class Fn>
+  void walk_patch(const IVec& first, Fn&& fn) const {
+    constexpr int E = Patch<T, Dim, Order>::extent;
+    int hi[Dim];
+    for (int d = 0; d < Dim; ++d) hi[d] = std::min(E, res_[d] - first[d]);
+    const std::int64_t k0 = index(first);
+    if constexpr (Dim == 3) {
+      for (int a = 0; a < hi[0]; ++a)
+        for (int b = 0; b < hi[1]; ++b) {
+          const std::int64_t k = k0 + a * stride_[0] + b * stride_[1];
+          const int pk = (a * E + b) * E;
+          for (int c = 0; c < hi[2]; ++c) fn(pk + c, k + c);
+        }
+    } else {
+      for (int a = 0; a < hi[0]; ++a) {
+        const std::int64_t k = k0 + a * stride_[0];
+        for (int b = 0; b < hi[1]; ++b) fn(a * E + b, k + b);
+      }
+    }
+  }
+
   Vec origin_ = Vec::Zero();
   T dx_ = T(1), inv_dx_ = T(1);
   IVec res_ = IVec::Zero();

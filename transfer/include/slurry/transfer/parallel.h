@@ -90,6 +90,24 @@ void parallel_for(std::int64_t begin, std::int64_t end, Fn&& fn) {
 #endif
 }
 
+/// fn(i) for i in [begin, end) where each call is a sizeable independent task (a block of
+/// particles): handed out one at a time, so a few hundred tasks still balance.
+template <class Fn>
+void parallel_tasks(std::int64_t begin, std::int64_t end, Fn&& fn) {
+  if (end <= begin) return;
+#if defined(SLURRY_PARALLEL_OPENMP)
+#pragma omp parallel for schedule(dynamic, 1)
+  for (std::int64_t i = begin; i < end; ++i) fn(i);
+#elif defined(SLURRY_PARALLEL_TBB)
+  tbb::parallel_for(tbb::blocked_range<std::int64_t>(begin, end, 1),
+                    [&](const tbb::blocked_range<std::int64_t>& r) {
+                      for (std::int64_t i = r.begin(); i < r.end(); ++i) fn(i);
+                    });
+#else
+  for (std::int64_t i = begin; i < end; ++i) fn(i);
+#endif
+}
+
 /// fn(lo, hi) over contiguous chunks of [begin, end) (for loops that keep per-chunk state).
 template <class Fn>
 void parallel_chunks(std::int64_t begin, std::int64_t end, Fn&& fn) {
@@ -107,13 +125,13 @@ void parallel_chunks(std::int64_t begin, std::int64_t end, Fn&& fn) {
 #endif
 }
 
-/// max over i of fn(lo, hi) chunk results; max is order independent, so so is the result.
+/// max over i of fn(lo, hi) chunk results, chunks of `grain` indices; max is order
+/// independent, so so is the result.
 template <class T, class Fn>
-T parallel_max(std::int64_t begin, std::int64_t end, T init, Fn&& chunk_max) {
+T parallel_max(std::int64_t begin, std::int64_t end, T init, Fn&& chunk_max, std::int64_t grain = 2048) {
   if (end <= begin) return init;
 #if defined(SLURRY_PARALLEL_OPENMP)
   T result = init;
-  constexpr std::int64_t grain = 2048;
   const std::int64_t chunks = (end - begin + grain - 1) / grain;
 #pragma omp parallel for schedule(dynamic, 1) reduction(max : result)
   for (std::int64_t c = 0; c < chunks; ++c)
@@ -121,7 +139,7 @@ T parallel_max(std::int64_t begin, std::int64_t end, T init, Fn&& chunk_max) {
   return result;
 #elif defined(SLURRY_PARALLEL_TBB)
   return tbb::parallel_reduce(
-      tbb::blocked_range<std::int64_t>(begin, end, 1024), init,
+      tbb::blocked_range<std::int64_t>(begin, end, std::max<std::int64_t>(1, grain / 2)), init,
       [&](const tbb::blocked_range<std::int64_t>& r, T acc) {
         return std::max(acc, chunk_max(r.begin(), r.end()));
       },

@@ -43,15 +43,18 @@ using MatPtr = typename NonDeduced<Eigen::Matrix<T, Dim, Dim>>::type;
 }  // namespace detail
 
 /// Whether particles of this scheme carry an affine matrix C.
-constexpr bool carries_affine(Scheme s) { return s == Scheme::APIC || s == Scheme::MLS; }
+constexpr bool carries_affine(Scheme s) {
+  return s == Scheme::APIC || s == Scheme::MLS;
+}
 
-/// Scatters mass and momentum (and the stress impulse) of particles [begin, end) to the grid and
-/// widens the grid's active box. Serial: the scatter writes shared nodes.
+/// Scatters mass and momentum (and the stress impulse) of particles ids[begin, end) (or
+/// [begin, end) when ids is null) to `grid` and widens its active box. Serial: the scatter
+/// writes shared nodes. `Grid` is a DenseGrid or a block Patch (blocks.h).
 template <int Order, Scheme S, class Grid, class T, int Dim>
-void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
+void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
                        const Eigen::Matrix<T, Dim, 1>* v, const T* m,
                        const detail::MatPtr<T, Dim>* C, const detail::MatPtr<T, Dim>* K,
-                       std::int64_t begin, std::int64_t end) {
+                       const std::uint32_t* ids, std::int64_t begin, std::int64_t end) {
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using Mat = Eigen::Matrix<T, Dim, Dim>;
   using IVec = Eigen::Matrix<int, Dim, 1>;
@@ -67,7 +70,8 @@ void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
   IVec hi = IVec::Constant(std::numeric_limits<int>::min());
   auto* nodes = grid.data();
 
-  for (std::int64_t p = begin; p < end; ++p) {
+  for (std::int64_t i = begin; i < end; ++i) {
+    const std::int64_t p = ids ? std::int64_t(ids[i]) : i;
     const St s(x[p] - origin, inv_dx, dx);
     const IVec base = Eigen::Map<const IVec>(s.base.data());
     lo = lo.cwiseMin(base);
@@ -102,17 +106,29 @@ void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
   grid.touch(lo, hi + IVec::Constant(St::N - 1));
 }
 
-/// Gathers velocity (and C for APIC/MLS) back to particles [begin, end), advects them by
-/// dt * (PIC velocity), and calls `state(p, grad_v)` for the caller's deformation update.
-/// Reads the grid velocity from the node's first Dim entries and, for FLIP, the pre-update
-/// velocity from `grid.old_velocity(k)`. Runs in parallel (each particle writes only itself).
-/// Returns the largest squared particle speed, or +infinity if any velocity is not finite or
-/// any particle left the box [x_lo, x_hi] (the caller then finds and names the particle).
+/// Scatters particles [begin, end) to a whole grid (serial; the engine scatters block by block
+/// in parallel, see blocks.h).
+template <int Order, Scheme S, class Grid, class T, int Dim>
+void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
+                       const Eigen::Matrix<T, Dim, 1>* v, const T* m,
+                       const detail::MatPtr<T, Dim>* C, const detail::MatPtr<T, Dim>* K,
+                       std::int64_t begin, std::int64_t end) {
+  scatter_particles<Order, S>(grid, x, v, m, C, K, nullptr, begin, end);
+}
+
+/// Gathers velocity (and C for APIC/MLS) back to particles ids[begin, end) (or [begin, end)
+/// when ids is null), advects them by dt * (PIC velocity), and calls `state(p, grad_v)` for the
+/// caller's deformation update. Reads the grid velocity from the node's first Dim entries and,
+/// for FLIP, the pre-update velocity from `grid.old_velocity(k)`. Serial; each particle writes
+/// only itself, so callers run disjoint ranges in parallel. Returns the largest squared particle
+/// speed, or +infinity if any velocity is not finite or any particle left the box [x_lo, x_hi]
+/// (the caller then finds and names the particle).
 template <int Order, Scheme S, class Grid, class T, int Dim, class StateFn>
-T grid_to_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<T, Dim, 1>* v,
-                    detail::MatPtr<T, Dim>* C, T dt, T flip_ratio,
-                    const Eigen::Matrix<T, Dim, 1>& x_lo, const Eigen::Matrix<T, Dim, 1>& x_hi,
-                    std::int64_t begin, std::int64_t end, StateFn&& state) {
+T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<T, Dim, 1>* v,
+                   detail::MatPtr<T, Dim>* C, T dt, T flip_ratio,
+                   const Eigen::Matrix<T, Dim, 1>& x_lo, const Eigen::Matrix<T, Dim, 1>& x_hi,
+                   const std::uint32_t* ids, std::int64_t begin, std::int64_t end,
+                   StateFn&& state) {
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using Mat = Eigen::Matrix<T, Dim, Dim>;
   using St = Stencil<T, Dim, Order>;
@@ -128,48 +144,59 @@ T grid_to_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix
   constexpr bool need_B = carries_affine(S);
   constexpr bool need_grad = S != Scheme::MLS;
 
-  return parallel::parallel_max<T>(begin, end, T(0), [&](std::int64_t lo, std::int64_t hi) {
-    T vmax2 = 0;
-    for (std::int64_t p = lo; p < hi; ++p) {
-      const St s(x[p] - origin, inv_dx, dx);
-      Vec vpic = Vec::Zero(), dv = Vec::Zero();
-      Mat B = Mat::Zero(), gv = Mat::Zero();
-      const std::int64_t k0 = grid.index(s.base);
-      for_each_node(s, [&](int a, int b, int c, T w, const Vec& grad, const Vec& off) {
-        std::int64_t k = k0 + a * stride[0] + b * stride[1];
-        if constexpr (Dim == 3) k += c;
-        const Vec vi = nodes[k].template head<Dim>();
-        const Vec wv = w * vi;
-        vpic += wv;
-        // Outer products written out: Eigen's generic product path is not inlined here.
-        for (int j = 0; j < Dim; ++j)
-          for (int i = 0; i < Dim; ++i) {
-            if constexpr (need_B) B(i, j) += wv[i] * off[j];
-            if constexpr (need_grad) gv(i, j) += vi[i] * grad[j];
-          }
-        if constexpr (S == Scheme::FLIP) dv += w * (vi - grid.old_velocity(k));
-      });
-      if constexpr (carries_affine(S)) {
-        if constexpr (Order > 1)
-          C[p] = Dinv * B;
-        else
-          C[p] = B;
-      }
-      Vec vnew = vpic;
-      if constexpr (S == Scheme::FLIP) vnew = flip_ratio * (v[p] + dv) + (T(1) - flip_ratio) * vpic;
-      v[p] = vnew;
-      x[p] += dt * vpic;
-      if (!((x[p].array() >= x_lo.array()).all() && (x[p].array() <= x_hi.array()).all()))
-        return std::numeric_limits<T>::infinity();
-      if constexpr (S == Scheme::MLS)
-        state(p, C[p]);
+  T vmax2 = 0;
+  for (std::int64_t i = begin; i < end; ++i) {
+    const std::int64_t p = ids ? std::int64_t(ids[i]) : i;
+    const St s(x[p] - origin, inv_dx, dx);
+    Vec vpic = Vec::Zero(), dv = Vec::Zero();
+    Mat B = Mat::Zero(), gv = Mat::Zero();
+    const std::int64_t k0 = grid.index(s.base);
+    for_each_node(s, [&](int a, int b, int c, T w, const Vec& grad, const Vec& off) {
+      std::int64_t k = k0 + a * stride[0] + b * stride[1];
+      if constexpr (Dim == 3) k += c;
+      const Vec vi = nodes[k].template head<Dim>();
+      const Vec wv = w * vi;
+      vpic += wv;
+      // Outer products written out: Eigen's generic product path is not inlined here.
+      for (int j = 0; j < Dim; ++j)
+        for (int r = 0; r < Dim; ++r) {
+          if constexpr (need_B) B(r, j) += wv[r] * off[j];
+          if constexpr (need_grad) gv(r, j) += vi[r] * grad[j];
+        }
+      if constexpr (S == Scheme::FLIP) dv += w * (vi - grid.old_velocity(k));
+    });
+    if constexpr (carries_affine(S)) {
+      if constexpr (Order > 1)
+        C[p] = Dinv * B;
       else
-        state(p, gv);
-      const T s2 = vnew.squaredNorm();
-      if (!(s2 <= std::numeric_limits<T>::max())) return std::numeric_limits<T>::infinity();
-      vmax2 = std::max(vmax2, s2);
+        C[p] = B;
     }
-    return vmax2;
+    Vec vnew = vpic;
+    if constexpr (S == Scheme::FLIP) vnew = flip_ratio * (v[p] + dv) + (T(1) - flip_ratio) * vpic;
+    v[p] = vnew;
+    x[p] += dt * vpic;
+    if (!((x[p].array() >= x_lo.array()).all() && (x[p].array() <= x_hi.array()).all()))
+      return std::numeric_limits<T>::infinity();
+    if constexpr (S == Scheme::MLS)
+      state(p, C[p]);
+    else
+      state(p, gv);
+    const T s2 = vnew.squaredNorm();
+    if (!(s2 <= std::numeric_limits<T>::max())) return std::numeric_limits<T>::infinity();
+    vmax2 = std::max(vmax2, s2);
+  }
+  return vmax2;
+}
+
+/// gather_particles over [begin, end) of a whole grid, in parallel.
+template <int Order, Scheme S, class Grid, class T, int Dim, class StateFn>
+T grid_to_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<T, Dim, 1>* v,
+                    detail::MatPtr<T, Dim>* C, T dt, T flip_ratio,
+                    const Eigen::Matrix<T, Dim, 1>& x_lo, const Eigen::Matrix<T, Dim, 1>& x_hi,
+                    std::int64_t begin, std::int64_t end, StateFn&& state) {
+  return parallel::parallel_max<T>(begin, end, T(0), [&](std::int64_t lo, std::int64_t hi) {
+    return gather_particles<Order, S>(grid, x, v, C, dt, flip_ratio, x_lo, x_hi, nullptr, lo, hi,
+                                      state);
   });
 }
 

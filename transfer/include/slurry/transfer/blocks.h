@@ -1,0 +1,223 @@
+#pragma once
+/// \file blocks.h
+/// Grid blocks and particle binning: the spatial structure behind Slurry's race-free parallel
+/// transfers.
+///
+/// The node lattice is cut into blocks of `BlockShape<Dim>::size` nodes per axis (4^3 in 3D,
+/// 8^2 in 2D: about 512 particles per block at the usual 8 (3D) or 4-9 (2D) particles per cell).
+/// A particle belongs to the block holding the first node of its B-spline stencil ("base"), so
+/// its stencil nodes lie in [size b, size b + size - 1 + Order] along each axis: in its own block
+/// or the next one. Scattering one block's particles therefore writes at most the 2^Dim blocks
+/// b + {0,1}^Dim, and two blocks whose coordinates have equal parities (the same "colour") and
+/// differ somewhere never write the same node. P2G runs the 2^Dim colours one after the other
+/// and the blocks of one colour in parallel: no atomics, no per-thread grids, and every node
+/// receives its contributions in the same order whatever the thread count (the block-colouring
+/// scheme of Gao et al. 2018, "GPU optimization of material point methods", and of Fei et al.
+/// 2021's multi-colour scatter, here on CPU threads).
+///
+/// `ParticleBins` sorts particle indices by block with a stable counting sort (Knuth, TAOCP
+/// vol. 3, 5.2 "distribution counting"), in fixed chunks so that the order never depends on the
+/// thread count. Buffers are reused between steps; after the first steps a rebuild allocates
+/// nothing unless the particles spread over more blocks than ever before.
+#include <Eigen/Core>
+#include <algorithm>
+#include <array>
+#include <cstdint>
+#include <limits>
+#include <stdexcept>
+#include <vector>
+
+#include "slurry/transfer/parallel.h"
+
+namespace slurry::transfer {
+
+template <int Dim>
+struct BlockShape {
+  static_assert(Dim == 2 || Dim == 3, "2D or 3D");
+  static constexpr int log2 = Dim == 3 ? 2 : 3;
+  static constexpr int size = 1 << log2;  ///< nodes per axis
+  static constexpr int nodes = Dim == 3 ? size * size * size : size * size;
+  static constexpr int colours = 1 << Dim;
+};
+
+/// Particle indices sorted by the block of their stencil base node.
+template <int Dim>
+class ParticleBins {
+ public:
+  using IVec = Eigen::Matrix<int, Dim, 1>;
+  using Shape = BlockShape<Dim>;
+  /// Particles order()[begin, end) belong to block `block` (block coordinates).
+  struct Bin {
+    IVec block;
+    std::uint32_t begin, end;
+  };
+
+  /// Blocks covering a lattice of `node_res` nodes per axis.
+  void resize(const IVec& node_res) {
+    std::int64_t total = 1;
+    for (int d = 0; d < Dim; ++d) {
+      block_res_[d] = (node_res[d] + Shape::size - 1) / Shape::size;
+      total *= block_res_[d];
+    }
+    if (total >= std::numeric_limits<std::int32_t>::max())
+      throw std::length_error("ParticleBins: more than 2^31 blocks; use a larger dx");
+    table_.assign(std::size_t(total), -1);
+    distinct_.clear();
+  }
+  const IVec& block_res() const { return block_res_; }
+
+  /// Bins particles [0, n); `base_of(p)` returns the particle's stencil base node (IVec), which
+  /// must lie inside the lattice.
+  template <class BaseOf>
+  void build(std::int64_t n, BaseOf&& base_of) {
+    if (n > std::int64_t(std::numeric_limits<std::uint32_t>::max()))
+      throw std::length_error("ParticleBins: more than 2^32 particles");
+    key_.resize(std::size_t(n));
+    order_.resize(std::size_t(n));
+    for (auto k : distinct_) table_[std::size_t(k)] = -1;
+    distinct_.clear();
+    // 1. Block key of every particle.
+    std::int32_t* key = key_.data();
+    parallel::parallel_for(0, n, [&](std::int64_t p) {
+      const IVec b = base_of(p);
+      std::int64_t k = 0;
+      for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + (b[d] >> Shape::log2);
+      key[p] = std::int32_t(k);
+    });
+    // 2. The occupied blocks, sorted by key (neighbouring particles mostly share a block, so the
+    //    table is read once per run of equal keys).
+    std::int32_t prev = -1;
+    for (std::int64_t p = 0; p < n; ++p) {
+      const std::int32_t k = key[p];
+      if (k == prev) continue;
+      prev = k;
+      if (table_[std::size_t(k)] < 0) {
+        table_[std::size_t(k)] = 0;
+        distinct_.push_back(k);
+      }
+    }
+    std::sort(distinct_.begin(), distinct_.end());
+    const std::int64_t nb = std::int64_t(distinct_.size());
+    for (std::int64_t j = 0; j < nb; ++j) table_[std::size_t(distinct_[std::size_t(j)])] = std::int32_t(j);
+    // 3. Stable counting sort in fixed chunks: per-chunk histograms, offsets in (bin, chunk)
+    //    order, then each chunk scatters its particles.
+    //    The chunk count depends on n and the bin count only (never on threads), and is capped
+    //    so that the histograms stay small beside the particles when they are widely spread.
+    std::int64_t chunks = n == 0 ? 0 : std::min<std::int64_t>(kMaxChunks, (n + kMinChunk - 1) / kMinChunk);
+    while (chunks > 1 && chunks * nb > 4 * n) chunks /= 2;
+    const std::int64_t chunk = chunks == 0 ? 1 : (n + chunks - 1) / chunks;
+    count_.assign(std::size_t(chunks * nb), 0);
+    std::uint32_t* count = count_.data();
+    const std::int32_t* table = table_.data();
+    parallel::parallel_for(0, chunks, [&](std::int64_t c) {
+      std::uint32_t* h = count + c * nb;
+      for (std::int64_t p = c * chunk, e = std::min(n, (c + 1) * chunk); p < e; ++p) ++h[table[key[p]]];
+    });
+    bins_.resize(std::size_t(nb));
+    std::uint32_t offset = 0;
+    for (std::int64_t j = 0; j < nb; ++j) {
+      Bin& bin = bins_[std::size_t(j)];
+      std::int64_t k = distinct_[std::size_t(j)];
+      for (int d = Dim - 1; d >= 0; --d) {
+        bin.block[d] = int(k % block_res_[d]);
+        k /= block_res_[d];
+      }
+      bin.begin = offset;
+      for (std::int64_t c = 0; c < chunks; ++c) {
+        std::uint32_t& h = count[c * nb + j];
+        const std::uint32_t m = h;
+        h = offset;
+        offset += m;
+      }
+      bin.end = offset;
+    }
+    std::uint32_t* order = order_.data();
+    parallel::parallel_for(0, chunks, [&](std::int64_t c) {
+      std::uint32_t* h = count + c * nb;
+      for (std::int64_t p = c * chunk, e = std::min(n, (c + 1) * chunk); p < e; ++p)
+        order[h[table[key[p]]]++] = std::uint32_t(p);
+    });
+    // 4. Bins grouped by colour (the parities of their block coordinates).
+    for (auto& c : colour_) c.clear();
+    for (std::int64_t j = 0; j < nb; ++j) {
+      int c = 0;
+      for (int d = 0; d < Dim; ++d) c = 2 * c + (bins_[std::size_t(j)].block[d] & 1);
+      colour_[std::size_t(c)].push_back(std::uint32_t(j));
+    }
+  }
+
+  const std::vector<Bin>& bins() const { return bins_; }
+  /// Particle indices, bin after bin.
+  const std::uint32_t* order() const { return order_.data(); }
+  /// Indices into bins() of the bins of colour c in [0, 2^Dim).
+  const std::vector<std::uint32_t>& colour(int c) const { return colour_[std::size_t(c)]; }
+
+  /// Bytes held (capacity).
+  std::size_t bytes() const {
+    std::size_t b = table_.capacity() * sizeof(std::int32_t) + key_.capacity() * sizeof(std::int32_t) +
+                    order_.capacity() * sizeof(std::uint32_t) + distinct_.capacity() * sizeof(std::int32_t) +
+                    count_.capacity() * sizeof(std::uint32_t) + bins_.capacity() * sizeof(Bin);
+    for (const auto& c : colour_) b += c.capacity() * sizeof(std::uint32_t);
+    return b;
+  }
+
+ private:
+  static constexpr std::int64_t kMinChunk = 16384;
+  static constexpr std::int64_t kMaxChunks = 64;
+  IVec block_res_ = IVec::Zero();
+  std::vector<std::int32_t> table_;  // block key -> bin index during build, -1 when unused
+  std::vector<std::int32_t> key_;    // per particle
+  std::vector<std::uint32_t> order_;
+  std::vector<std::int32_t> distinct_;
+  std::vector<std::uint32_t> count_;
+  std::vector<Bin> bins_;
+  std::array<std::vector<std::uint32_t>, BlockShape<Dim>::colours> colour_;
+};
+
+}  // namespace slurry::transfer
+
+namespace slurry::transfer {
+
+/// The nodes that one block's particles reach: `extent` = size + Order nodes per axis starting at
+/// node `first` = size * block. P2G scatters a block's particles into a patch on the stack and
+/// adds it to the grid (`Grid::add_patch`); G2P copies the patch out of the grid
+/// (`Grid::read_patch`) and gathers from it. The patch offers the grid interface the per-particle
+/// kernels of transfers.h use (origin, dx, inv_dx, stride, index, data, old_velocity), with
+/// indices local to the patch, so the same kernels serve a dense grid, a sparse grid and a patch.
+template <class T, int Dim, int Order>
+struct Patch {
+  static constexpr int extent = BlockShape<Dim>::size + Order;
+  static constexpr int count = Dim == 3 ? extent * extent * extent : extent * extent;
+  using Vec = Eigen::Matrix<T, Dim, 1>;
+  using IVec = Eigen::Matrix<int, Dim, 1>;
+  using Node = Eigen::Matrix<T, Dim + 1, 1>;
+
+  std::array<Node, count> nodes;
+  std::array<Vec, count> old;  ///< pre-update velocities (FLIP only)
+  IVec first;                  ///< global coordinates of nodes[0]
+  Vec origin_;                 ///< the grid's origin (node (0, ..., 0) in world units)
+  T dx_, inv_dx_;
+
+  Patch(const IVec& block, const Vec& grid_origin, T dx, T inv_dx)
+      : first(block * BlockShape<Dim>::size), origin_(grid_origin), dx_(dx), inv_dx_(inv_dx) {}
+
+  static constexpr std::int64_t stride(int d) {
+    return Dim == 3 ? (d == 0 ? extent * extent : d == 1 ? extent : 1) : (d == 0 ? extent : 1);
+  }
+  const Vec& origin() const { return origin_; }
+  T dx() const { return dx_; }
+  T inv_dx() const { return inv_dx_; }
+  template <class Base>
+  std::int64_t index(const Base& base) const {
+    std::int64_t k = 0;
+    for (int d = 0; d < Dim; ++d) k += stride(d) * (base[d] - first[d]);
+    return k;
+  }
+  Node* data() { return nodes.data(); }
+  const Node* data() const { return nodes.data(); }
+  const Vec& old_velocity(std::int64_t k) const { return old[std::size_t(k)]; }
+  void touch(const IVec&, const IVec&) {}
+  void zero() { nodes.fill(Node::Zero()); }
+};
+
+}  // namespace slurry::transfer
