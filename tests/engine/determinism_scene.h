@@ -1,0 +1,66 @@
+// The scene of the determinism tests, shared by parallel_test.cpp and the determinism program
+// that is built with the other parallel backend.
+#pragma once
+#include <filesystem>
+#include <string>
+
+#include "slurry/engine/ply.h"
+#include "slurry/engine/scene.h"
+#include "slurry/engine/simulation.h"
+
+namespace slurry::test {
+
+/// Jelly, snow, sand and water in one box, thrown into each other so that blocks hold several
+/// materials and particles cross block boundaries every few steps.
+inline Scene determinism_scene(int dim, GridKind grid) {
+  Scene s;
+  s.source = "determinism";
+  s.solver.dimension = dim;
+  s.solver.transfer = TransferKind::MLS;
+  s.domain.dx = dim == 3 ? 1.0 / 32 : 1.0 / 64;
+  s.domain.grid = grid;
+  s.solver.gravity = dim == 3 ? Eigen::Vector3d(0, -9.81, 0) : Eigen::Vector3d(0, -9.81, 0);
+  MaterialParams jelly, snow, sand, water;
+  jelly.name = "jelly";
+  jelly.E = 2e5;
+  snow.name = "snow";
+  snow.E = 1.4e5;
+  snow.nu = 0.2;
+  snow.density = 400;
+  snow.plasticity = PlasticModel::Snow;
+  sand.name = "sand";
+  sand.model = ElasticModel::HenckyStVK;
+  sand.E = 3.5e5;
+  sand.density = 1600;
+  sand.plasticity = PlasticModel::DruckerPrager;
+  water.name = "water";
+  water.model = ElasticModel::Fluid;
+  water.bulk_modulus = 5e4;
+  s.materials = {jelly, snow, sand, water};
+  auto box = [&](const char* m, Eigen::Vector3d lo, Eigen::Vector3d hi, Eigen::Vector3d v) {
+    BodyParams b;
+    b.material = m;
+    b.min = lo;
+    b.max = hi;
+    b.velocity = v;
+    b.particles_per_cell = dim == 3 ? 8 : 4;
+    b.sampling = Sampling::Jittered;
+    return b;
+  };
+  s.bodies = {box("jelly", {0.2, 0.3, 0.35}, {0.45, 0.55, 0.6}, {2, 0, 0}),
+              box("snow", {0.55, 0.3, 0.35}, {0.8, 0.5, 0.6}, {-2, 0, 0}),
+              box("sand", {0.35, 0.6, 0.3}, {0.6, 0.75, 0.55}, {0, -1, 0}),
+              box("water", {0.1, 0.05, 0.1}, {0.9, 0.15, 0.9}, {0, 0, 0})};
+  return s;
+}
+
+/// Runs `steps` substeps and writes the frame (all attributes) to `file`; returns its bytes.
+template <class Read>
+std::string determinism_frame(const Scene& s, int steps, const std::filesystem::path& file, Read&& read) {
+  Simulation<float, 3> sim(s);
+  for (int i = 0; i < steps; ++i) sim.step(sim.stable_dt());
+  io::write_ply(file, sim.frame({"position", "velocity", "material", "J", "plastic"}));
+  return read(file);
+}
+
+}  // namespace slurry::test

@@ -1,0 +1,245 @@
+// Race-free parallel transfers: the same results on any thread count, with either grid, and a
+// sparse grid whose memory follows the particles. (The cross-backend comparison runs the TBB
+// build of the determinism program; see CMakeLists.txt.)
+#include <gtest/gtest.h>
+#include <sys/resource.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <random>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "determinism_scene.h"
+#include "slurry/engine/ply.h"
+#include "slurry/engine/simulation.h"
+#include "slurry/transfer/blocks.h"
+#include "slurry/transfer/grid.h"
+#include "slurry/transfer/parallel.h"
+#include "slurry/transfer/sparse_grid.h"
+
+namespace {
+
+using slurry::Scene;
+
+template <class V>
+bool bitwise_equal(const std::vector<V>& a, const std::vector<V>& b) {
+  return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(V)) == 0);
+}
+
+template <class T, int Dim>
+void expect_bitwise_equal(const slurry::Particles<T, Dim>& a, const slurry::Particles<T, Dim>& b, const char* what) {
+  EXPECT_TRUE(bitwise_equal(a.x, b.x)) << what << ": positions differ";
+  EXPECT_TRUE(bitwise_equal(a.v, b.v)) << what << ": velocities differ";
+  EXPECT_TRUE(bitwise_equal(a.F, b.F)) << what << ": F differs";
+  EXPECT_TRUE(bitwise_equal(a.C, b.C)) << what << ": C differs";
+  EXPECT_TRUE(bitwise_equal(a.J, b.J)) << what << ": J differs";
+  EXPECT_TRUE(bitwise_equal(a.plastic, b.plastic)) << what << ": plastic state differs";
+}
+
+template <class T, int Dim>
+slurry::Particles<T, Dim> run(const Scene& s, int threads, int steps) {
+  slurry::parallel::ThreadLimit limit(threads);
+  slurry::Simulation<T, Dim> sim(s);
+  const T dt = sim.stable_dt();
+  for (int i = 0; i < steps; ++i) sim.step(dt);
+  return sim.particles();
+}
+
+// Four materials (jelly, snow, sand, water) colliding in 3D: frames are bitwise equal with one
+// and two threads. The scene has particles of several materials in the same blocks.
+TEST(Determinism, ThreeDimensionalMultiMaterialSceneIsBitwiseEqualOnOneAndTwoThreads) {
+  const Scene s = slurry::test::determinism_scene(3, slurry::GridKind::Sparse);
+  const auto one = run<float, 3>(s, 1, 20);
+  const auto two = run<float, 3>(s, 2, 20);
+  ASSERT_GT(one.size(), 5000u);
+  expect_bitwise_equal(one, two, "1 vs 2 threads");
+  // The run did something: particles moved and deformed.
+  slurry::Simulation<float, 3> start(s);
+  double moved = 0;
+  for (std::size_t p = 0; p < one.size(); ++p) moved = std::max(moved, double((one.x[p] - start.particles().x[p]).norm()));
+  std::printf("[ figure ] determinism scene: %zu particles, largest displacement %.4f m after 20 steps\n", one.size(), moved);
+  EXPECT_GT(moved, 0.01);
+}
+
+TEST(Determinism, TwoDimensionalSceneIsBitwiseEqualOnOneAndTwoThreads) {
+  const Scene s = slurry::test::determinism_scene(2, slurry::GridKind::Sparse);
+  expect_bitwise_equal(run<double, 2>(s, 1, 40), run<double, 2>(s, 2, 40), "1 vs 2 threads (2D)");
+}
+
+// The sparse and the dense grid add the same contributions in the same order.
+TEST(SparseGrid, SameResultAsTheDenseGrid) {
+  for (int dim : {2, 3}) {
+    const Scene sparse = slurry::test::determinism_scene(dim, slurry::GridKind::Sparse);
+    const Scene dense = slurry::test::determinism_scene(dim, slurry::GridKind::Dense);
+    if (dim == 3)
+      expect_bitwise_equal(run<float, 3>(sparse, 2, 12), run<float, 3>(dense, 2, 12), "sparse vs dense (3D)");
+    else
+      expect_bitwise_equal(run<double, 2>(sparse, 2, 20), run<double, 2>(dense, 2, 20), "sparse vs dense (2D)");
+  }
+}
+
+// The TBB build of the determinism program writes the same PLY frame, byte for byte, as this
+// (OpenMP) build on one and two threads.
+TEST(Determinism, OpenMPAndTBBBackendsWriteTheSameFrame) {
+#if defined(SLURRY_DETERMINISM_TBB) && defined(SLURRY_PARALLEL_OPENMP)
+  const auto dir = std::filesystem::temp_directory_path() / ("slurry_backend_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  const auto read = [](const std::filesystem::path& p) {
+    std::ifstream f(p, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(f), {});
+  };
+  std::string reference;
+  {
+    const Scene s = slurry::test::determinism_scene(3, slurry::GridKind::Sparse);
+    slurry::parallel::ThreadLimit limit(2);
+    reference = slurry::test::determinism_frame(s, 20, dir / "openmp.ply", read);
+  }
+  for (int threads : {1, 2}) {
+    const auto out = dir / ("tbb" + std::to_string(threads) + ".ply");
+    const std::string cmd = std::string(SLURRY_DETERMINISM_TBB) + " " + out.string() + " " + std::to_string(threads);
+    ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+    EXPECT_EQ(read(out), reference) << "TBB with " << threads << " threads vs OpenMP with 2";
+  }
+  EXPECT_GT(reference.size(), 10000u);
+  std::filesystem::remove_all(dir);
+#else
+  GTEST_SKIP() << "built without the TBB determinism program (oneTBB not found or backend not OpenMP)";
+#endif
+}
+
+// Binning: every particle once, bins in key order, stable within a bin, colours correct, and the
+// same order on one and two threads.
+TEST(ParticleBins, StableCountingSortByBlock) {
+  using IVec = Eigen::Vector3i;
+  std::mt19937 rng(7);
+  std::uniform_int_distribution<int> coord(0, 63);
+  std::vector<IVec> base(100000);
+  for (auto& b : base) b = IVec(coord(rng), coord(rng), coord(rng));
+  auto build = [&](int threads) {
+    slurry::parallel::ThreadLimit limit(threads);
+    slurry::transfer::ParticleBins<3> bins;
+    bins.resize(IVec(64, 64, 64));
+    bins.build(std::int64_t(base.size()), [&](std::int64_t p) { return base[std::size_t(p)]; });
+    return bins;
+  };
+  const auto bins = build(1);
+  const auto bins2 = build(2);
+  std::vector<int> seen(base.size(), 0);
+  std::int64_t prev_key = -1;
+  std::size_t in_colours = 0;
+  for (int c = 0; c < 8; ++c) {
+    for (auto j : bins.colour(c)) {
+      const auto& bin = bins.bins()[j];
+      EXPECT_EQ(((bin.block[0] & 1) << 2) | ((bin.block[1] & 1) << 1) | (bin.block[2] & 1), c);
+    }
+    in_colours += bins.colour(c).size();
+  }
+  EXPECT_EQ(in_colours, bins.bins().size());
+  for (const auto& bin : bins.bins()) {
+    const std::int64_t key = (std::int64_t(bin.block[0]) * 16 + bin.block[1]) * 16 + bin.block[2];
+    EXPECT_GT(key, prev_key);
+    prev_key = key;
+    ASSERT_LT(bin.begin, bin.end);
+    for (auto i = bin.begin; i < bin.end; ++i) {
+      const auto p = bins.order()[i];
+      ++seen[p];
+      EXPECT_EQ(IVec(base[p] / 4), bin.block);
+      if (i > bin.begin) {
+        EXPECT_LT(bins.order()[i - 1], p) << "not stable";
+      }
+    }
+  }
+  for (int s : seen) ASSERT_EQ(s, 1);
+  EXPECT_EQ(bins.bins().size(), 4096u);
+  EXPECT_EQ(std::memcmp(bins.order(), bins2.order(), base.size() * sizeof(std::uint32_t)), 0);
+}
+
+// A patch added to and read back from a sparse grid lands on the same nodes as in a dense grid,
+// including patches that straddle block boundaries and reach the lattice's end.
+TEST(SparseGrid, PatchesMatchTheDenseGrid) {
+  using Vec = Eigen::Vector3d;
+  using IVec = Eigen::Vector3i;
+  const IVec res(19, 21, 23);
+  slurry::transfer::SparseGrid<double, 3> sparse(Vec::Zero(), 0.1, res);
+  slurry::transfer::DenseGrid<double, 3> dense(Vec::Zero(), 0.1, res);
+  using Bin = slurry::transfer::ParticleBins<3>::Bin;
+  std::vector<Bin> bins;
+  for (int a = 0; a < 5; ++a)
+    for (int b = 0; b < 6; ++b)
+      for (int c = 0; c < 6; ++c)
+        if ((a + 2 * b + c) % 3 == 0) bins.push_back({IVec(a, b, c), 0, 0});
+  sparse.activate(bins);
+  dense.activate(bins);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-1, 1);
+  for (const auto& bin : bins) {
+    slurry::transfer::Patch<double, 3, 2> patch(bin.block, Vec::Zero(), 0.1, 10);
+    for (auto& n : patch.nodes) n = Eigen::Vector4d(u(rng), u(rng), u(rng), u(rng));
+    // Nodes beyond the lattice never receive particle contributions.
+    for (int a = 0; a < patch.extent; ++a)
+      for (int b = 0; b < patch.extent; ++b)
+        for (int c = 0; c < patch.extent; ++c)
+          if (((patch.first + IVec(a, b, c)).array() >= res.array()).any())
+            patch.nodes[std::size_t((a * patch.extent + b) * patch.extent + c)].setZero();
+    sparse.add_patch(patch);
+    dense.add_patch(patch);
+  }
+  double total_sparse = 0, total_dense = 0;
+  for (int i = 0; i < res[0]; ++i)
+    for (int j = 0; j < res[1]; ++j)
+      for (int k = 0; k < res[2]; ++k) {
+        const auto& d = dense.node(dense.index(IVec(i, j, k)));
+        const auto* s = sparse.find(IVec(i, j, k));
+        if (!s) {
+          EXPECT_EQ(d.norm(), 0.0) << "a dense node with contributions has no sparse block";
+          continue;
+        }
+        EXPECT_EQ(*s, d);
+        total_sparse += s->sum();
+        total_dense += d.sum();
+      }
+  EXPECT_EQ(total_sparse, total_dense);
+  EXPECT_NE(total_dense, 0.0);
+  for (const auto& bin : bins) {
+    slurry::transfer::Patch<double, 3, 2> ps(bin.block, Vec::Zero(), 0.1, 10), pd(bin.block, Vec::Zero(), 0.1, 10);
+    sparse.read_patch(ps);
+    dense.read_patch(pd);
+    for (int k = 0; k < ps.count; ++k) ASSERT_EQ(ps.nodes[std::size_t(k)], pd.nodes[std::size_t(k)]);
+  }
+}
+
+// A thin sheet of particles in a 1024^3-cell domain: the dense grid would need 1031^3 nodes
+// (17 GB in float), the sparse grid allocates blocks near the sheet only. The test process
+// (one test per process under ctest) must stay under 600 MB peak resident memory.
+TEST(SparseGrid, ThinSheetInA1024CubedDomainStaysUnder600MB) {
+  Scene s = slurry::test::determinism_scene(3, slurry::GridKind::Sparse);
+  s.domain.dx = 1.0 / 1024;
+  s.materials.resize(1);
+  slurry::BodyParams b;
+  b.material = s.materials[0].name;
+  b.min = {0.375, 0.5, 0.375};
+  b.max = {0.625, 0.5 + 1.0 / 1024, 0.625};
+  b.velocity = {0.0, -0.5, 0.0};
+  b.particles_per_cell = 8;
+  s.bodies = {b};
+  slurry::Simulation<float, 3> sim(s);
+  const float dt = sim.stable_dt();
+  for (int i = 0; i < 3; ++i) sim.step(dt);
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  const double peak_mb = double(usage.ru_maxrss) / 1024.0;  // ru_maxrss is in KiB on Linux
+  const double bytes_per_particle = double(sim.bytes()) / double(sim.particle_count());
+  std::printf("[ figure ] thin sheet in 1024^3: %zu particles, peak RSS %.0f MB, engine bytes/particle %.0f\n",
+              sim.particle_count(), peak_mb, bytes_per_particle);
+  EXPECT_GT(sim.particle_count(), 500000u);
+  EXPECT_LT(peak_mb, 600.0);
+  EXPECT_GT(sim.particles().v[0][1], -0.6f);
+}
+
+}  // namespace
