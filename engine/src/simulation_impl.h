@@ -6,7 +6,9 @@
 #include <cmath>
 #include <limits>
 #include <random>
+#include <cstring>
 #include <sstream>
+#include <type_traits>
 
 #include "slurry/engine/simulation.h"
 #include "slurry/transfer/parallel.h"
@@ -80,7 +82,6 @@ void Simulation<T, Dim>::seed_bodies() {
   }
   // Bodies are seeded material by material, so every material owns one contiguous range.
   for (int mi = 0; mi < int(materials_.size()); ++mi) {
-    const std::int64_t begin = std::int64_t(P.size());
     for (std::size_t bi = 0; bi < scene_.bodies.size(); ++bi) {
       const auto& b = scene_.bodies[bi];
       if (scene_.material_index(b.material) != mi) continue;
@@ -139,7 +140,6 @@ void Simulation<T, Dim>::seed_bodies() {
                          "]: seeds no particles (expected a body larger than the particle spacing " +
                          detail::fmt(h_target) + ")");
     }
-    ranges_.push_back({mi, begin, std::int64_t(P.size())});
   }
 }
 
@@ -195,8 +195,9 @@ void Simulation<T, Dim>::step(T dt) {
 template <class T, int Dim>
 template <class G>
 void Simulation<T, Dim>::step_on(G& grid, T dt) {
-  compute_stress(dt);
   bin_particles();
+  if (steps_ % kReorderInterval == 0) reorder_particles();
+  compute_stress(dt);
   particles_to_grid(grid);
   update_grid(grid, dt);
   grid_to_particles(grid, dt);
@@ -206,30 +207,37 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
 template <class T, int Dim>
 void Simulation<T, Dim>::compute_stress(T dt) {
   auto& P = particles_;
-  for (const auto& r : ranges_) {
-    const auto& mat = materials_[r.material];
-    Mat* K = stress_.data();
+  Mat* K = stress_.data();
+  const auto& bins = bins_.bins();
+  const std::uint32_t* order = bins_.order();
+  // One bin is one material: the model is dispatched once per bin, not per particle.
+  parallel::parallel_tasks(0, std::int64_t(bins.size()), [&](std::int64_t bi) {
+    const auto& bin = bins[std::size_t(bi)];
+    const auto& mat = materials_[bin.material];
     if (mat.fluid) {
       // tau = -J p(J) I, so K = -dt V0 tau = dt V0 J p I.
       const auto& fluid = mat.fluid_model();
-      parallel::parallel_for(r.begin, r.end, [&](std::int64_t p) {
+      for (auto i = bin.begin; i < bin.end; ++i) {
+        const auto p = order[i];
         K[p] = Mat::Identity() * (dt * P.vol0[p] * fluid.kirchhoff_pressure(P.J[p]));
-      });
-      continue;
+      }
+      return;
     }
     mat.visit_elastic([&](const auto& model) {
       if (mat.plastic_kind == PlasticModel::Snow) {
-        parallel::parallel_for(r.begin, r.end, [&](std::int64_t p) {
+        for (auto i = bin.begin; i < bin.end; ++i) {
+          const auto p = order[i];
           const auto scaled = model.scaled(mat.hardening_factor(P.plastic[p]));
           K[p] = (-dt * P.vol0[p]) * scaled.kirchhoff(P.F[p]);
-        });
+        }
       } else {
-        parallel::parallel_for(r.begin, r.end, [&](std::int64_t p) {
+        for (auto i = bin.begin; i < bin.end; ++i) {
+          const auto p = order[i];
           K[p] = (-dt * P.vol0[p]) * model.kirchhoff(P.F[p]);
-        });
+        }
       }
     });
-  }
+  });
 }
 
 template <class T, int Dim>
@@ -247,11 +255,47 @@ void Simulation<T, Dim>::bin_particles_order() {
   using IVec = Eigen::Matrix<int, Dim, 1>;
   const Vec* x = particles_.x.data();
   const T inv_dx = T(1) / dx_;
-  bins_.build(std::int64_t(particles_.size()), [&](std::int64_t p) {
-    IVec b;
-    for (int d = 0; d < Dim; ++d) b[d] = transfer::BSpline<Order>::base((x[p][d] - origin_[d]) * inv_dx);
-    return b;
-  });
+  const std::uint16_t* material = particles_.material.empty() ? nullptr : particles_.material.data();
+  bins_.build(
+      std::int64_t(particles_.size()),
+      [&](std::int64_t p) {
+        IVec b;
+        for (int d = 0; d < Dim; ++d) b[d] = transfer::BSpline<Order>::base((x[p][d] - origin_[d]) * inv_dx);
+        return b;
+      },
+      [&](std::int64_t p) { return material ? int(material[p]) : 0; }, int(materials_.size()));
+}
+
+template <class T, int Dim>
+void Simulation<T, Dim>::reorder_particles() {
+  // Particles are stored in bin order, so that the transfers stream through memory; stress_ is
+  // dead between substeps and serves as the scratch buffer (it is the largest channel).
+  auto& P = particles_;
+  const std::uint32_t* order = bins_.order();
+  const std::int64_t n = std::int64_t(P.size());
+  auto* scratch = reinterpret_cast<unsigned char*>(static_cast<void*>(stress_.data()));
+  auto permute = [&](auto& channel) {
+    if (channel.empty()) return;
+    using V = typename std::decay_t<decltype(channel)>::value_type;
+    // Channel values are fixed-size Eigen objects or scalars: plain bytes, copied as such.
+    static_assert(sizeof(V) <= sizeof(Mat));
+    auto* c = reinterpret_cast<unsigned char*>(static_cast<void*>(channel.data()));
+    parallel::parallel_for(0, n, [&](std::int64_t i) {
+      std::memcpy(scratch + i * sizeof(V), c + std::size_t(order[i]) * sizeof(V), sizeof(V));
+    });
+    parallel::parallel_for(0, n, [&](std::int64_t i) { std::memcpy(c + i * sizeof(V), scratch + i * sizeof(V), sizeof(V)); });
+  };
+  permute(P.x);
+  permute(P.v);
+  permute(P.m);
+  permute(P.vol0);
+  permute(P.F);
+  permute(P.J);
+  permute(P.C);
+  permute(P.plastic);
+  permute(P.material);
+  permute(P.id);
+  bins_.reset_order();
 }
 
 template <class T, int Dim>
@@ -283,11 +327,13 @@ void Simulation<T, Dim>::particles_to_grid_order(G& grid) {
       for (int c = 0; c < transfer::BlockShape<Dim>::colours; ++c) {
         const auto& list = bins_.colour(c);
         parallel::parallel_tasks(0, std::int64_t(list.size()), [&](std::int64_t i) {
-          const auto& bin = bins[list[std::size_t(i)]];
-          transfer::Patch<T, Dim, Order> patch(bin.block, origin_, dx_, inv_dx);
+          const std::size_t g = list[std::size_t(i)];
+          const auto first = bins_.group_begin(g), last = bins_.group_begin(g + 1);
+          transfer::Patch<T, Dim, Order> patch(bins[first].block, origin_, dx_, inv_dx);
           patch.zero();
-          transfer::scatter_particles<Order, S>(patch, P.x.data(), P.v.data(), P.m.data(), C, stress_.data(), order,
-                                                bin.begin, bin.end);
+          for (auto b = first; b < last; ++b)
+            transfer::scatter_particles<Order, S>(patch, P.x.data(), P.v.data(), P.m.data(), C, stress_.data(),
+                                                  order, bins[b].begin, bins[b].end);
           grid.add_patch(patch);
         });
       }
@@ -350,19 +396,15 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
   Mat* C = P.C.empty() ? nullptr : P.C.data();
   Mat* F = P.F.empty() ? nullptr : P.F.data();
   T* J = P.J.empty() ? nullptr : P.J.data();
-  const std::uint16_t* material = P.material.empty() ? nullptr : P.material.data();
-  const std::uint8_t* fluid = fluid_.data();
   const auto& bins = bins_.bins();
   const std::uint32_t* order = bins_.order();
   const T inv_dx = T(1) / dx_;
-  // F <- (I + dt grad v) F for solids, J <- det(I + dt grad v) J for fluids (a particle's
-  // material decides; a block may hold several).
-  auto state = [=](std::int64_t p, const Mat& gv) {
-    if (fluid[material ? material[p] : 0])
-      J[p] *= (Mat::Identity() + dt * gv).determinant();
-    else
-      F[p] = (Mat::Identity() + dt * gv) * F[p];
+  // F <- (I + dt grad v) F for solids, J <- det(I + dt grad v) J for fluids.
+  auto solid_state = [=](std::int64_t p, const Mat& gv) {
+    const Mat A = Mat::Identity() + dt * gv;
+    F[p] = A * F[p];
   };
+  auto fluid_state = [=](std::int64_t p, const Mat& gv) { J[p] *= (Mat::Identity() + dt * gv).determinant(); };
   auto gather = [&](auto scheme) {
     constexpr Scheme S = decltype(scheme)::value;
     if constexpr (S == Scheme::MLS && Order == 1) {
@@ -376,8 +418,12 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
               const auto& bin = bins[std::size_t(b)];
               transfer::Patch<T, Dim, Order> patch(bin.block, origin_, dx_, inv_dx);
               grid.read_patch(patch);
-              r2 = std::max(r2, transfer::gather_particles<Order, S>(patch, P.x.data(), P.v.data(), C, dt, flip, x_lo_,
-                                                                     x_hi_, order, bin.begin, bin.end, state));
+              const T s2 = fluid_[bin.material]
+                               ? transfer::gather_particles<Order, S>(patch, P.x.data(), P.v.data(), C, dt, flip, x_lo_,
+                                                                      x_hi_, order, bin.begin, bin.end, fluid_state)
+                               : transfer::gather_particles<Order, S>(patch, P.x.data(), P.v.data(), C, dt, flip, x_lo_,
+                                                                      x_hi_, order, bin.begin, bin.end, solid_state);
+              r2 = std::max(r2, s2);
             }
             return r2;
           },
@@ -401,19 +447,33 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
 template <class T, int Dim>
 void Simulation<T, Dim>::return_mapping() {
   auto& P = particles_;
-  for (std::size_t ri = 0; ri < ranges_.size(); ++ri) {
-    const auto& r = ranges_[ri];
-    auto& mat = materials_[r.material];
-    if (mat.plastic_kind == PlasticModel::None) continue;
-    parallel::parallel_for(r.begin, r.end, [&](std::int64_t p) { mat.project(P.F[p], P.plastic[p]); });
-    if (mat.plastic_kind == PlasticModel::Snow) {
-      // Hardening stiffens snow; the elastic time-step limit follows the stiffest particle.
-      const T hmax = parallel::parallel_max<T>(r.begin, r.end, T(1), [&](std::int64_t lo, std::int64_t hi) {
-        T h = T(1);
-        for (std::int64_t p = lo; p < hi; ++p) h = std::max(h, mat.hardening_factor(P.plastic[p]));
-        return h;
-      });
-      mat.wave_speed = mat.base_wave_speed * std::sqrt(hmax);
+  const auto& bins = bins_.bins();
+  const std::uint32_t* order = bins_.order();
+  bool snow = false;
+  for (const auto& m : materials_) snow = snow || m.plastic_kind == PlasticModel::Snow;
+  // Plastic projection per bin; for snow also the largest hardening factor, which stiffens the
+  // material and so shortens its elastic time-step limit.
+  std::vector<T>& hmax = hardening_scratch_;
+  hmax.assign(snow ? bins.size() : 0, T(1));
+  parallel::parallel_tasks(0, std::int64_t(bins.size()), [&](std::int64_t bi) {
+    const auto& bin = bins[std::size_t(bi)];
+    const auto& mat = materials_[bin.material];
+    if (mat.plastic_kind == PlasticModel::None) return;
+    T h = T(1);
+    for (auto i = bin.begin; i < bin.end; ++i) {
+      const auto p = order[i];
+      mat.project(P.F[p], P.plastic[p]);
+      if (mat.plastic_kind == PlasticModel::Snow) h = std::max(h, mat.hardening_factor(P.plastic[p]));
+    }
+    if (snow) hmax[std::size_t(bi)] = h;
+  });
+  if (snow) {
+    for (auto& m : materials_)
+      if (m.plastic_kind == PlasticModel::Snow) m.wave_speed = m.base_wave_speed;
+    for (std::size_t bi = 0; bi < bins.size(); ++bi) {
+      auto& m = materials_[bins[bi].material];
+      if (m.plastic_kind == PlasticModel::Snow)
+        m.wave_speed = std::max(m.wave_speed, m.base_wave_speed * std::sqrt(hmax[bi]));
     }
   }
   max_wave_speed_ = 0;
@@ -440,12 +500,11 @@ void Simulation<T, Dim>::diagnose(T dt) const {
     what = "moved " + detail::fmt(double(worst_speed * dt / dx_)) + " cells in one substep (speed " +
            detail::fmt(double(worst_speed)) + " m/s, dt " + detail::fmt(double(dt)) + " s; limit " +
            detail::fmt(double(limit / dx_)) + " cells): CFL violation";
-  int mat = 0;
-  for (const auto& r : ranges_)
-    if (worst >= r.begin && worst < r.end) mat = r.material;
+  const int mat = worst >= 0 && !P.material.empty() ? int(P.material[std::size_t(worst)]) : 0;
+  const std::int64_t id = worst >= 0 ? std::int64_t(P.id[std::size_t(worst)]) : -1;
   std::ostringstream msg;
   msg << scene_.source << ": simulation unstable at step " << steps_ + 1 << ", t = " << detail::fmt(time_ + double(dt))
-      << " s: particle " << worst << " (material \"" << scene_.materials[mat].name << "\") " << what
+      << " s: particle " << id << " (material \"" << scene_.materials[mat].name << "\") " << what
       << ". No further frames are written. Try a smaller solver.cfl, solver.elastic_cfl or solver.max_dt"
       << ", or a stiffer boundary.";
   throw SimulationError(msg.str());
@@ -460,13 +519,12 @@ T Simulation<T, Dim>::kinetic_energy() const {
 
 template <class T, int Dim>
 T Simulation<T, Dim>::elastic_energy() const {
+  const auto& P = particles_;
   T e = 0;
-  for (const auto& r : ranges_) {
-    const auto& mat = materials_[r.material];
+  for (std::size_t p = 0; p < P.size(); ++p) {
+    const auto& mat = materials_[P.material.empty() ? 0 : P.material[p]];
     if (mat.fluid) continue;
-    mat.visit_elastic([&](const auto& model) {
-      for (std::int64_t p = r.begin; p < r.end; ++p) e += particles_.vol0[p] * model.energy(particles_.F[p]);
-    });
+    mat.visit_elastic([&](const auto& model) { e += P.vol0[p] * model.energy(P.F[p]); });
   }
   return e;
 }
@@ -482,9 +540,11 @@ io::PlyData Simulation<T, Dim>::frame(const std::vector<std::string>& attributes
   el.count = n;
   static const char* axes[3] = {"x", "y", "z"};
   static const char* vaxes[3] = {"vx", "vy", "vz"};
+  // Particles are stored in bin order; frames list them in seeding order (P.id).
   auto column = [&](auto&& value) {
-    std::vector<T> c(n);
-    for (std::size_t p = 0; p < n; ++p) c[p] = value(p);
+    using V = std::decay_t<decltype(value(std::size_t(0)))>;
+    std::vector<V> c(n);
+    for (std::size_t p = 0; p < n; ++p) c[P.id[p]] = value(p);
     return c;
   };
   for (const auto& a : attributes) {
@@ -493,13 +553,13 @@ io::PlyData Simulation<T, Dim>::frame(const std::vector<std::string>& attributes
     } else if (a == "velocity") {
       for (int d = 0; d < Dim; ++d) el.properties.push_back({vaxes[d], column([&](std::size_t p) { return P.v[p][d]; })});
     } else if (a == "material") {
-      std::vector<std::uint16_t> m = P.material.empty() ? std::vector<std::uint16_t>(n, 0) : P.material;
-      el.properties.push_back({"material", std::move(m)});
+      el.properties.push_back(
+          {"material", column([&](std::size_t p) { return P.material.empty() ? std::uint16_t(0) : P.material[p]; })});
     } else if (a == "J") {
       el.properties.push_back({"J", column([&](std::size_t p) {
                                  return !P.J.empty() && (P.F.empty() || materials_[P.material.empty() ? 0 : P.material[p]].fluid)
                                             ? P.J[p]
-                                            : P.F[p].determinant();
+                                            : T(P.F[p].determinant());
                                })});
     } else if (a == "plastic") {
       el.properties.push_back({"plastic", column([&](std::size_t p) { return P.plastic.empty() ? T(0) : P.plastic[p]; })});

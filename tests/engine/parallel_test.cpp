@@ -40,6 +40,7 @@ void expect_bitwise_equal(const slurry::Particles<T, Dim>& a, const slurry::Part
   EXPECT_TRUE(bitwise_equal(a.C, b.C)) << what << ": C differs";
   EXPECT_TRUE(bitwise_equal(a.J, b.J)) << what << ": J differs";
   EXPECT_TRUE(bitwise_equal(a.plastic, b.plastic)) << what << ": plastic state differs";
+  EXPECT_TRUE(bitwise_equal(a.id, b.id)) << what << ": storage orders differ";
 }
 
 template <class T, int Dim>
@@ -62,7 +63,8 @@ TEST(Determinism, ThreeDimensionalMultiMaterialSceneIsBitwiseEqualOnOneAndTwoThr
   // The run did something: particles moved and deformed.
   slurry::Simulation<float, 3> start(s);
   double moved = 0;
-  for (std::size_t p = 0; p < one.size(); ++p) moved = std::max(moved, double((one.x[p] - start.particles().x[p]).norm()));
+  for (std::size_t p = 0; p < one.size(); ++p)
+    moved = std::max(moved, double((one.x[p] - start.particles().x[one.id[p]]).norm()));
   std::printf("[ figure ] determinism scene: %zu particles, largest displacement %.4f m after 20 steps\n", one.size(), moved);
   EXPECT_GT(moved, 0.01);
 }
@@ -113,19 +115,23 @@ TEST(Determinism, OpenMPAndTBBBackendsWriteTheSameFrame) {
 #endif
 }
 
-// Binning: every particle once, bins in key order, stable within a bin, colours correct, and the
-// same order on one and two threads.
-TEST(ParticleBins, StableCountingSortByBlock) {
+// Binning: every particle once, bins in (block, material) order, stable within a bin, blocks
+// grouped and coloured correctly, and the same order on one and two threads.
+TEST(ParticleBins, StableCountingSortByBlockAndMaterial) {
   using IVec = Eigen::Vector3i;
   std::mt19937 rng(7);
-  std::uniform_int_distribution<int> coord(0, 63);
+  std::uniform_int_distribution<int> coord(0, 63), mat(0, 2);
   std::vector<IVec> base(100000);
+  std::vector<int> material(base.size());
   for (auto& b : base) b = IVec(coord(rng), coord(rng), coord(rng));
+  for (auto& m : material) m = mat(rng);
   auto build = [&](int threads) {
     slurry::parallel::ThreadLimit limit(threads);
     slurry::transfer::ParticleBins<3> bins;
     bins.resize(IVec(64, 64, 64));
-    bins.build(std::int64_t(base.size()), [&](std::int64_t p) { return base[std::size_t(p)]; });
+    bins.build(
+        std::int64_t(base.size()), [&](std::int64_t p) { return base[std::size_t(p)]; },
+        [&](std::int64_t p) { return material[std::size_t(p)]; }, 3);
     return bins;
   };
   const auto bins = build(1);
@@ -134,15 +140,17 @@ TEST(ParticleBins, StableCountingSortByBlock) {
   std::int64_t prev_key = -1;
   std::size_t in_colours = 0;
   for (int c = 0; c < 8; ++c) {
-    for (auto j : bins.colour(c)) {
-      const auto& bin = bins.bins()[j];
-      EXPECT_EQ(((bin.block[0] & 1) << 2) | ((bin.block[1] & 1) << 1) | (bin.block[2] & 1), c);
+    for (auto g : bins.colour(c)) {
+      const auto& b = bins.bins()[bins.group_begin(g)].block;
+      EXPECT_EQ(((b[0] & 1) << 2) | ((b[1] & 1) << 1) | (b[2] & 1), c);
+      for (auto j = bins.group_begin(g); j < bins.group_begin(g + 1); ++j) EXPECT_EQ(bins.bins()[j].block, b);
     }
     in_colours += bins.colour(c).size();
   }
-  EXPECT_EQ(in_colours, bins.bins().size());
+  EXPECT_EQ(in_colours, bins.groups());
+  EXPECT_EQ(bins.groups(), 4096u);
   for (const auto& bin : bins.bins()) {
-    const std::int64_t key = (std::int64_t(bin.block[0]) * 16 + bin.block[1]) * 16 + bin.block[2];
+    const std::int64_t key = ((std::int64_t(bin.block[0]) * 16 + bin.block[1]) * 16 + bin.block[2]) * 3 + bin.material;
     EXPECT_GT(key, prev_key);
     prev_key = key;
     ASSERT_LT(bin.begin, bin.end);
@@ -150,13 +158,13 @@ TEST(ParticleBins, StableCountingSortByBlock) {
       const auto p = bins.order()[i];
       ++seen[p];
       EXPECT_EQ(IVec(base[p] / 4), bin.block);
+      EXPECT_EQ(material[p], int(bin.material));
       if (i > bin.begin) {
         EXPECT_LT(bins.order()[i - 1], p) << "not stable";
       }
     }
   }
   for (int s : seen) ASSERT_EQ(s, 1);
-  EXPECT_EQ(bins.bins().size(), 4096u);
   EXPECT_EQ(std::memcmp(bins.order(), bins2.order(), base.size() * sizeof(std::uint32_t)), 0);
 }
 
@@ -173,7 +181,7 @@ TEST(SparseGrid, PatchesMatchTheDenseGrid) {
   for (int a = 0; a < 5; ++a)
     for (int b = 0; b < 6; ++b)
       for (int c = 0; c < 6; ++c)
-        if ((a + 2 * b + c) % 3 == 0) bins.push_back({IVec(a, b, c), 0, 0});
+        if ((a + 2 * b + c) % 3 == 0) bins.push_back({IVec(a, b, c), 0, 0, 0});
   sparse.activate(bins);
   dense.activate(bins);
   std::mt19937 rng(3);

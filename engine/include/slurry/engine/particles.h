@@ -38,6 +38,9 @@ struct Particles {
   std::vector<Mat> C;      ///< affine velocity matrix, APIC/MLS
   std::vector<T> plastic;  ///< plastic state: Jp (snow) or accumulated plastic strain
   std::vector<std::uint16_t> material;  ///< index into the scene's materials
+  /// Seeding index: the solver re-stores particles in grid-block order for speed, frames list
+  /// them by id, so particle k of every frame is the same particle.
+  std::vector<std::uint32_t> id;
 
   std::size_t size() const { return x.size(); }
 
@@ -53,6 +56,7 @@ struct Particles {
     if (channels.C) C.push_back(Mat::Zero());
     if (channels.plastic) plastic.push_back(plastic_init);
     if (channels.material) material.push_back(mat);
+    id.push_back(std::uint32_t(id.size()));
   }
 
   /// Bytes held by the channels (capacity, not size).
@@ -60,7 +64,7 @@ struct Particles {
     return x.capacity() * sizeof(Vec) + v.capacity() * sizeof(Vec) + m.capacity() * sizeof(T) +
            vol0.capacity() * sizeof(T) + F.capacity() * sizeof(Mat) + J.capacity() * sizeof(T) +
            C.capacity() * sizeof(Mat) + plastic.capacity() * sizeof(T) +
-           material.capacity() * sizeof(std::uint16_t);
+           material.capacity() * sizeof(std::uint16_t) + id.capacity() * sizeof(std::uint32_t);
   }
 };
 

@@ -89,17 +89,16 @@ class Simulation final : public SimulationBase {
   T elastic_energy() const;
 
  private:
-  /// A contiguous range of particles made of one material.
-  struct MaterialRange {
-    int material;
-    std::int64_t begin, end;
-  };
+  /// Particles are re-stored in bin order every this many substeps (between, they are reached
+  /// through the bins' index list), so the transfers stream through memory.
+  static constexpr std::int64_t kReorderInterval = 8;
 
   void seed_bodies();
   template <class G>
   void step_on(G& grid, T dt);
   void compute_stress(T dt);
   void bin_particles();
+  void reorder_particles();
   template <class G>
   void particles_to_grid(G& grid);
   template <class G>
@@ -118,11 +117,11 @@ class Simulation final : public SimulationBase {
 
   Scene scene_;
   std::vector<Material<T, Dim>> materials_;
-  std::vector<MaterialRange> ranges_;
   std::vector<Collider<T, Dim>> colliders_;
   Particles<T, Dim> particles_;
   std::vector<Mat> stress_;  // K_p = -dt V_p^0 tau_p, scratch of the current substep
   std::vector<std::uint8_t> fluid_;  // per material: advances J instead of F
+  std::vector<T> hardening_scratch_;  // per bin, snow only
   transfer::ParticleBins<Dim> bins_;
   DenseGrid dense_;    // domain.grid "dense"
   SparseGrid sparse_;  // domain.grid "sparse" (the unused one stays empty)

@@ -40,15 +40,18 @@ struct BlockShape {
   static constexpr int colours = 1 << Dim;
 };
 
-/// Particle indices sorted by the block of their stencil base node.
+/// Particle indices sorted by the block of their stencil base node, and within a block by
+/// material: bins are (block, material) pairs, block-major, so the bins of one block are
+/// adjacent ("groups") and each bin is one material (the model is dispatched once per bin).
 template <int Dim>
 class ParticleBins {
  public:
   using IVec = Eigen::Matrix<int, Dim, 1>;
   using Shape = BlockShape<Dim>;
-  /// Particles order()[begin, end) belong to block `block` (block coordinates).
+  /// Particles order()[begin, end) belong to block `block` and material `material`.
   struct Bin {
     IVec block;
+    std::uint32_t material;
     std::uint32_t begin, end;
   };
 
@@ -67,15 +70,16 @@ class ParticleBins {
   const IVec& block_res() const { return block_res_; }
 
   /// Bins particles [0, n); `base_of(p)` returns the particle's stencil base node (IVec), which
-  /// must lie inside the lattice.
-  template <class BaseOf>
-  void build(std::int64_t n, BaseOf&& base_of) {
+  /// must lie inside the lattice; `material_of(p)` its material in [0, materials).
+  template <class BaseOf, class MaterialOf>
+  void build(std::int64_t n, BaseOf&& base_of, MaterialOf&& material_of, int materials) {
     if (n > std::int64_t(std::numeric_limits<std::uint32_t>::max()))
       throw std::length_error("ParticleBins: more than 2^32 particles");
     key_.resize(std::size_t(n));
     order_.resize(std::size_t(n));
     for (auto k : distinct_) table_[std::size_t(k)] = -1;
     distinct_.clear();
+    const std::int64_t nm = std::max(1, materials);
     // 1. Block key of every particle.
     std::int32_t* key = key_.data();
     parallel::parallel_for(0, n, [&](std::int64_t p) {
@@ -99,64 +103,83 @@ class ParticleBins {
     std::sort(distinct_.begin(), distinct_.end());
     const std::int64_t nb = std::int64_t(distinct_.size());
     for (std::int64_t j = 0; j < nb; ++j) table_[std::size_t(distinct_[std::size_t(j)])] = std::int32_t(j);
-    // 3. Stable counting sort in fixed chunks: per-chunk histograms, offsets in (bin, chunk)
-    //    order, then each chunk scatters its particles.
-    //    The chunk count depends on n and the bin count only (never on threads), and is capped
-    //    so that the histograms stay small beside the particles when they are widely spread.
+    // 3. Stable counting sort on (block, material) in fixed chunks: per-chunk histograms,
+    //    offsets in (slot, chunk) order, then each chunk scatters its particles. The chunk count
+    //    depends on n and the slot count only (never on threads), and is capped so that the
+    //    histograms stay small beside the particles when they are widely spread.
+    const std::int64_t slots = nb * nm;
     std::int64_t chunks = n == 0 ? 0 : std::min<std::int64_t>(kMaxChunks, (n + kMinChunk - 1) / kMinChunk);
-    while (chunks > 1 && chunks * nb > 4 * n) chunks /= 2;
+    while (chunks > 1 && chunks * slots > 4 * n) chunks /= 2;
     const std::int64_t chunk = chunks == 0 ? 1 : (n + chunks - 1) / chunks;
-    count_.assign(std::size_t(chunks * nb), 0);
+    count_.assign(std::size_t(chunks * slots), 0);
     std::uint32_t* count = count_.data();
     const std::int32_t* table = table_.data();
+    auto slot_of = [&](std::int64_t p) { return std::int64_t(table[key[p]]) * nm + std::int64_t(material_of(p)); };
     parallel::parallel_for(0, chunks, [&](std::int64_t c) {
-      std::uint32_t* h = count + c * nb;
-      for (std::int64_t p = c * chunk, e = std::min(n, (c + 1) * chunk); p < e; ++p) ++h[table[key[p]]];
+      std::uint32_t* h = count + c * slots;
+      for (std::int64_t p = c * chunk, e = std::min(n, (c + 1) * chunk); p < e; ++p) ++h[slot_of(p)];
     });
-    bins_.resize(std::size_t(nb));
+    bins_.clear();
+    groups_.clear();
     std::uint32_t offset = 0;
     for (std::int64_t j = 0; j < nb; ++j) {
-      Bin& bin = bins_[std::size_t(j)];
+      IVec block;
       std::int64_t k = distinct_[std::size_t(j)];
       for (int d = Dim - 1; d >= 0; --d) {
-        bin.block[d] = int(k % block_res_[d]);
+        block[d] = int(k % block_res_[d]);
         k /= block_res_[d];
       }
-      bin.begin = offset;
-      for (std::int64_t c = 0; c < chunks; ++c) {
-        std::uint32_t& h = count[c * nb + j];
-        const std::uint32_t m = h;
-        h = offset;
-        offset += m;
+      groups_.push_back(std::uint32_t(bins_.size()));
+      for (std::int64_t m = 0; m < nm; ++m) {
+        const std::uint32_t begin = offset;
+        for (std::int64_t c = 0; c < chunks; ++c) {
+          std::uint32_t& h = count[c * slots + j * nm + m];
+          const std::uint32_t cnt = h;
+          h = offset;
+          offset += cnt;
+        }
+        if (offset > begin) bins_.push_back({block, std::uint32_t(m), begin, offset});
       }
-      bin.end = offset;
     }
+    groups_.push_back(std::uint32_t(bins_.size()));
     std::uint32_t* order = order_.data();
     parallel::parallel_for(0, chunks, [&](std::int64_t c) {
-      std::uint32_t* h = count + c * nb;
+      std::uint32_t* h = count + c * slots;
       for (std::int64_t p = c * chunk, e = std::min(n, (c + 1) * chunk); p < e; ++p)
-        order[h[table[key[p]]]++] = std::uint32_t(p);
+        order[h[slot_of(p)]++] = std::uint32_t(p);
     });
-    // 4. Bins grouped by colour (the parities of their block coordinates).
+    // 4. Blocks (groups) by colour (the parities of their block coordinates).
     for (auto& c : colour_) c.clear();
     for (std::int64_t j = 0; j < nb; ++j) {
+      const IVec& b = bins_[groups_[std::size_t(j)]].block;
       int c = 0;
-      for (int d = 0; d < Dim; ++d) c = 2 * c + (bins_[std::size_t(j)].block[d] & 1);
+      for (int d = 0; d < Dim; ++d) c = 2 * c + (b[d] & 1);
       colour_[std::size_t(c)].push_back(std::uint32_t(j));
     }
+  }
+
+  /// Call after the caller permuted its particle arrays by order(): particle i is now order()[i]'s
+  /// data, so the order becomes the identity (the bins stay valid).
+  void reset_order() {
+    std::uint32_t* order = order_.data();
+    parallel::parallel_for(0, std::int64_t(order_.size()), [&](std::int64_t i) { order[i] = std::uint32_t(i); });
   }
 
   const std::vector<Bin>& bins() const { return bins_; }
   /// Particle indices, bin after bin.
   const std::uint32_t* order() const { return order_.data(); }
-  /// Indices into bins() of the bins of colour c in [0, 2^Dim).
+  /// Number of occupied blocks; block g's bins are bins()[group_begin(g), group_begin(g + 1)).
+  std::size_t groups() const { return groups_.empty() ? 0 : groups_.size() - 1; }
+  std::uint32_t group_begin(std::size_t g) const { return groups_[g]; }
+  /// The occupied blocks (group indices) of colour c in [0, 2^Dim).
   const std::vector<std::uint32_t>& colour(int c) const { return colour_[std::size_t(c)]; }
 
   /// Bytes held (capacity).
   std::size_t bytes() const {
     std::size_t b = table_.capacity() * sizeof(std::int32_t) + key_.capacity() * sizeof(std::int32_t) +
                     order_.capacity() * sizeof(std::uint32_t) + distinct_.capacity() * sizeof(std::int32_t) +
-                    count_.capacity() * sizeof(std::uint32_t) + bins_.capacity() * sizeof(Bin);
+                    count_.capacity() * sizeof(std::uint32_t) + bins_.capacity() * sizeof(Bin) +
+                    groups_.capacity() * sizeof(std::uint32_t);
     for (const auto& c : colour_) b += c.capacity() * sizeof(std::uint32_t);
     return b;
   }
@@ -165,12 +188,13 @@ class ParticleBins {
   static constexpr std::int64_t kMinChunk = 16384;
   static constexpr std::int64_t kMaxChunks = 64;
   IVec block_res_ = IVec::Zero();
-  std::vector<std::int32_t> table_;  // block key -> bin index during build, -1 when unused
+  std::vector<std::int32_t> table_;  // block key -> block index during build, -1 when unused
   std::vector<std::int32_t> key_;    // per particle
   std::vector<std::uint32_t> order_;
   std::vector<std::int32_t> distinct_;
   std::vector<std::uint32_t> count_;
   std::vector<Bin> bins_;
+  std::vector<std::uint32_t> groups_;
   std::array<std::vector<std::uint32_t>, BlockShape<Dim>::colours> colour_;
 };
 
