@@ -58,6 +58,7 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using Mat = Eigen::Matrix<T, Dim, Dim>;
   using IVec = Eigen::Matrix<int, Dim, 1>;
+  using Node = Eigen::Matrix<T, Dim + 1, 1>;
   using St = Stencil<T, Dim, Order>;
   static_assert(S != Scheme::MLS || Order > 1, "MLS-MPM needs a quadratic or cubic kernel");
   if (end <= begin) return;
@@ -77,7 +78,6 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
     lo = lo.cwiseMin(base);
     hi = hi.cwiseMax(base);
     const T mp = m[p];
-    const Vec mv = mp * v[p];
     Mat A = Mat::Zero();  // affine momentum, applied to (x_i - x_p)
     Mat G = Mat::Zero();  // stress impulse (and linear-kernel B_p), applied to grad w
     if constexpr (carries_affine(S)) {
@@ -92,16 +92,53 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
       else
         G += K[p];
     }
-    const std::int64_t k0 = grid.index(s.base);
-    for_each_node(s, [&](int a, int b, int c, T w, const Vec& grad, const Vec& off) {
-      std::int64_t k = k0 + a * stride[0] + b * stride[1];
-      if constexpr (Dim == 3) k += c;
-      auto& n = nodes[k];
-      Vec mom = w * (mv + A * off);
-      if constexpr (S != Scheme::MLS) mom.noalias() += G * grad;
-      n.template head<Dim>() += mom;
-      n[Dim] += w * mp;
-    });
+    // Per node: n_i += w (m v + A (x_i - x_p), m) + G grad w. With x_i - x_p = (ox_a, oy_b, oz_c)
+    // and grad w = (dwx_a wy_b wz_c, wx_a dwy_b wz_c, wx_a wy_b dwz_c) the affine and gradient
+    // terms are summed axis by axis (hoisted out of the inner loops), and every node update is a
+    // few (Dim+1)-wide multiply-adds.
+    const bool has_A = carries_affine(S) && Order > 1 ? true : (S == Scheme::MLS && K != nullptr);
+    const bool has_G = S != Scheme::MLS && ((carries_affine(S) && Order == 1) || K != nullptr);
+    Node u0, a[Dim], g[Dim];
+    u0.template head<Dim>() = mp * v[p];
+    u0[Dim] = mp;
+    for (int d = 0; d < Dim; ++d) {
+      a[d].template head<Dim>() = A.col(d);
+      a[d][Dim] = T(0);
+      g[d].template head<Dim>() = G.col(d);
+      g[d][Dim] = T(0);
+    }
+    Node* n0 = nodes + grid.index(s.base);
+    constexpr int N = St::N;
+    if constexpr (Dim == 3) {
+      for (int ia = 0; ia < N; ++ia) {
+        const Node ua = has_A ? Node(u0 + s.offset[0][ia] * a[0]) : u0;
+        for (int ib = 0; ib < N; ++ib) {
+          const T wab = s.w[0][ia] * s.w[1][ib];
+          const Node uab = has_A ? Node(ua + s.offset[1][ib] * a[1]) : ua;
+          Node* row = n0 + ia * stride[0] + ib * stride[1];
+          if (has_G) {
+            const Node hab = (s.dw[0][ia] * s.w[1][ib]) * g[0] + (s.w[0][ia] * s.dw[1][ib]) * g[1];
+            for (int ic = 0; ic < N; ++ic)
+              row[ic] += (wab * s.w[2][ic]) * (uab + s.offset[2][ic] * a[2]) + s.w[2][ic] * hab +
+                         (wab * s.dw[2][ic]) * g[2];
+          } else if (has_A) {
+            for (int ic = 0; ic < N; ++ic) row[ic] += (wab * s.w[2][ic]) * (uab + s.offset[2][ic] * a[2]);
+          } else {
+            for (int ic = 0; ic < N; ++ic) row[ic] += (wab * s.w[2][ic]) * uab;
+          }
+        }
+      }
+    } else {
+      for (int ia = 0; ia < N; ++ia) {
+        const Node ua = has_A ? Node(u0 + s.offset[0][ia] * a[0]) : u0;
+        Node* row = n0 + ia * stride[0];
+        for (int ib = 0; ib < N; ++ib) {
+          Node c = (s.w[0][ia] * s.w[1][ib]) * (has_A ? Node(ua + s.offset[1][ib] * a[1]) : ua);
+          if (has_G) c += (s.dw[0][ia] * s.w[1][ib]) * g[0] + (s.w[0][ia] * s.dw[1][ib]) * g[1];
+          row[ib] += c;
+        }
+      }
+    }
   }
   grid.touch(lo, hi + IVec::Constant(St::N - 1));
 }
@@ -131,6 +168,7 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
                    StateFn&& state) {
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using Mat = Eigen::Matrix<T, Dim, Dim>;
+  using Node = Eigen::Matrix<T, Dim + 1, 1>;
   using St = Stencil<T, Dim, Order>;
   static_assert(S != Scheme::MLS || Order > 1, "MLS-MPM needs a quadratic or cubic kernel");
   const Vec origin = grid.origin();
@@ -138,7 +176,7 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
   const T Dinv = BSpline<Order>::inverse_inertia(dx);
   std::int64_t stride[Dim];
   for (int d = 0; d < Dim; ++d) stride[d] = grid.stride(d);
-  const auto* nodes = grid.data();
+  const Node* nodes = grid.data();
   // Which sums each scheme needs: B for APIC/MLS (stored as C = B D^-1 for Order > 1, as B for
   // the linear kernel); grad v from grad w except for MLS, which uses C (Hu et al. 2018, eq. 17).
   constexpr bool need_B = carries_affine(S);
@@ -148,23 +186,78 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
   for (std::int64_t i = begin; i < end; ++i) {
     const std::int64_t p = ids ? std::int64_t(ids[i]) : i;
     const St s(x[p] - origin, inv_dx, dx);
-    Vec vpic = Vec::Zero(), dv = Vec::Zero();
-    Mat B = Mat::Zero(), gv = Mat::Zero();
-    const std::int64_t k0 = grid.index(s.base);
-    for_each_node(s, [&](int a, int b, int c, T w, const Vec& grad, const Vec& off) {
-      std::int64_t k = k0 + a * stride[0] + b * stride[1];
-      if constexpr (Dim == 3) k += c;
-      const Vec vi = nodes[k].template head<Dim>();
-      const Vec wv = w * vi;
-      vpic += wv;
-      // Outer products written out: Eigen's generic product path is not inlined here.
-      for (int j = 0; j < Dim; ++j)
-        for (int r = 0; r < Dim; ++r) {
-          if constexpr (need_B) B(r, j) += wv[r] * off[j];
-          if constexpr (need_grad) gv(r, j) += vi[r] * grad[j];
+    // Sums over the stencil, axis by axis: for each row (a, b) of nodes along the last axis,
+    // T_ab = sum_c wz_c v, O_ab = sum_c wz_c oz_c v and U_ab = sum_c dwz_c v; then
+    // v_pic = sum wab T_ab, B = sum w v (x_i - x_p)^T has columns sum wab ox_a T_ab,
+    // sum wab oy_b T_ab, sum wab O_ab, and grad v = sum v grad w^T has columns
+    // sum dwx_a wy_b T_ab, sum wx_a dwy_b T_ab, sum wab U_ab. Node vectors carry the mass as a
+    // last component, which the sums ignore; they are (Dim+1)-wide for the vector units.
+    constexpr int N = St::N;
+    const Node* n0 = nodes + grid.index(s.base);
+    Node vp = Node::Zero(), bc[Dim], gc[Dim];
+    for (int d = 0; d < Dim; ++d) bc[d].setZero(), gc[d].setZero();
+    Vec old_sum = Vec::Zero();
+    if constexpr (Dim == 3) {
+      T woz[N];
+      for (int ic = 0; ic < N; ++ic) woz[ic] = s.w[2][ic] * s.offset[2][ic];
+      for (int ia = 0; ia < N; ++ia)
+        for (int ib = 0; ib < N; ++ib) {
+          const std::int64_t r = ia * stride[0] + ib * stride[1];
+          const Node* row = n0 + r;
+          Node Tab = Node::Zero(), Oab = Node::Zero(), Uab = Node::Zero();
+          for (int ic = 0; ic < N; ++ic) {
+            Tab += s.w[2][ic] * row[ic];
+            if constexpr (need_B) Oab += woz[ic] * row[ic];
+            if constexpr (need_grad) Uab += s.dw[2][ic] * row[ic];
+          }
+          const T wab = s.w[0][ia] * s.w[1][ib];
+          vp += wab * Tab;
+          if constexpr (need_B) {
+            bc[0] += (wab * s.offset[0][ia]) * Tab;
+            bc[1] += (wab * s.offset[1][ib]) * Tab;
+            bc[2] += wab * Oab;
+          }
+          if constexpr (need_grad) {
+            gc[0] += (s.dw[0][ia] * s.w[1][ib]) * Tab;
+            gc[1] += (s.w[0][ia] * s.dw[1][ib]) * Tab;
+            gc[2] += wab * Uab;
+          }
+          if constexpr (S == Scheme::FLIP) {
+            const std::int64_t k = grid.index(s.base) + r;
+            for (int ic = 0; ic < N; ++ic) old_sum += (wab * s.w[2][ic]) * grid.old_velocity(k + ic);
+          }
         }
-      if constexpr (S == Scheme::FLIP) dv += w * (vi - grid.old_velocity(k));
-    });
+    } else {
+      for (int ia = 0; ia < N; ++ia) {
+        const std::int64_t r = ia * stride[0];
+        const Node* row = n0 + r;
+        Node Ta = Node::Zero(), Oa = Node::Zero(), Ua = Node::Zero();
+        for (int ib = 0; ib < N; ++ib) {
+          Ta += s.w[1][ib] * row[ib];
+          if constexpr (need_B) Oa += (s.w[1][ib] * s.offset[1][ib]) * row[ib];
+          if constexpr (need_grad) Ua += s.dw[1][ib] * row[ib];
+          if constexpr (S == Scheme::FLIP)
+            old_sum += (s.w[0][ia] * s.w[1][ib]) * grid.old_velocity(grid.index(s.base) + r + ib);
+        }
+        vp += s.w[0][ia] * Ta;
+        if constexpr (need_B) {
+          bc[0] += (s.w[0][ia] * s.offset[0][ia]) * Ta;
+          bc[1] += s.w[0][ia] * Oa;
+        }
+        if constexpr (need_grad) {
+          gc[0] += s.dw[0][ia] * Ta;
+          gc[1] += s.w[0][ia] * Ua;
+        }
+      }
+    }
+    const Vec vpic = vp.template head<Dim>();
+    Mat B, gv;
+    for (int d = 0; d < Dim; ++d) {
+      if constexpr (need_B) B.col(d) = bc[d].template head<Dim>();
+      if constexpr (need_grad) gv.col(d) = gc[d].template head<Dim>();
+    }
+    Vec dv = Vec::Zero();
+    if constexpr (S == Scheme::FLIP) dv = vpic - old_sum;
     if constexpr (carries_affine(S)) {
       if constexpr (Order > 1)
         C[p] = Dinv * B;
