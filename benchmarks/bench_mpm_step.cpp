@@ -1,10 +1,14 @@
-// Throughput of one full explicit MLS-MPM substep (stress, P2G, grid update, G2P), quadratic
-// kernel, fixed corotated elasticity, 8 particles per cell, a block filling the middle half of
-// the unit domain along each axis. Counter: particle-steps/s.
+// Throughput of one full explicit MLS-MPM substep (stress, binning, P2G, grid update, G2P),
+// quadratic kernel, fixed corotated elasticity, 8 particles per cell, a cube of particles
+// filling the middle half of the unit domain along each axis (res^3 particles for res cells per
+// axis), sparse grid. Counters: particle-steps/s of the full step and of P2G and G2P alone
+// (from the simulation's phase timers), engine bytes per particle and the process's peak
+// resident memory per particle (meaningful when one case runs alone, see RESULTS.md).
 //
 //   build/release/bin/bench_mpm_step --benchmark_counters_tabular=true
-// Arguments: grid resolution per axis, threads.
+// Arguments: cells per axis, threads.
 #include <benchmark/benchmark.h>
+#include <sys/resource.h>
 
 #include "slurry/engine/simulation.h"
 #include "slurry/transfer/parallel.h"
@@ -30,7 +34,7 @@ slurry::Scene block_scene(int dim, int res, bool dbl) {
   b.max = {0.75, 0.75, 0.75};
   b.material = "jelly";
   b.velocity = {0.3, -0.2, 0.1};
-  b.particles_per_cell = 8;
+  b.particles_per_cell = dim == 3 ? 8 : 4;
   s.bodies = {b};
   return s;
 }
@@ -41,21 +45,31 @@ void BM_MlsStep(benchmark::State& state) {
   slurry::parallel::ThreadLimit threads(int(state.range(1)));
   slurry::Simulation<T, Dim> sim(block_scene(Dim, res, std::is_same_v<T, double>));
   const T dt = T(0.2) * sim.stable_dt();
-  for (int i = 0; i < 3; ++i) sim.step(dt);  // warm up: touch the grid and particle pages
+  for (int i = 0; i < 3; ++i) sim.step(dt);  // warm up: grid blocks and particle order settle
+  const slurry::PhaseTimes before = sim.phase_times();
   for (auto _ : state) sim.step(dt);
   const double n = double(sim.particle_count());
+  const double steps = double(state.iterations());
+  const auto& after = sim.phase_times();
   state.counters["particles"] = n;
-  state.counters["particle-steps/s"] = benchmark::Counter(n * double(state.iterations()), benchmark::Counter::kIsRate);
+  state.counters["particle-steps/s"] = benchmark::Counter(n * steps, benchmark::Counter::kIsRate);
+  state.counters["P2G p-steps/s"] = n * steps / (after.p2g - before.p2g);
+  state.counters["G2P p-steps/s"] = n * steps / (after.g2p - before.g2p);
   state.counters["bytes/particle"] = double(sim.bytes()) / n;
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  state.counters["peakRSS/particle"] = double(usage.ru_maxrss) * 1024.0 / n;
 }
 
+// res^3 particles: 47 -> 104 k, 100 -> 1.0 M, 159 -> 4.0 M.
 void Args3D(benchmark::internal::Benchmark* b) {
-  for (int res : {64, 128})
+  for (int res : {47, 100, 159})
     for (int t : {1, 2}) b->Args({res, t});
   b->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
 }
+// 2D: 4 res^2 / 4 = res^2 particles.
 void Args2D(benchmark::internal::Benchmark* b) {
-  for (int res : {256, 512})
+  for (int res : {512, 1024})
     for (int t : {1, 2}) b->Args({res, t});
   b->Unit(benchmark::kMillisecond)->UseRealTime()->MinTime(1.0);
 }

@@ -3,6 +3,7 @@
 #pragma once
 #include <Eigen/LU>
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <random>
@@ -195,13 +196,26 @@ void Simulation<T, Dim>::step(T dt) {
 template <class T, int Dim>
 template <class G>
 void Simulation<T, Dim>::step_on(G& grid, T dt) {
+  using Clock = std::chrono::steady_clock;
+  auto t = Clock::now();
+  auto lap = [&](double& phase) {
+    const auto now = Clock::now();
+    phase += std::chrono::duration<double>(now - t).count();
+    t = now;
+  };
   bin_particles();
   if (steps_ % kReorderInterval == 0) reorder_particles();
+  lap(phase_times_.binning);
   compute_stress(dt);
+  lap(phase_times_.stress);
   particles_to_grid(grid);
+  lap(phase_times_.p2g);
   update_grid(grid, dt);
+  lap(phase_times_.grid);
   grid_to_particles(grid, dt);
+  lap(phase_times_.g2p);
   return_mapping();
+  lap(phase_times_.plasticity);
 }
 
 template <class T, int Dim>

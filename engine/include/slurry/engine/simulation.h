@@ -52,6 +52,16 @@ class SimulationBase {
   virtual io::PlyData frame(const std::vector<std::string>& attributes) const = 0;
 };
 
+/// Wall-clock seconds spent in each phase of the MPM substep since the simulation started.
+struct PhaseTimes {
+  double stress = 0;      ///< compute_stress
+  double binning = 0;     ///< bin_particles (and the periodic re-sort of particle storage)
+  double p2g = 0;         ///< particles_to_grid (including grid block allocation)
+  double grid = 0;        ///< update_grid
+  double g2p = 0;         ///< grid_to_particles
+  double plasticity = 0;  ///< return_mapping
+};
+
 /// Builds the simulation a scene asks for (its dimension and precision). Validates the scene.
 std::unique_ptr<SimulationBase> make_simulation(const Scene& scene);
 
@@ -85,6 +95,8 @@ class Simulation final : public SimulationBase {
   T max_speed() const { return max_speed_; }
   /// Total kinetic energy sum_p m_p |v_p|^2 / 2.
   T kinetic_energy() const;
+  /// Time spent per phase so far (for benchmarks and the cost of each setting).
+  const PhaseTimes& phase_times() const { return phase_times_; }
   /// Total elastic energy sum_p V_p^0 psi(F_p) (zero for fluids).
   T elastic_energy() const;
 
@@ -131,6 +143,7 @@ class Simulation final : public SimulationBase {
   Vec x_lo_, x_hi_;  // particles must stay in this box (the domain plus one cell)
   double time_ = 0;
   std::int64_t steps_ = 0;
+  PhaseTimes phase_times_;
   T max_speed_ = 0;
   T max_wave_speed_ = 0;
 };
