@@ -136,6 +136,17 @@ struct MacGrid {
     return origin + dx * (i.template cast<T>() + Vec::Constant(T(0.5)));
   }
 
+  /// Open fraction of axis-d face i as the pressure solve sees it: `weight` clamped to [0, 1],
+  /// but 0 on the domain boundary (walls) and next to a cell labelled Solid. A face with open
+  /// weight 0 is closed: its velocity is the solid's (u = u_solid).
+  T open_weight(int d, const IVec& i) const {
+    if (i[d] <= 0 || i[d] >= res[d]) return T(0);
+    IVec below = i;
+    below[d] -= 1;
+    if (label[std::size_t(cell(below))] == Solid || label[std::size_t(cell(i))] == Solid) return T(0);
+    return std::clamp(weight[d][std::size_t(face(d, i))], T(0), T(1));
+  }
+
   /// Component d at x by (bi/tri)linear interpolation of the axis-d face values; x is clamped
   /// to the box spanned by the face positions, so points outside read the nearest boundary.
   T sample(int d, const Vec& x) const {
