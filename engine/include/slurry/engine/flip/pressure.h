@@ -79,6 +79,11 @@ struct ProjectionOptions {
   int max_iterations = 1000;  ///< PCG iteration cap, >= 1
   double density = 1000;      ///< liquid density rho (kg/m^3), > 0
   bool ghost_fluid = true;    ///< second-order free surface (else p = 0 at air cell centres)
+  /// MIC(0) parallel form: 0 = exact MIC(0), triangular solves level-scheduled over tiles of
+  /// rows; k >= 1 = k independent slabs along x holding equal shares of the fluid cells (block
+  /// Jacobi with MIC(0) blocks: couplings between slabs dropped from the preconditioner, one
+  /// task per slab, a few synchronisations per iteration instead of one per tile diagonal).
+  int mic_blocks = 0;
 
   void validate() const {
     const auto fail = [](const char* key, double value, const char* allowed) {
@@ -88,6 +93,7 @@ struct ProjectionOptions {
     };
     if (!(tolerance > 0 && tolerance < 1)) fail("tolerance", tolerance, "(0, 1)");
     if (max_iterations < 1) fail("max_iterations", max_iterations, ">= 1");
+    if (mic_blocks < 0) fail("mic_blocks", mic_blocks, ">= 0");
     if (!(density > 0) || !std::isfinite(density)) fail("density", density, "> 0");
   }
 };
@@ -155,13 +161,17 @@ class PressureSolver {
     // An open fluid-fluid face always gives both cells a positive diagonal, so plus(d) never
     // couples an unknown to a non-unknown.
     compute_spans();
+    compute_blocks();
     find_closed_components();
     if (preconditioner_wanted_ == Preconditioner::MIC0) build_mic0();
     mic_built_ = preconditioner_wanted_ == Preconditioner::MIC0;
   }
 
   /// Chooses which preconditioner assemble() prepares (project() sets it from the options).
-  void prepare_for(Preconditioner p) { preconditioner_wanted_ = p; }
+  void prepare_for(Preconditioner p, int mic_blocks = 0) {
+    preconditioner_wanted_ = p;
+    mic_blocks_ = mic_blocks;
+  }
 
   bool is_unknown(std::int64_t c) const { return diag_[std::size_t(pad_ + c)] > 0; }
   std::int64_t unknowns() const { return unknowns_; }
@@ -179,7 +189,9 @@ class PressureSolver {
   /// unknowns are ignored in b and returned as 0 in x. x holds the initial guess on entry.
   ProjectionReport solve(const std::vector<double>& b, std::vector<double>& x, const ProjectionOptions& opt) {
     opt.validate();
-    if (opt.preconditioner == Preconditioner::MIC0 && !mic_built_) {
+    if (opt.preconditioner == Preconditioner::MIC0 && (!mic_built_ || opt.mic_blocks != mic_blocks_)) {
+      mic_blocks_ = opt.mic_blocks;
+      compute_blocks();
       build_mic0();
       mic_built_ = true;
     }
@@ -205,7 +217,7 @@ class PressureSolver {
   /// valid = 1 exactly on the updated faces. Writes g.pressure (0 outside the fluid).
   ProjectionReport project(Grid& g, T dt, const ProjectionOptions& opt) {
     opt.validate();
-    prepare_for(opt.preconditioner);
+    prepare_for(opt.preconditioner, opt.mic_blocks);
     assemble(g, opt.ghost_fluid);
     const double scale = opt.density * double(g.dx) / double(dt);  // b = -(rho dx / dt) D
     std::vector<double> b(std::size_t(num_cells_), 0.0);
@@ -319,6 +331,28 @@ class PressureSolver {
     });
   }
 
+  /// Slab bounds along axis 0 for mic_blocks_ > 0: equal shares of the unknowns (a function of
+  /// the fluid only, never of the thread count).
+  void compute_blocks() {
+    block_start_.assign(1, 0);
+    if (mic_blocks_ <= 0) return;
+    std::vector<std::int64_t> per_i(std::size_t(n0_), 0);
+    const double* diag = diag_.data() + pad_;
+    for (std::int64_t row = 0; row < num_rows_; ++row)
+      for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k)
+        per_i[std::size_t(row / n1_)] += diag[row * nz_ + k] > 0;
+    std::int64_t acc = 0;
+    int next = 1;
+    for (int i = 0; i < n0_; ++i) {
+      acc += per_i[std::size_t(i)];
+      if (next < mic_blocks_ && acc * mic_blocks_ >= std::int64_t(next) * unknowns_ && i + 1 < n0_) {
+        block_start_.push_back(i + 1);
+        while (next < mic_blocks_ && acc * mic_blocks_ >= std::int64_t(next) * unknowns_) ++next;
+      }
+    }
+    block_start_.push_back(n0_);
+  }
+
   /// Labels the unknowns not connected (through open fluid faces) to a free-surface face:
   /// closed_cells_ lists them grouped by component, closed_start_ the group starts.
   void find_closed_components() {
@@ -380,6 +414,24 @@ class PressureSolver {
   /// of fn's results in a fixed order.
   template <class Fn>
   double sweep(bool forward, Fn&& fn) const {
+    if (mic_blocks_ > 0) {
+      // Independent slabs along axis 0: one task each, the couplings between them cut.
+      const std::int64_t nb = std::int64_t(block_start_.size()) - 1;
+      return parallel::parallel_sum<double>(0, nb, 1, [&](std::int64_t lo, std::int64_t hi) {
+        double s = 0;
+        for (std::int64_t b = lo; b < hi; ++b) {
+          const int i0 = block_start_[std::size_t(b)], i1 = block_start_[std::size_t(b + 1)];
+          if (forward) {
+            for (int i = i0; i < i1; ++i)
+              for (int j = 0; j < n1_; ++j) s += fn(std::int64_t(i) * n1_ + j, i == i0, i == i1 - 1);
+          } else {
+            for (int i = i1 - 1; i >= i0; --i)
+              for (int j = n1_ - 1; j >= 0; --j) s += fn(std::int64_t(i) * n1_ + j, i == i0, i == i1 - 1);
+          }
+        }
+        return s;
+      });
+    }
     const int levels = tiles0_ + tiles1_ - 1;
     double total = 0;
     for (int step = 0; step < levels; ++step) {
@@ -393,10 +445,10 @@ class PressureSolver {
           const int j0 = tj * kTile, j1 = std::min(n1_, j0 + kTile);
           if (forward) {
             for (int i = i0; i < i1; ++i)
-              for (int j = j0; j < j1; ++j) s += fn(std::int64_t(i) * n1_ + j);
+              for (int j = j0; j < j1; ++j) s += fn(std::int64_t(i) * n1_ + j, false, false);
           } else {
             for (int i = i1 - 1; i >= i0; --i)
-              for (int j = j1 - 1; j >= j0; --j) s += fn(std::int64_t(i) * n1_ + j);
+              for (int j = j1 - 1; j >= j0; --j) s += fn(std::int64_t(i) * n1_ + j, false, false);
           }
         }
         return s;
@@ -409,17 +461,18 @@ class PressureSolver {
   void build_mic0() {
     const double* diag = diag_.data() + pad_;
     double* pc = precon_.data() + pad_;
-    sweep(true, [&](std::int64_t row) {
+    sweep(true, [&](std::int64_t row, bool cut_lo, bool cut_hi) {
       for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
         const std::int64_t c = row * nz_ + k;
         if (!(diag[c] > 0)) continue;
         double e = diag[c];
-        for (int d = 0; d < Dim; ++d) {
+        for (int d = cut_lo ? 1 : 0; d < Dim; ++d) {
           const std::int64_t m = c - stride_[d];
           const double a = plus(d)[m] * pc[m];
           double others = 0;
+          // m shares c's axis-0 index for d > 0, so its +x coupling is cut with c's.
           for (int d2 = 0; d2 < Dim; ++d2)
-            if (d2 != d) others += plus(d2)[m];
+            if (d2 != d && !(d2 == 0 && cut_hi)) others += plus(d2)[m];
           e -= a * a + kMicTau * plus(d)[m] * others * pc[m] * pc[m];
         }
         if (e < kMicSigma * diag[c]) e = diag[c];
@@ -466,7 +519,7 @@ class PressureSolver {
       });
     }
     const double* pc = precon_.data() + pad_;
-    sweep(true, [&](std::int64_t row) {  // L q = r, q stored in z
+    sweep(true, [&](std::int64_t row, bool cut_lo, bool) {  // L q = r, q stored in z
       for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
         const std::int64_t c = row * nz_ + k;
         if (!(diag[c] > 0)) {
@@ -474,7 +527,7 @@ class PressureSolver {
           continue;
         }
         double t = r[c];
-        for (int d = 0; d < Dim; ++d) {
+        for (int d = cut_lo ? 1 : 0; d < Dim; ++d) {
           const std::int64_t m = c - stride_[d];
           t -= plus(d)[m] * pc[m] * z[m];
         }
@@ -482,13 +535,13 @@ class PressureSolver {
       }
       return 0.0;
     });
-    return sweep(false, [&](std::int64_t row) {  // L^T z = q in place
+    return sweep(false, [&](std::int64_t row, bool, bool cut_hi) {  // L^T z = q in place
       double s = 0;
       for (int k = span_hi_[std::size_t(row)] - 1; k >= span_lo_[std::size_t(row)]; --k) {
         const std::int64_t c = row * nz_ + k;
         if (!(diag[c] > 0)) continue;
         double t = z[c];
-        for (int d = 0; d < Dim; ++d) t -= plus(d)[c] * pc[c] * z[c + stride_[d]];
+        for (int d = cut_hi ? 1 : 0; d < Dim; ++d) t -= plus(d)[c] * pc[c] * z[c + stride_[d]];
         z[c] = t * pc[c];
         s += r[c] * z[c];
       }
@@ -575,6 +628,8 @@ class PressureSolver {
   std::array<std::int64_t, Dim> stride_{};
   bool ghost_fluid_ = true;
   bool mic_built_ = false;
+  int mic_blocks_ = 0;
+  std::vector<int> block_start_;
   Preconditioner preconditioner_wanted_ = Preconditioner::MIC0;
   // Padded by pad_ = stride_[0] cells on both ends so that neighbour reads never leave the
   // arrays; the pads hold zeros, and so do coefficients across the domain boundary.
