@@ -547,7 +547,7 @@ void check_threads(Preconditioner prec, int n, int mic_blocks = 0) {
   v[0] = 0.3;
   const Grid<Dim> start = obstacle_scene<Dim>(n, v);
   Grid<Dim> g1 = start, g2 = start;
-  ProjectionOptions opt = tight(prec, 1e-7);
+  ProjectionOptions opt = tight(prec, 1e-6);
   opt.mic_blocks = mic_blocks;
   ProjectionReport r1, r2;
   {
@@ -571,11 +571,12 @@ void check_threads(Preconditioner prec, int n, int mic_blocks = 0) {
 }
 
 TEST(PressureThreads, BitwiseIndependentOfThreadCount) {
-  check_threads<3>(Preconditioner::MIC0, 24);
-  check_threads<3>(Preconditioner::Jacobi, 24);
-  check_threads<3>(Preconditioner::None, 24);
-  check_threads<3>(Preconditioner::MIC0, 24, 4);
-  check_threads<2>(Preconditioner::MIC0, 64);
+  // Small grids: every PCG iteration here is tens of parallel regions, slow on a busy machine.
+  check_threads<3>(Preconditioner::MIC0, 20);
+  check_threads<3>(Preconditioner::Jacobi, 16);
+  check_threads<3>(Preconditioner::None, 16);
+  check_threads<3>(Preconditioner::MIC0, 20, 4);
+  check_threads<2>(Preconditioner::MIC0, 48);
 }
 
 TEST(PressureOptions, ValidateNamesTheField) {
