@@ -133,16 +133,19 @@ class PressureSolver {
     for (auto* v : {&diag_, &precon_, &x_, &r_, &z_, &p_, &q_}) v->assign(std::size_t(n + 2 * pad_), 0.0);
     for (int d = 0; d < Dim; ++d) plus_[d].assign(std::size_t(n + 2 * pad_), 0.0);
     dirichlet_.assign(std::size_t(n), 0);
-    parallel::parallel_for(0, n, [&](std::int64_t c) {
+    for (int d = 0; d < Dim; ++d) {  // open weights once: the later passes only read them
+      open_[d].resize(std::size_t(g.num_faces(d)));
+      face_up_[d] = g.face_stride(d, d);
+      for_each_index(g.face_res(d), [&](std::int64_t f, const IVec& fi) { open_[d][std::size_t(f)] = g.open_weight(d, fi); });
+    }
+    for_each_index(g.res, [&](std::int64_t c, const IVec& i) {
       if (g.label[std::size_t(c)] != Grid::Fluid) return;
-      const IVec i = g.cell_coord(c);
       double diag = 0;
       bool dirichlet = false;
       for (int d = 0; d < Dim; ++d) {
-        for (int side = 0; side < 2; ++side) {
-          IVec f = i;
-          f[d] += side;  // lower face (side 0) or upper face (side 1)
-          const double w = double(g.open_weight(d, f));
+        const std::int64_t lower = g.face(d, i);
+        for (int side = 0; side < 2; ++side) {  // lower face (side 0) or upper face (side 1)
+          const double w = double(open_[d][std::size_t(side ? lower + face_up_[d] : lower)]);
           if (w <= 0) continue;
           const std::int64_t nb = side ? c + g.cell_stride(d) : c - g.cell_stride(d);
           const auto nl = g.label[std::size_t(nb)];
@@ -222,19 +225,18 @@ class PressureSolver {
     const double scale = opt.density * double(g.dx) / double(dt);  // b = -(rho dx / dt) D
     std::vector<double> b(std::size_t(num_cells_), 0.0);
     std::vector<double> p(std::size_t(num_cells_), 0.0);
-    parallel::parallel_for(0, num_cells_, [&](std::int64_t c) {
+    for_each_index(g.res, [&](std::int64_t c, const IVec& i) {
       if (!is_unknown(c)) return;
-      b[std::size_t(c)] = -scale * double(flux_sum(g, g.cell_coord(c)));
+      b[std::size_t(c)] = -scale * double(open_flux_sum(g, i));
       p[std::size_t(c)] = double(g.pressure[std::size_t(c)]);
     });
     ProjectionReport rep = solve(b, p, opt);
     parallel::parallel_for(0, num_cells_, [&](std::int64_t c) { g.pressure[std::size_t(c)] = T(p[std::size_t(c)]); });
     const double coef = double(dt) / (opt.density * double(g.dx));
     for (int d = 0; d < Dim; ++d) {
-      parallel::parallel_for(0, g.num_faces(d), [&](std::int64_t f) {
-        const IVec fi = g.face_coord(d, f);
+      for_each_index(g.face_res(d), [&](std::int64_t f, const IVec& fi) {
         const std::size_t fs = std::size_t(f);
-        const T w = g.open_weight(d, fi);
+        const T w = open_[d][fs];
         if (w <= T(0)) {
           g.u[d][fs] = g.u_solid[d][fs];
           g.valid[d][fs] = 0;
@@ -260,10 +262,15 @@ class PressureSolver {
         g.valid[d][fs] = 1;
       });
     }
-    rep.max_divergence = parallel::parallel_max<double>(0, num_cells_, 0.0, [&](std::int64_t lo, std::int64_t hi) {
+    rep.max_divergence = parallel::parallel_max<double>(0, num_rows_, 0.0, [&](std::int64_t lo, std::int64_t hi) {
       double m = 0;
-      for (std::int64_t c = lo; c < hi; ++c)
-        if (is_unknown(c)) m = std::max(m, std::abs(double(flux_sum(g, g.cell_coord(c)))) / double(g.dx));
+      for (std::int64_t row = lo; row < hi; ++row) {
+        IVec i = row_coord(g.res, row);
+        for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
+          i[Dim - 1] = k;
+          if (is_unknown(row * nz_ + k)) m = std::max(m, std::abs(double(open_flux_sum(g, i))) / double(g.dx));
+        }
+      }
       return m;
     });
     return rep;
@@ -286,6 +293,21 @@ class PressureSolver {
     return s;
   }
 
+  /// flux_sum() with the open weights cached by assemble().
+  T open_flux_sum(const Grid& g, const IVec& i) const {
+    T s = T(0);
+    for (int d = 0; d < Dim; ++d) {
+      const std::int64_t lower = g.face(d, i);
+      for (int side = 0; side < 2; ++side) {
+        const std::size_t fs = std::size_t(side ? lower + face_up_[d] : lower);
+        const T w = open_[d][fs];
+        const T flux = w * g.u[d][fs] + (T(1) - w) * g.u_solid[d][fs];
+        s += side ? flux : -flux;
+      }
+    }
+    return s;
+  }
+
   /// Free-surface fraction between fluid cell c and air cell a: theta = phi_c / (phi_c - phi_a)
   /// when phi changes sign between them, clamped to [kThetaMin, 1]; 1 without ghost fluid.
   double theta(const Grid& g, std::int64_t c, std::int64_t a) const {
@@ -296,6 +318,32 @@ class PressureSolver {
   }
 
  private:
+  /// Index of the first element of row `row` of a row-major box (last axis along the row).
+  static IVec row_coord(const IVec& box, std::int64_t row) {
+    IVec i = IVec::Zero();
+    for (int a = Dim - 2; a >= 0; --a) {
+      i[a] = int(row % box[a]);
+      row /= box[a];
+    }
+    return i;
+  }
+
+  /// fn(k, i) for every index i of the row-major box `box` (k its linear index), in parallel
+  /// over rows along the last axis: one division per row, not per element.
+  template <class Fn>
+  static void for_each_index(const IVec& box, Fn&& fn) {
+    const int nz = box[Dim - 1];
+    std::int64_t rows = 1;
+    for (int a = 0; a < Dim - 1; ++a) rows *= box[a];
+    parallel::parallel_for(0, rows, [&](std::int64_t row) {
+      IVec i = row_coord(box, row);
+      for (int k = 0; k < nz; ++k) {
+        i[Dim - 1] = k;
+        fn(row * nz + k, i);
+      }
+    });
+  }
+
   double* plus(int d) { return plus_[d].data() + pad_; }
   const double* plus(int d) const { return plus_[d].data() + pad_; }
 
@@ -362,7 +410,6 @@ class PressureSolver {
     std::vector<std::uint8_t> seen(std::size_t(n), 0);
     std::vector<std::int64_t> queue;
     const auto flood = [&](std::vector<std::int64_t>& q, std::size_t head) {
-      const double* diag = diag_.data() + pad_;
       while (head < q.size()) {
         const std::int64_t c = q[head++];
         for (int d = 0; d < Dim; ++d) {
@@ -370,7 +417,6 @@ class PressureSolver {
           if (plus(d)[c] != 0 && !seen[std::size_t(up)]) seen[std::size_t(up)] = 1, q.push_back(up);
           if (down >= 0 && plus(d)[down] != 0 && !seen[std::size_t(down)]) seen[std::size_t(down)] = 1, q.push_back(down);
         }
-        (void)diag;
       }
     };
     for (std::int64_t c = 0; c < n; ++c)
@@ -636,6 +682,8 @@ class PressureSolver {
   std::vector<double> diag_, precon_, x_, r_, z_, p_, q_;
   std::array<std::vector<double>, Dim> plus_;  ///< A(c, c + e_d) = -w, stored at c
   std::vector<std::uint8_t> dirichlet_;
+  std::array<std::vector<T>, Dim> open_;  ///< MacGrid::open_weight per face, cached by assemble()
+  std::array<std::int64_t, Dim> face_up_{};  ///< axis-d face index step from a cell's lower to upper face
   std::vector<int> span_lo_, span_hi_;
   std::vector<std::int64_t> closed_cells_, closed_start_;
 };
