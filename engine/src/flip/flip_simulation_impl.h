@@ -207,7 +207,9 @@ void FlipSimulation<T, Dim>::apply_gravity(T dt) {
 
 template <class T, int Dim>
 void FlipSimulation<T, Dim>::build_boundaries(T t) {
-  solids_.update_faces(grid_, t);
+  // Without colliders the face weights (walls only) never change.
+  if (!solids_.empty() || !faces_ready_) solids_.update_faces(grid_, t);
+  faces_ready_ = true;
   label_cells(grid_, particles_, sort_, solids_, t, particle_radius_, holes_);
 }
 
@@ -225,6 +227,22 @@ void FlipSimulation<T, Dim>::extrapolate_velocities() {
 
 template <class T, int Dim>
 void FlipSimulation<T, Dim>::enforce_solids() {
+  // project() sets u = u_solid on closed faces and extrapolate() leaves them alone; without
+  // colliders the closed faces are the walls, which only need their zero normal velocity.
+  if (solids_.empty()) {
+    for (int d = 0; d < Dim; ++d) {
+      const auto fr = grid_.face_res(d);
+      const std::int64_t outer = grid_.face_stride(d, d) * fr[d];  // faces per slab of axis d
+      const std::int64_t slabs = grid_.num_faces(d) / outer;
+      const std::int64_t stride = grid_.face_stride(d, d);
+      parallel::parallel_for(0, slabs, [&](std::int64_t s) {
+        T* u = grid_.u[d].data() + s * outer;
+        std::fill(u, u + stride, T(0));
+        std::fill(u + outer - stride, u + outer, T(0));
+      });
+    }
+    return;
+  }
   for (int d = 0; d < Dim; ++d)
     parallel::parallel_for(0, grid_.num_faces(d), [&](std::int64_t f) {
       if (grid_.open_weight(d, grid_.face_coord(d, f)) <= T(0)) grid_.u[d][f] = grid_.u_solid[d][f];

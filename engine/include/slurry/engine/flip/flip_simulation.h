@@ -117,6 +117,7 @@ class FlipSimulation final : public SimulationBase {
   Grid grid_;
   std::array<std::vector<T>, Dim> weight_sum_, old_u_;
   std::vector<std::uint8_t> holes_;
+  bool faces_ready_ = false;
   Solids<T, Dim> solids_;
   std::vector<Emitter<T, Dim>> emitters_;
   Reseeder<T, Dim> reseeder_;
