@@ -38,7 +38,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   RunSummary summary;
   summary.directory = dir;
   summary.particles = sim->particle_count();
-  double sim_seconds = 0;
+  double sim_seconds = 0, particle_steps = 0;
 
   for (int f = 0; f <= frames; ++f) {
     const auto t0 = Clock::now();
@@ -46,6 +46,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     if (f > 0) {
       substeps = sim->advance_to(f * scene.frame_dt());
       sim_seconds += seconds_since(t0);
+      particle_steps += double(sim->particle_count()) * double(substeps);  // emitters add particles
     }
     const auto file = frame_file(dir, f);
     io::write_ply(file, sim->frame(scene.output.attributes), format);
@@ -65,8 +66,8 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   }
   summary.wall_seconds = seconds_since(start);
   summary.bytes = sim->bytes();
-  if (sim_seconds > 0)
-    summary.particle_steps_per_second = double(summary.particles) * double(summary.substeps) / sim_seconds;
+  summary.particles = sim->particle_count();
+  if (sim_seconds > 0) summary.particle_steps_per_second = particle_steps / sim_seconds;
   return summary;
 }
 

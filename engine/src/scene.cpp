@@ -44,6 +44,13 @@ const NameTable<Condition> kCondition{
     {"sticky", Condition::Sticky}, {"slip", Condition::Slip}, {"separate", Condition::Separate}};
 const NameTable<GridKind> kGrid{{"sparse", GridKind::Sparse}, {"dense", GridKind::Dense}};
 const NameTable<PlyEncoding> kEncoding{{"binary", PlyEncoding::Binary}, {"ascii", PlyEncoding::Ascii}};
+const NameTable<AdvectionScheme> kAdvection{{"euler", AdvectionScheme::Euler},
+                                            {"midpoint", AdvectionScheme::Midpoint},
+                                            {"heun", AdvectionScheme::Heun},
+                                            {"rk3", AdvectionScheme::RK3}};
+const NameTable<PressurePreconditioner> kPreconditioner{{"mic0", PressurePreconditioner::MIC0},
+                                                        {"jacobi", PressurePreconditioner::Jacobi},
+                                                        {"none", PressurePreconditioner::None}};
 const std::vector<std::string> kAttributes{"position", "velocity", "material", "J", "plastic"};
 
 template <class E>
@@ -222,6 +229,8 @@ std::string_view to_string(TransferKind m) { return name_of(kTransfer, m); }
 std::string_view to_string(KernelKind m) { return name_of(kKernel, m); }
 std::string_view to_string(SolverType m) { return name_of(kSolverType, m); }
 std::string_view to_string(Integrator m) { return name_of(kIntegrator, m); }
+std::string_view to_string(AdvectionScheme m) { return name_of(kAdvection, m); }
+std::string_view to_string(PressurePreconditioner m) { return name_of(kPreconditioner, m); }
 
 int Scene::material_index(std::string_view name) const {
   for (std::size_t i = 0; i < materials.size(); ++i)
@@ -229,13 +238,96 @@ int Scene::material_index(std::string_view name) const {
   return -1;
 }
 
+void Scene::validate_flip() const {
+  const Checker c{source};
+  const int dim = solver.dimension;
+  if (solver.transfer == TransferKind::MLS)
+    fail(source, "solver.transfer", "solver.type \"flip\" takes \"pic\", \"flip\" or \"apic\", got \"mls\"");
+  if (solver.kernel == KernelKind::Cubic)
+    fail(source, "solver.kernel", "solver.type \"flip\" takes \"linear\" or \"quadratic\", got \"cubic\"");
+  c.in_range("solver.pressure.tolerance", solver.pressure.tolerance, 0, 1, true, true);
+  if (solver.pressure.max_iterations < 1 || solver.pressure.max_iterations > 1000000)
+    fail(source, "solver.pressure.max_iterations",
+         "expected an integer in [1, 1000000], got " + std::to_string(solver.pressure.max_iterations));
+  if (solver.reseed.min_per_cell < 0 || solver.reseed.min_per_cell > 64)
+    fail(source, "solver.reseed.min_per_cell",
+         "expected an integer in [0, 64], got " + std::to_string(solver.reseed.min_per_cell));
+  if (solver.reseed.max_per_cell <= solver.reseed.min_per_cell || solver.reseed.max_per_cell > 512)
+    fail(source, "solver.reseed.max_per_cell",
+         "expected an integer in (min_per_cell = " + std::to_string(solver.reseed.min_per_cell) + ", 512], got " +
+             std::to_string(solver.reseed.max_per_cell));
+  for (std::size_t i = 0; i < materials.size(); ++i) {
+    const std::string p = "materials[" + std::to_string(i) + "]";
+    if (materials[i].model != ElasticModel::Fluid)
+      fail(source, p + ".model",
+           "solver.type \"flip\" simulates liquids: expected \"fluid\", got \"" +
+               std::string(to_string(materials[i].model)) + "\"");
+    if (materials[i].plasticity != PlasticModel::None)
+      fail(source, p + ".plasticity", "a \"fluid\" material takes no plasticity (expected \"none\")");
+    if (i > 0 && materials[i].density != materials[0].density)
+      fail(source, p + ".density",
+           "the FLIP solver takes one density for all liquids: expected " + fmt_num(materials[0].density) +
+               " (materials[0].density), got " + fmt_num(materials[i].density));
+  }
+  if (boundaries.walls == Condition::Sticky)
+    fail(source, "boundaries.walls", "solver.type \"flip\" walls are free-slip: expected \"slip\" or \"separate\", got \"sticky\"");
+  if (boundaries.friction != 0)
+    fail(source, "boundaries.friction", "solver.type \"flip\" walls are free-slip: expected 0, got " + fmt_num(boundaries.friction));
+  for (std::size_t i = 0; i < colliders.size(); ++i) {
+    const std::string p = "colliders[" + std::to_string(i) + "]";
+    if (colliders[i].condition == Condition::Sticky)
+      fail(source, p + ".condition", "solver.type \"flip\" colliders are free-slip: expected \"slip\" or \"separate\", got \"sticky\"");
+    if (colliders[i].friction != 0)
+      fail(source, p + ".friction", "solver.type \"flip\" colliders are free-slip: expected 0, got " + fmt_num(colliders[i].friction));
+  }
+  for (std::size_t i = 0; i < emitters.size(); ++i) {
+    const auto& e = emitters[i];
+    const std::string p = "emitters[" + std::to_string(i) + "]";
+    if (material_index(e.material) < 0) {
+      std::string known;
+      for (const auto& m : materials) known += (known.empty() ? "\"" : ", \"") + m.name + "\"";
+      fail(source, p + ".material", "expected the name of a material (" + known + "), got \"" + e.material + "\"");
+    }
+    Eigen::Vector3d lo = e.min, hi = e.max;
+    if (e.shape == Shape::Box) {
+      for (int d = 0; d < dim; ++d)
+        if (!(e.max[d] > e.min[d]))
+          fail(source, p + ".max", "expected every component greater than min " + vec_str(e.min, dim) +
+                                       " (an empty box), got " + vec_str(e.max, dim));
+    } else if (e.shape == Shape::Sphere) {
+      c.positive(p + ".radius", e.radius);
+      lo = e.center.array() - e.radius;
+      hi = e.center.array() + e.radius;
+    } else {
+      fail(source, p + ".shape", "expected \"box\" or \"sphere\", got \"cylinder\"");
+    }
+    for (int d = 0; d < dim; ++d)
+      if (lo[d] < domain.min[d] || hi[d] > domain.max[d])
+        fail(source, p, "the emitter spans " + vec_str(lo, dim) + " to " + vec_str(hi, dim) +
+                            ", expected it inside the domain " + vec_str(domain.min, dim) + " to " +
+                            vec_str(domain.max, dim));
+    c.positive(p + ".rate", e.rate);
+    c.non_negative(p + ".start", e.start);
+    if (!(e.end > e.start))
+      fail(source, p + ".end", "expected a time greater than start (" + fmt_num(e.start) + "), got " + fmt_num(e.end));
+    c.in_range(p + ".particles_per_cell", e.particles_per_cell, 0, 512, true, false);
+  }
+  for (std::size_t i = 0; i < output.attributes.size(); ++i) {
+    const auto& a = output.attributes[i];
+    if (a == "J" || a == "plastic")
+      fail(source, "output.attributes[" + std::to_string(i) + "]",
+           "solver.type \"flip\" writes \"position\", \"velocity\" and \"material\" (its liquid is incompressible), got \"" + a + "\"");
+  }
+}
+
 void Scene::validate() const {
   const Checker c{source};
   const int dim = solver.dimension;
   if (dim != 2 && dim != 3) fail(source, "solver.dimension", "expected 2 or 3, got " + std::to_string(dim));
   // Solvers and integrators this build provides (each branch of the engine enables its own).
-  if (solver.type != SolverType::MPM)
-    fail(source, "solver.type", "expected \"mpm\" (\"" + std::string(to_string(solver.type)) + "\" is not available in this build)");
+  const bool flip = solver.type == SolverType::FLIP;
+  if (solver.type == SolverType::FEM)
+    fail(source, "solver.type", "expected \"mpm\" or \"flip\" (\"fem\" is not available in this build)");
   if (solver.integrator != Integrator::Explicit)
     fail(source, "solver.integrator", "expected \"explicit\" (\"implicit\" is not available in this build)");
   for (std::size_t i = 0; i < bodies.size(); ++i)
@@ -268,9 +360,12 @@ void Scene::validate() const {
     fail(source, "solver.kernel",
          "transfer \"mls\" needs kernel \"quadratic\" or \"cubic\" (its D_p^-1 is not constant for the linear kernel)");
   c.in_range("solver.flip_ratio", solver.flip_ratio, 0, 1, false, false);
-  c.in_range("solver.cfl", solver.cfl, 0, 1, true, false);
+  c.in_range("solver.cfl", solver.cfl, 0, flip ? 5 : 1, true, false);
   c.in_range("solver.elastic_cfl", solver.elastic_cfl, 0, 1, true, false);
   c.positive("solver.max_dt", solver.max_dt);
+
+  if (flip) validate_flip();
+  if (!flip && !emitters.empty()) fail(source, "emitters", "emitters need solver.type \"flip\"");
 
   // Materials.
   if (materials.empty()) fail(source, "materials", "expected at least one material");
@@ -308,7 +403,8 @@ void Scene::validate() const {
   }
 
   // Bodies.
-  if (bodies.empty()) fail(source, "bodies", "expected at least one body");
+  if (bodies.empty() && emitters.empty())
+    fail(source, "bodies", flip ? "expected at least one body or emitter" : "expected at least one body");
   for (std::size_t i = 0; i < bodies.size(); ++i) {
     const auto& b = bodies[i];
     const std::string p = "bodies[" + std::to_string(i) + "]";
@@ -435,6 +531,18 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.vector("gravity", s.solver.gravity);
     r.number("max_dt", s.solver.max_dt);
     r.choice("integrator", kIntegrator, s.solver.integrator);
+    if (s.solver.type == SolverType::FLIP) {  // keys of the FLIP solver only
+      r.choice("advection", kAdvection, s.solver.advection);
+      r.object("pressure", [&](ObjectReader& q) {
+        q.choice("preconditioner", kPreconditioner, s.solver.pressure.preconditioner);
+        q.number("tolerance", s.solver.pressure.tolerance);
+        q.integer("max_iterations", s.solver.pressure.max_iterations);
+      });
+      r.object("reseed", [&](ObjectReader& q) {
+        q.integer("min_per_cell", s.solver.reseed.min_per_cell);
+        q.integer("max_per_cell", s.solver.reseed.max_per_cell);
+      });
+    }
   });
   if (!top.has("materials")) fail(source, "materials", "missing (expected an array of materials)");
   top.objects("materials", [&](ObjectReader& r, std::size_t) {
@@ -443,8 +551,10 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.choice("model", kElastic, m.model);
     r.number("density", m.density);
     r.choice("plasticity", kPlastic, m.plasticity);
-    // Keys that belong to another model are errors, not silently ignored.
-    if (m.model == ElasticModel::Fluid) {
+    // Keys that belong to another model are errors, not silently ignored. The FLIP liquid is
+    // incompressible: density is its only parameter.
+    if (s.solver.type == SolverType::FLIP) {
+    } else if (m.model == ElasticModel::Fluid) {
       r.number("bulk_modulus", m.bulk_modulus);
       r.number("gamma", m.gamma);
     } else {
@@ -462,7 +572,8 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     }
     s.materials.push_back(m);
   });
-  if (!top.has("bodies")) fail(source, "bodies", "missing (expected an array of bodies)");
+  if (!top.has("bodies") && !(s.solver.type == SolverType::FLIP && top.has("emitters")))
+    fail(source, "bodies", "missing (expected an array of bodies)");
   top.objects("bodies", [&](ObjectReader& r, std::size_t) {
     BodyParams b;
     r.choice("shape", kShape, b.shape);
@@ -510,6 +621,29 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.choice("condition", kCondition, k.condition);
     r.number("friction", k.friction);
     s.colliders.push_back(k);
+  });
+  top.objects("emitters", [&](ObjectReader& r, std::size_t) {
+    EmitterParams e;
+    r.choice("shape", kShape, e.shape);
+    if (e.shape == Shape::Box) {
+      if (!r.has("min") || !r.has("max")) fail(source, r.at("min"), "a box needs \"min\" and \"max\"");
+      r.vector("min", e.min);
+      r.vector("max", e.max);
+    } else {
+      if (!r.has("center") || !r.has("radius")) fail(source, r.at("radius"), "a sphere needs \"center\" and \"radius\"");
+      r.vector("center", e.center);
+      r.number("radius", e.radius);
+    }
+    if (!r.has("material")) fail(source, r.at("material"), "missing (expected the name of a material)");
+    r.string("material", e.material);
+    if (!r.has("rate")) fail(source, r.at("rate"), "missing (expected the emitted volume per second)");
+    r.number("rate", e.rate);
+    r.vector("velocity", e.velocity);
+    r.number("start", e.start);
+    r.number("end", e.end);
+    r.number("particles_per_cell", e.particles_per_cell);
+    r.integer("seed", e.seed);
+    s.emitters.push_back(e);
   });
   top.object("output", [&](ObjectReader& r) {
     r.string("directory", s.output.directory);

@@ -38,6 +38,11 @@ enum class Condition { Sticky, Slip, Separate };
 enum class PlyEncoding { Binary, Ascii };
 /// Background grid storage: blocks allocated where particles are (sparse), or one box.
 enum class GridKind { Sparse, Dense };
+/// FLIP particle advection through the grid velocity: forward Euler (order 1), explicit
+/// midpoint (RK2), trapezoidal / Heun (RK2) or Kutta's third-order method (RK3).
+enum class AdvectionScheme { Euler, Midpoint, Heun, RK3 };
+/// Preconditioner of the FLIP pressure solve (PCG).
+enum class PressurePreconditioner { None, Jacobi, MIC0 };
 
 struct DomainParams {
   Eigen::Vector3d min{0, 0, 0};  ///< lower corner (m)
@@ -48,6 +53,21 @@ struct DomainParams {
   GridKind grid = GridKind::Sparse;
 };
 
+/// FLIP pressure projection: PCG on the Poisson system (relative residual tolerance).
+struct PressureParams {
+  PressurePreconditioner preconditioner = PressurePreconditioner::MIC0;  ///< "mic0", "jacobi", "none"
+  double tolerance = 1e-6;   ///< relative residual |r| / |b|, (0, 1)
+  int max_iterations = 1000; ///< PCG iterations per projection, >= 1
+};
+
+/// FLIP particle reseeding: after advection, fluid cells deep inside the liquid (every
+/// neighbour fluid or solid) with fewer than min_per_cell particles get new ones, and every cell
+/// with more than max_per_cell loses the surplus.
+struct ReseedParams {
+  int min_per_cell = 0;   ///< 0 turns adding off (holes are liquid by their labels anyway)
+  int max_per_cell = 16;  ///< > min_per_cell
+};
+
 struct SolverParams {
   SolverType type = SolverType::MPM;     ///< "mpm", "flip" or "fem"
   int dimension = 3;                     ///< 2 or 3
@@ -55,11 +75,14 @@ struct SolverParams {
   TransferKind transfer = TransferKind::MLS;
   KernelKind kernel = KernelKind::Quadratic;
   double flip_ratio = 0.95;  ///< FLIP share of the FLIP/PIC blend, [0, 1]; transfer "flip" only
-  double cfl = 0.5;          ///< max particle displacement per substep in cells, (0, 1]
+  double cfl = 0.5;  ///< max particle displacement per substep in cells, (0, 1] (MPM), (0, 5] (FLIP)
   double elastic_cfl = 0.5;  ///< dt <= elastic_cfl dx / c with c = sqrt((lambda + 2 mu) / rho)
   Eigen::Vector3d gravity{0, -9.81, 0};  ///< m/s^2
   double max_dt = 1e-3;                  ///< upper bound on the substep (s)
   Integrator integrator = Integrator::Explicit;
+  AdvectionScheme advection = AdvectionScheme::Midpoint;  ///< FLIP only
+  PressureParams pressure;                                ///< FLIP only
+  ReseedParams reseed;                                    ///< FLIP only
 };
 
 struct MaterialParams {
@@ -112,6 +135,23 @@ struct ColliderParams {
   double friction = 0;
 };
 
+/// FLIP only: an inflow region (box or sphere) kept full of liquid moving at `velocity` between
+/// `start` and `end`: its cells are topped up to particles_per_cell (seeded random positions),
+/// at most `rate` (m^3/s; m^2/s in 2D) of new liquid per second.
+struct EmitterParams {
+  Shape shape = Shape::Box;                     ///< "box" or "sphere"
+  Eigen::Vector3d min{0, 0, 0}, max{0, 0, 0};  ///< box
+  Eigen::Vector3d center{0, 0, 0};             ///< sphere
+  double radius = 0;                           ///< sphere
+  double rate = 0;                             ///< largest volume per second (m^3/s, m^2/s in 2D), > 0
+  Eigen::Vector3d velocity{0, 0, 0};           ///< of the emitted liquid (m/s)
+  double start = 0;                            ///< s
+  double end = 1e30;                           ///< s, > start
+  std::string material;                        ///< name of a material
+  double particles_per_cell = 8;               ///< density of the emitted particles
+  std::uint64_t seed = 1;                      ///< of the emission positions
+};
+
 struct OutputParams {
   std::string directory = "frames";  ///< relative paths are relative to the working directory
   double fps = 24;
@@ -128,10 +168,13 @@ struct Scene {
   std::vector<BodyParams> bodies;
   BoundaryParams boundaries;
   std::vector<ColliderParams> colliders;
+  std::vector<EmitterParams> emitters;  ///< FLIP only
   OutputParams output;
 
   /// Throws SceneError for the first invalid field.
   void validate() const;
+  /// The checks particular to solver.type "flip" (called by validate()).
+  void validate_flip() const;
   /// Index of the material named `name`, or -1.
   int material_index(std::string_view name) const;
   /// The frame duration 1 / output.fps.
@@ -150,5 +193,7 @@ std::string_view to_string(TransferKind);
 std::string_view to_string(KernelKind);
 std::string_view to_string(SolverType);
 std::string_view to_string(Integrator);
+std::string_view to_string(AdvectionScheme);
+std::string_view to_string(PressurePreconditioner);
 
 }  // namespace slurry

@@ -6,6 +6,7 @@
 /// through `parallel_max` use an order-independent operation.
 #include <algorithm>
 #include <cstdint>
+#include <vector>
 
 #if defined(SLURRY_PARALLEL_OPENMP)
 #include <omp.h>
@@ -147,6 +148,35 @@ T parallel_max(std::int64_t begin, std::int64_t end, T init, Fn&& chunk_max, std
 #else
   return std::max(init, chunk_max(begin, end));
 #endif
+}
+
+/// Sum of chunk_sum(lo, hi) over the fixed chunks [begin + c grain, begin + (c + 1) grain) of
+/// [begin, end), added in chunk order. The chunks do not depend on the thread count, so neither
+/// do the bits of the result (unlike an OpenMP reduction(+)). Each chunk is one task: make grain
+/// large enough to amortise it (or grain = 1 for a few heavy items).
+template <class T, class Fn>
+T parallel_sum(std::int64_t begin, std::int64_t end, std::int64_t grain, Fn&& chunk_sum) {
+  if (end <= begin) return T(0);
+  grain = std::max<std::int64_t>(grain, 1);
+  const std::int64_t chunks = (end - begin + grain - 1) / grain;
+  std::vector<T> partial(static_cast<std::size_t>(chunks), T(0));
+  const auto run = [&](std::int64_t c) {
+    partial[static_cast<std::size_t>(c)] = chunk_sum(begin + c * grain, std::min(end, begin + (c + 1) * grain));
+  };
+#if defined(SLURRY_PARALLEL_OPENMP)
+#pragma omp parallel for schedule(dynamic, 1)
+  for (std::int64_t c = 0; c < chunks; ++c) run(c);
+#elif defined(SLURRY_PARALLEL_TBB)
+  tbb::parallel_for(tbb::blocked_range<std::int64_t>(0, chunks, 1),
+                    [&](const tbb::blocked_range<std::int64_t>& r) {
+                      for (std::int64_t c = r.begin(); c < r.end(); ++c) run(c);
+                    });
+#else
+  for (std::int64_t c = 0; c < chunks; ++c) run(c);
+#endif
+  T sum = T(0);
+  for (const T& v : partial) sum += v;
+  return sum;
 }
 
 }  // namespace slurry::parallel

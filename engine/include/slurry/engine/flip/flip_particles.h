@@ -1,0 +1,95 @@
+#pragma once
+/// \file flip_particles.h
+/// Marker particles of the FLIP/APIC liquid solver, as a structure of arrays with only the
+/// channels FLIP needs: position, velocity, and for APIC the affine vectors c_d (one per velocity
+/// component: u_d(x) ~ v_d + c_d . (x - x_p), Jiang et al. 2015, sec. 6 for staggered grids);
+/// a material id only when the scene has more than one liquid. No deformation gradient, no mass
+/// (every particle carries the same volume dx^Dim / particles_per_cell).
+#include <Eigen/Core>
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "slurry/transfer/parallel.h"
+
+namespace slurry::flip {
+
+template <class T, int Dim>
+struct FlipParticles {
+  using Vec = Eigen::Matrix<T, Dim, 1>;
+
+  bool affine = false;        ///< c channels exist (APIC)
+  bool has_material = false;  ///< material channel exists
+  std::vector<Vec> x;         ///< position (m)
+  std::vector<Vec> v;         ///< velocity (m/s)
+  std::array<std::vector<Vec>, Dim> c;  ///< APIC: c[d][p] = affine vector of component d (1/s)
+  std::vector<std::uint16_t> material;
+
+  std::size_t size() const { return x.size(); }
+
+  void push_back(const Vec& pos, const Vec& vel, std::uint16_t mat) {
+    x.push_back(pos);
+    v.push_back(vel);
+    if (affine)
+      for (int d = 0; d < Dim; ++d) c[d].push_back(Vec::Zero());
+    if (has_material) material.push_back(mat);
+  }
+
+  /// Keeps the first n particles.
+  void truncate(std::size_t n) {
+    x.resize(n);
+    v.resize(n);
+    if (affine)
+      for (int d = 0; d < Dim; ++d) c[d].resize(n);
+    if (has_material) material.resize(n);
+  }
+
+  /// Copies particle `from` to slot `to` (to <= from; used by in-place compaction).
+  void move(std::size_t to, std::size_t from) {
+    x[to] = x[from];
+    v[to] = v[from];
+    if (affine)
+      for (int d = 0; d < Dim; ++d) c[d][to] = c[d][from];
+    if (has_material) material[to] = material[from];
+  }
+
+  /// out[i] = this[order[i]] for every channel (parallel); out keeps its capacity between calls.
+  void gather(const std::vector<std::int64_t>& order, FlipParticles& out) const {
+    const std::size_t n = order.size();
+    out.affine = affine;
+    out.has_material = has_material;
+    out.x.resize(n);
+    out.v.resize(n);
+    if (affine)
+      for (int d = 0; d < Dim; ++d) out.c[d].resize(n);
+    if (has_material) out.material.resize(n);
+    const std::int64_t* o = order.data();
+    parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t i) {
+      const std::size_t p = std::size_t(o[i]);
+      out.x[i] = x[p];
+      out.v[i] = v[p];
+      if (affine)
+        for (int d = 0; d < Dim; ++d) out.c[d][i] = c[d][p];
+      if (has_material) out.material[i] = material[p];
+    });
+  }
+
+  void swap(FlipParticles& o) {
+    std::swap(affine, o.affine);
+    std::swap(has_material, o.has_material);
+    x.swap(o.x);
+    v.swap(o.v);
+    for (int d = 0; d < Dim; ++d) c[d].swap(o.c[d]);
+    material.swap(o.material);
+  }
+
+  /// Bytes held (capacity).
+  std::size_t bytes() const {
+    std::size_t b = x.capacity() * sizeof(Vec) + v.capacity() * sizeof(Vec) + material.capacity() * 2;
+    for (int d = 0; d < Dim; ++d) b += c[d].capacity() * sizeof(Vec);
+    return b;
+  }
+};
+
+}  // namespace slurry::flip

@@ -1,0 +1,198 @@
+#pragma once
+/// \file mac_grid.h
+/// Staggered (MAC) grid of the FLIP liquid solver (Harlow & Welch 1965; Bridson, "Fluid
+/// Simulation for Computer Graphics", 2nd ed., ch. 2): pressure, labels and the liquid level set
+/// live at cell centres, velocity component d lives on the faces normal to axis d.
+///
+/// Layout: `res` cells per axis; cell i spans [origin + i dx, origin + (i + 1) dx] and its centre
+/// is origin + (i + 1/2) dx. Axis-d faces number res + e_d; face i on axis d separates cells
+/// i - e_d and i, and sits at origin + dx (i + 1/2 - 1/2 e_d). Every array is row-major with the
+/// last axis fastest (the order of `cell()` and `face()`).
+///
+/// Per face: `u` (velocity), `weight` (fraction of the face open to fluid, 1 = open, 0 = closed
+/// by a solid; Batty et al. 2007 / Ng et al. 2009 use it as the face-area fraction), `u_solid`
+/// (normal velocity of the solid at the face) and `valid` (the velocity is known; extrapolation
+/// fills the others). Per cell: `label` (Air / Fluid / Solid), `phi` (liquid signed distance,
+/// negative inside) and `pressure` (kept between steps to warm-start the solve).
+#include <Eigen/Core>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+namespace slurry::flip {
+
+template <class T, int Dim>
+struct MacGrid {
+  static_assert(Dim == 2 || Dim == 3, "MacGrid is 2D or 3D");
+  using Vec = Eigen::Matrix<T, Dim, 1>;
+  using IVec = Eigen::Matrix<int, Dim, 1>;
+  enum Label : std::uint8_t { Air = 0, Fluid = 1, Solid = 2 };
+
+  IVec res = IVec::Zero();  ///< cells per axis
+  T dx = T(1);              ///< cell size
+  Vec origin = Vec::Zero(); ///< cell (0,..) spans [origin, origin + dx]
+  std::array<std::vector<T>, Dim> u;                  ///< face velocities; axis-d faces: res + e_d
+  std::array<std::vector<T>, Dim> weight;             ///< open fraction of each face, [0, 1]
+  std::array<std::vector<T>, Dim> u_solid;            ///< solid velocity component at each face
+  std::array<std::vector<std::uint8_t>, Dim> valid;   ///< face velocity known (extrapolation)
+  std::vector<std::uint8_t> label;                    ///< per cell (Label)
+  std::vector<T> phi;       ///< liquid signed distance at cell centres (< 0 inside)
+  std::vector<T> pressure;  ///< per cell; kept between steps (warm start)
+
+  /// Allocates every array: u = 0, weight = 1, u_solid = 0, valid = 0, label = Air,
+  /// phi = +3 dx (outside), pressure = 0.
+  void resize(const IVec& new_res, T new_dx, const Vec& new_origin) {
+    res = new_res;
+    dx = new_dx;
+    origin = new_origin;
+    const std::size_t n = std::size_t(num_cells());
+    label.assign(n, std::uint8_t(Air));
+    phi.assign(n, T(3) * dx);
+    pressure.assign(n, T(0));
+    for (int d = 0; d < Dim; ++d) {
+      const std::size_t nf = std::size_t(num_faces(d));
+      u[d].assign(nf, T(0));
+      weight[d].assign(nf, T(1));
+      u_solid[d].assign(nf, T(0));
+      valid[d].assign(nf, std::uint8_t(0));
+    }
+  }
+
+  /// Number of cells.
+  std::int64_t num_cells() const {
+    std::int64_t n = 1;
+    for (int d = 0; d < Dim; ++d) n *= res[d];
+    return n;
+  }
+  /// Number of axis-d faces.
+  std::int64_t num_faces(int d) const {
+    const IVec fr = face_res(d);
+    std::int64_t n = 1;
+    for (int a = 0; a < Dim; ++a) n *= fr[a];
+    return n;
+  }
+
+  /// Row-major cell index, last axis fastest.
+  std::int64_t cell(const IVec& i) const {
+    std::int64_t k = i[0];
+    for (int d = 1; d < Dim; ++d) k = k * res[d] + i[d];
+    return k;
+  }
+  /// Stride of the cell index along axis d.
+  std::int64_t cell_stride(int d) const {
+    std::int64_t s = 1;
+    for (int a = Dim - 1; a > d; --a) s *= res[a];
+    return s;
+  }
+  /// Cell coordinates of a cell index (inverse of cell()).
+  IVec cell_coord(std::int64_t k) const {
+    IVec i;
+    for (int d = Dim - 1; d >= 0; --d) {
+      i[d] = int(k % res[d]);
+      k /= res[d];
+    }
+    return i;
+  }
+
+  /// Axis-d face i separates cells i - e_d and i; it sits at origin + dx (i + 1/2 - 1/2 e_d).
+  std::int64_t face(int d, const IVec& i) const {
+    const IVec fr = face_res(d);
+    std::int64_t k = i[0];
+    for (int a = 1; a < Dim; ++a) k = k * fr[a] + i[a];
+    return k;
+  }
+  /// Stride of the axis-d face index along axis a.
+  std::int64_t face_stride(int d, int a) const {
+    const IVec fr = face_res(d);
+    std::int64_t s = 1;
+    for (int b = Dim - 1; b > a; --b) s *= fr[b];
+    return s;
+  }
+  /// Face coordinates of an axis-d face index (inverse of face()).
+  IVec face_coord(int d, std::int64_t k) const {
+    const IVec fr = face_res(d);
+    IVec i;
+    for (int a = Dim - 1; a >= 0; --a) {
+      i[a] = int(k % fr[a]);
+      k /= fr[a];
+    }
+    return i;
+  }
+  /// Axis-d faces per axis: res + e_d.
+  IVec face_res(int d) const {
+    IVec r = res;
+    r[d] += 1;
+    return r;
+  }
+
+  Vec face_position(int d, const IVec& i) const {
+    Vec x = origin + dx * (i.template cast<T>() + Vec::Constant(T(0.5)));
+    x[d] -= T(0.5) * dx;
+    return x;
+  }
+  Vec cell_center(const IVec& i) const {
+    return origin + dx * (i.template cast<T>() + Vec::Constant(T(0.5)));
+  }
+
+  /// Open fraction of axis-d face i as the pressure solve sees it: `weight` clamped to [0, 1],
+  /// but 0 on the domain boundary (walls) and next to a cell labelled Solid. A face with open
+  /// weight 0 is closed: its velocity is the solid's (u = u_solid).
+  T open_weight(int d, const IVec& i) const {
+    if (i[d] <= 0 || i[d] >= res[d]) return T(0);
+    IVec below = i;
+    below[d] -= 1;
+    if (label[std::size_t(cell(below))] == Solid || label[std::size_t(cell(i))] == Solid) return T(0);
+    return std::clamp(weight[d][std::size_t(face(d, i))], T(0), T(1));
+  }
+
+  /// Component d at x by (bi/tri)linear interpolation of the axis-d face values; x is clamped
+  /// to the box spanned by the face positions, so points outside read the nearest boundary.
+  T sample(int d, const Vec& x) const {
+    const IVec fr = face_res(d);
+    IVec base;
+    Vec frac;
+    for (int a = 0; a < Dim; ++a) {
+      // Face coordinate along a: faces of axis d sit at integer positions along d, half-integer
+      // positions along the other axes.
+      T s = (x[a] - origin[a]) / dx - (a == d ? T(0) : T(0.5));
+      const T hi = T(fr[a] - 1);
+      s = std::clamp(s, T(0), hi);
+      int b = int(std::floor(s));
+      if (b >= fr[a] - 1) b = std::max(fr[a] - 2, 0);
+      base[a] = b;
+      frac[a] = fr[a] > 1 ? s - T(b) : T(0);
+    }
+    const std::vector<T>& f = u[d];
+    T value = T(0);
+    for (int corner = 0; corner < (1 << Dim); ++corner) {
+      IVec j = base;
+      T w = T(1);
+      for (int a = 0; a < Dim; ++a) {
+        const bool up = (corner >> a) & 1;
+        if (up) {
+          if (fr[a] == 1) {
+            w = T(0);
+            break;
+          }
+          j[a] += 1;
+          w *= frac[a];
+        } else {
+          w *= T(1) - frac[a];
+        }
+      }
+      if (w != T(0)) value += w * f[std::size_t(face(d, j))];
+    }
+    return value;
+  }
+
+  /// All components at x (sample() per axis).
+  Vec velocity(const Vec& x) const {
+    Vec v;
+    for (int d = 0; d < Dim; ++d) v[d] = sample(d, x);
+    return v;
+  }
+};
+
+}  // namespace slurry::flip

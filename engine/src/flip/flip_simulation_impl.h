@@ -1,0 +1,344 @@
+// Definition of FlipSimulation<T, Dim>; included by one translation unit per (T, Dim).
+#pragma once
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <sstream>
+
+#include "slurry/engine/flip/advection.h"
+#include "slurry/engine/flip/extrapolate.h"
+#include "slurry/engine/flip/face_transfer.h"
+#include "slurry/engine/flip/flip_simulation.h"
+#include "slurry/engine/flip/level_set.h"
+#include "slurry/transfer/parallel.h"
+
+namespace slurry::flip {
+
+namespace detail {
+inline std::string fmt(double x) {
+  std::ostringstream o;
+  o.precision(6);
+  o << x;
+  return o.str();
+}
+/// Seed of the reseeding generator (with the step number and the cell index).
+constexpr std::uint64_t kReseedSeed = 0x5EEDF11Bull;
+}  // namespace detail
+
+template <class T, int Dim>
+FlipSimulation<T, Dim>::FlipSimulation(const Scene& scene) : scene_(scene) {
+  scene_.validate();
+  if (scene_.solver.type != SolverType::FLIP)
+    throw SceneError(scene_.source + ": solver.type: FlipSimulation needs \"flip\", got \"" +
+                     std::string(to_string(scene_.solver.type)) + "\"");
+  const auto& dom = scene_.domain;
+  const T dx = T(dom.dx);
+  IVec res;
+  for (int d = 0; d < Dim; ++d) res[d] = int(std::ceil((dom.max[d] - dom.min[d]) / dom.dx - 1e-9));
+  const Vec origin = dom.min.head<Dim>().template cast<T>();
+  grid_.resize(res, dx, origin);
+  const T margin = T(1e-3) * dx;
+  x_lo_ = origin.array() + margin;
+  x_hi_ = (origin + dx * res.template cast<T>()).array() - margin;
+  gravity_ = scene_.solver.gravity.head<Dim>().template cast<T>();
+  order_ = scene_.solver.kernel == KernelKind::Linear ? 1 : 2;
+  switch (scene_.solver.transfer) {
+    case TransferKind::PIC: scheme_ = FaceScheme::PIC; break;
+    case TransferKind::FLIP: scheme_ = FaceScheme::FLIP; break;
+    default: scheme_ = FaceScheme::APIC; break;
+  }
+  for (const auto& c : scene_.colliders) solids_.colliders.emplace_back(c);
+  const auto& pp = scene_.solver.pressure;
+  projection_options_.preconditioner = pp.preconditioner == PressurePreconditioner::MIC0     ? Preconditioner::MIC0
+                                       : pp.preconditioner == PressurePreconditioner::Jacobi ? Preconditioner::Jacobi
+                                                                                             : Preconditioner::None;
+  projection_options_.tolerance = pp.tolerance;
+  projection_options_.max_iterations = pp.max_iterations;
+  projection_options_.density = scene_.materials[0].density;
+
+  // The nominal density of particles: the densest body or emitter.
+  double ppc = 0;
+  for (const auto& b : scene_.bodies) ppc = std::max(ppc, b.particles_per_cell);
+  for (const auto& e : scene_.emitters) ppc = std::max(ppc, e.particles_per_cell);
+  particle_volume_ = T(std::pow(dom.dx, Dim) / ppc);
+  particle_radius_ = T(0.5 * dom.dx / std::pow(ppc, 1.0 / Dim));
+
+  auto& P = particles_;
+  P.affine = scheme_ == FaceScheme::APIC;
+  P.has_material = scene_.materials.size() > 1;
+  for (std::size_t bi = 0; bi < scene_.bodies.size(); ++bi) {
+    const auto& b = scene_.bodies[bi];
+    const auto xs = seed_body<T, Dim>(b, dom.dx);
+    if (xs.empty())
+      throw SceneError(scene_.source + ": bodies[" + std::to_string(bi) +
+                       "]: seeds no particles (expected a body larger than the particle spacing)");
+    const Vec v = b.velocity.head<Dim>().template cast<T>();
+    const auto mat = std::uint16_t(scene_.material_index(b.material));
+    for (const auto& x : xs) P.push_back(solids_.push_out(x, T(0), x_lo_, x_hi_, margin), v, mat);
+  }
+  for (const auto& e : scene_.emitters) emitters_.emplace_back(e, std::uint16_t(scene_.material_index(e.material)));
+  for (const auto& v : P.v) max_speed_ = std::max(max_speed_, v.norm());
+}
+
+template <class T, int Dim>
+std::size_t FlipSimulation<T, Dim>::bytes() const {
+  std::size_t b = particles_.bytes() + scratch_.bytes() + (sort_.key.capacity() + sort_.start.capacity() +
+                                                           sort_.order.capacity()) * sizeof(std::int64_t);
+  const std::size_t cells = std::size_t(grid_.num_cells());
+  b += cells * (2 + 2 * sizeof(T));
+  for (int d = 0; d < Dim; ++d)
+    b += grid_.u[d].capacity() * (4 * sizeof(T) + 1) + weight_sum_[d].capacity() * sizeof(T) +
+         old_u_[d].capacity() * sizeof(T);
+  return b;
+}
+
+template <class T, int Dim>
+T FlipSimulation<T, Dim>::stable_dt() const {
+  T dt = T(scene_.solver.max_dt);
+  if (max_speed_ > T(0)) dt = std::min(dt, T(scene_.solver.cfl) * grid_.dx / max_speed_);
+  return dt;
+}
+
+template <class T, int Dim>
+std::int64_t FlipSimulation<T, Dim>::advance_to(double t_end) {
+  std::int64_t n = 0;
+  while (time_ < t_end) {
+    const double remaining = t_end - time_;
+    double dt = double(stable_dt());
+    bool last = false;
+    if (dt >= remaining * (1 - 1e-9)) {
+      dt = remaining;
+      last = true;
+    } else if (dt > 0.5 * remaining) {
+      dt = 0.5 * remaining;  // two even steps rather than one long and one tiny
+    }
+    step(T(dt));
+    if (last) time_ = t_end;
+    ++n;
+  }
+  return n;
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::step(T dt) {
+  using Clock = std::chrono::steady_clock;
+  auto t0 = Clock::now();
+  const auto lap = [&](Phase p) {
+    const auto t1 = Clock::now();
+    phase_seconds_[p] += std::chrono::duration<double>(t1 - t0).count();
+    t0 = t1;
+  };
+  emit(dt);
+  lap(kEmit);
+  sort_particles();
+  lap(kSort);
+  transfer_to_grid();
+  lap(kToGrid);
+  save_velocities();
+  lap(kSave);
+  apply_gravity(dt);
+  lap(kGravity);
+  build_boundaries(T(time_) + dt);
+  lap(kBoundaries);
+  project(dt);
+  lap(kProject);
+  extrapolate_velocities();
+  lap(kExtrapolate);
+  enforce_solids();
+  lap(kEnforce);
+  transfer_to_particles();
+  lap(kToParticles);
+  advect(dt);
+  lap(kAdvect);
+  reseed();
+  lap(kReseed);
+  time_ += double(dt);
+  ++steps_;
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::emit(T dt) {
+  const std::size_t n0 = particles_.size();
+  for (auto& e : emitters_) e.emit(particles_, grid_, time_, double(dt));
+  const T margin = T(1e-3) * grid_.dx;
+  for (std::size_t p = n0; p < particles_.size(); ++p)
+    particles_.x[p] = solids_.push_out(particles_.x[p], T(time_), x_lo_, x_hi_, margin);
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::sort_particles() {
+  sort_.build(particles_.x, grid_.origin, grid_.dx, grid_.res, true);
+  particles_.gather(sort_.order, scratch_);
+  particles_.swap(scratch_);
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::transfer_to_grid() {
+  if (order_ == 1)
+    particles_to_faces<1>(grid_, particles_, sort_, weight_sum_);
+  else
+    particles_to_faces<2>(grid_, particles_, sort_, weight_sum_);
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::save_velocities() {
+  if (scheme_ != FaceScheme::FLIP) return;
+  for (int d = 0; d < Dim; ++d) {
+    old_u_[d].resize(grid_.u[d].size());
+    const T* u = grid_.u[d].data();
+    T* o = old_u_[d].data();
+    parallel::parallel_chunks(0, std::int64_t(grid_.u[d].size()), [&](std::int64_t lo, std::int64_t hi) {
+      std::copy(u + lo, u + hi, o + lo);
+    });
+  }
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::apply_gravity(T dt) {
+  for (int d = 0; d < Dim; ++d) {
+    const T dv = dt * gravity_[d];
+    if (dv == T(0)) continue;
+    T* u = grid_.u[d].data();
+    parallel::parallel_chunks(0, std::int64_t(grid_.u[d].size()), [&](std::int64_t lo, std::int64_t hi) {
+      for (std::int64_t f = lo; f < hi; ++f) u[f] += dv;
+    });
+  }
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::build_boundaries(T t) {
+  // Without colliders the face weights (walls only) never change.
+  if (!solids_.empty() || !faces_ready_) solids_.update_faces(grid_, t);
+  faces_ready_ = true;
+  label_cells(grid_, particles_, sort_, solids_, t, particle_radius_, holes_);
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::project(T dt) {
+  last_projection_ = pressure_.project(grid_, dt, projection_options_);
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::extrapolate_velocities() {
+  // Particles read faces up to cfl cells (plus the kernel's reach) away from where they start.
+  const int layers = int(std::ceil(scene_.solver.cfl)) + order_ + 1;
+  flip::extrapolate(grid_, layers);
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::enforce_solids() {
+  // project() sets u = u_solid on closed faces and extrapolate() leaves them alone; without
+  // colliders the closed faces are the walls, which only need their zero normal velocity.
+  if (solids_.empty()) {
+    for (int d = 0; d < Dim; ++d) {
+      const auto fr = grid_.face_res(d);
+      const std::int64_t outer = grid_.face_stride(d, d) * fr[d];  // faces per slab of axis d
+      const std::int64_t slabs = grid_.num_faces(d) / outer;
+      const std::int64_t stride = grid_.face_stride(d, d);
+      parallel::parallel_for(0, slabs, [&](std::int64_t s) {
+        T* u = grid_.u[d].data() + s * outer;
+        std::fill(u, u + stride, T(0));
+        std::fill(u + outer - stride, u + outer, T(0));
+      });
+    }
+    return;
+  }
+  for (int d = 0; d < Dim; ++d)
+    parallel::parallel_for(0, grid_.num_faces(d), [&](std::int64_t f) {
+      if (grid_.open_weight(d, grid_.face_coord(d, f)) <= T(0)) grid_.u[d][f] = grid_.u_solid[d][f];
+    });
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::transfer_to_particles() {
+  const T ratio = T(scene_.solver.flip_ratio);
+  const auto* old = scheme_ == FaceScheme::FLIP ? &old_u_ : nullptr;
+  max_speed_ = order_ == 1 ? faces_to_particles<1>(grid_, old, particles_, scheme_, ratio)
+                           : faces_to_particles<2>(grid_, old, particles_, scheme_, ratio);
+  if (!std::isfinite(double(max_speed_))) {
+    std::ostringstream msg;
+    msg << scene_.source << ": simulation unstable at step " << steps_ + 1 << ", t = " << detail::fmt(time_)
+        << " s: a particle velocity became non-finite (last projection: " << last_projection_.iterations
+        << " iterations, relative residual " << detail::fmt(last_projection_.relative_residual)
+        << "). No further frames are written. Try a smaller solver.cfl or solver.max_dt.";
+    throw SimulationError(msg.str());
+  }
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::advect(T dt) {
+  const auto scheme = scene_.solver.advection;
+  const T t_end = T(time_) + dt, margin = T(1e-3) * grid_.dx;
+  const Grid& g = grid_;
+  auto velocity = [&g](const Vec& x) {
+    Vec u;
+    gather_faces<1>(g, x, nullptr, u, nullptr, nullptr);
+    return u;
+  };
+  auto& P = particles_;
+  parallel::parallel_for(0, std::int64_t(P.size()), [&](std::int64_t p) {
+    const Vec x = advect_point(scheme, P.x[p], dt, velocity);
+    P.x[p] = solids_.push_out(x, t_end, x_lo_, x_hi_, margin);
+  });
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::reseed() {
+  const auto& r = scene_.solver.reseed;
+  const Grid& g = grid_;
+  const int order = order_;
+  auto init = [&g, order](const Vec& x, Vec& v, Vec* c) {
+    if (order == 1)
+      gather_faces<1>(g, x, nullptr, v, nullptr, c);
+    else
+      gather_faces<2>(g, x, nullptr, v, nullptr, c);
+  };
+  const auto counts = reseeder_.run(particles_, grid_, r.min_per_cell, r.max_per_cell, detail::kReseedSeed, steps_, init);
+  reseed_added_ += counts.added;
+  reseed_removed_ += counts.removed;
+}
+
+template <class T, int Dim>
+T FlipSimulation<T, Dim>::kinetic_energy() const {
+  T e = 0;
+  for (const auto& v : particles_.v) e += v.squaredNorm();
+  return T(0.5) * density() * particle_volume_ * e;
+}
+
+template <class T, int Dim>
+T FlipSimulation<T, Dim>::fluid_cell_volume() const {
+  std::int64_t n = 0;
+  for (auto l : grid_.label) n += l == Grid::Fluid;
+  return T(n) * std::pow(grid_.dx, T(Dim));
+}
+
+template <class T, int Dim>
+io::PlyData FlipSimulation<T, Dim>::frame(const std::vector<std::string>& attributes) const {
+  const auto& P = particles_;
+  const std::size_t n = P.size();
+  io::PlyData data;
+  data.comments.push_back("slurry flip frame t=" + detail::fmt(time_) + " source=" + scene_.source);
+  auto& el = data.elements.emplace_back();
+  el.name = "vertex";
+  el.count = n;
+  static const char* axes[3] = {"x", "y", "z"};
+  static const char* vaxes[3] = {"vx", "vy", "vz"};
+  auto column = [&](auto&& value) {
+    std::vector<T> c(n);
+    for (std::size_t p = 0; p < n; ++p) c[p] = value(p);
+    return c;
+  };
+  for (const auto& a : attributes) {
+    if (a == "position") {
+      for (int d = 0; d < Dim; ++d) el.properties.push_back({axes[d], column([&](std::size_t p) { return P.x[p][d]; })});
+    } else if (a == "velocity") {
+      for (int d = 0; d < Dim; ++d) el.properties.push_back({vaxes[d], column([&](std::size_t p) { return P.v[p][d]; })});
+    } else if (a == "material") {
+      std::vector<std::uint16_t> m = P.has_material ? P.material : std::vector<std::uint16_t>(n, 0);
+      el.properties.push_back({"material", std::move(m)});
+    }
+  }
+  return data;
+}
+
+}  // namespace slurry::flip
