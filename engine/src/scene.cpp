@@ -235,8 +235,12 @@ void Scene::validate() const {
   // Solvers and integrators this build provides (each branch of the engine enables its own).
   if (solver.type != SolverType::MPM)
     fail(source, "solver.type", "expected \"mpm\" (\"" + std::string(to_string(solver.type)) + "\" is not available in this build)");
-  if (solver.integrator != Integrator::Explicit)
-    fail(source, "solver.integrator", "expected \"explicit\" (\"implicit\" is not available in this build)");
+  if (solver.integrator == Integrator::Implicit)
+    for (std::size_t i = 0; i < materials.size(); ++i)
+      if (materials[i].model == ElasticModel::Fluid)
+        fail(source, "solver.integrator",
+             "\"implicit\" is for solids; materials[" + std::to_string(i) + "] (\"" + materials[i].name +
+                 "\") is a \"fluid\", which runs with \"explicit\" only");
   for (std::size_t i = 0; i < bodies.size(); ++i)
     if (!bodies[i].mesh.empty())
       fail(source, "bodies[" + std::to_string(i) + "].mesh", "meshes are read by solver.type \"fem\" only");
@@ -264,6 +268,9 @@ void Scene::validate() const {
   c.in_range("solver.cfl", solver.cfl, 0, 1, true, false);
   c.in_range("solver.elastic_cfl", solver.elastic_cfl, 0, 1, true, false);
   c.positive("solver.max_dt", solver.max_dt);
+  c.in_range("solver.cg_tolerance", solver.cg_tolerance, 0, 1, true, true);
+  if (solver.cg_max_iterations < 1)
+    fail(source, "solver.cg_max_iterations", "expected an integer >= 1, got " + std::to_string(solver.cg_max_iterations));
 
   // Materials.
   if (materials.empty()) fail(source, "materials", "expected at least one material");
@@ -427,6 +434,8 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.vector("gravity", s.solver.gravity);
     r.number("max_dt", s.solver.max_dt);
     r.choice("integrator", kIntegrator, s.solver.integrator);
+    r.number("cg_tolerance", s.solver.cg_tolerance);
+    r.integer("cg_max_iterations", s.solver.cg_max_iterations);
   });
   if (!top.has("materials")) fail(source, "materials", "missing (expected an array of materials)");
   top.objects("materials", [&](ObjectReader& r, std::size_t) {

@@ -4,10 +4,12 @@
 #include <Eigen/LU>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <random>
 #include <sstream>
 
+#include "implicit_update.h"
 #include "slurry/engine/simulation.h"
 #include "slurry/transfer/parallel.h"
 #include "slurry/transfer/transfers.h"
@@ -54,7 +56,16 @@ Simulation<T, Dim>::Simulation(const Scene& scene) : scene_(scene) {
   seed_bodies();
   stress_.resize(particles_.size());
   for (const auto& v : particles_.v) max_speed_ = std::max(max_speed_, v.norm());
+  if (scene_.solver.integrator == Integrator::Implicit) {
+    typename ImplicitUpdate<T, Dim>::Options o;
+    o.tolerance = T(scene_.solver.cg_tolerance);
+    o.max_iterations = scene_.solver.cg_max_iterations;
+    implicit_ = std::make_unique<ImplicitUpdate<T, Dim>>(scene_.solver.kernel, scene_.solver.transfer, o);
+  }
 }
+
+template <class T, int Dim>
+Simulation<T, Dim>::~Simulation() = default;
 
 template <class T, int Dim>
 void Simulation<T, Dim>::seed_bodies() {
@@ -134,7 +145,8 @@ void Simulation<T, Dim>::seed_bodies() {
 template <class T, int Dim>
 std::size_t Simulation<T, Dim>::bytes() const {
   return particles_.bytes() + stress_.capacity() * sizeof(Mat) +
-         grid_.size() * (sizeof(typename Grid::Node) + (grid_.keeps_old_velocity() ? sizeof(Vec) : 0));
+         grid_.size() * (sizeof(typename Grid::Node) + (grid_.keeps_old_velocity() ? sizeof(Vec) : 0)) +
+         (implicit_ ? implicit_->bytes() : 0);
 }
 
 template <class T, int Dim>
@@ -146,7 +158,7 @@ T Simulation<T, Dim>::stable_dt() const {
   // round-off into ringing at elastic_cfl 0.5 and stays exact at 0.1 (tests/engine/physics_test),
   // so its elastic limit is scaled by a quarter.
   const T kernel_factor = scene_.solver.kernel == KernelKind::Linear ? T(0.25) : T(1);
-  if (max_wave_speed_ > T(0))
+  if (max_wave_speed_ > T(0) && !implicit_)  // the implicit update has no elastic limit
     dt = std::min(dt, kernel_factor * T(scene_.solver.elastic_cfl) * dx / max_wave_speed_);
   return dt;
 }
@@ -175,7 +187,10 @@ template <class T, int Dim>
 void Simulation<T, Dim>::step(T dt) {
   compute_stress(dt);
   particles_to_grid();
-  update_grid(dt);
+  if (implicit_)
+    update_grid_implicit(dt);
+  else
+    update_grid(dt);
   grid_to_particles(dt);
   return_mapping();
   time_ += double(dt);
@@ -284,6 +299,33 @@ void Simulation<T, Dim>::update_grid(T dt) {
 }
 
 template <class T, int Dim>
+void Simulation<T, Dim>::update_grid_implicit(T dt) {
+  GridBoundaries<T, Dim> bc;
+  bc.lo = detail::kPad + scene_.boundaries.thickness;
+  for (int d = 0; d < Dim; ++d) bc.hi[d] = grid_.res()[d] - 1 - detail::kPad - scene_.boundaries.thickness;
+  bc.walls = scene_.boundaries.walls;
+  bc.friction = T(scene_.boundaries.friction);
+  bc.colliders = &colliders_;
+  bc.time = T(time_) + dt;
+  const auto r = implicit_->update_grid(grid_, particles_, materials_, ranges_, bc, gravity_, dt);
+  cg_.last_iterations = r.iterations;
+  cg_.last_residual = double(r.residual);
+  ++cg_.solves;
+  cg_.iterations += r.iterations;
+  if (!r.converged) {
+    // Not silent: counted in cg_stats(), named by diagnose() if the state then blows up, and
+    // reported once on stderr.
+    if (cg_.unconverged++ == 0)
+      std::fprintf(stderr,
+                   "slurry: warning: %s: implicit CG did not converge at step %lld (t = %g s): relative residual "
+                   "%g after %d iterations (solver.cg_tolerance %g, solver.cg_max_iterations %d); further "
+                   "occurrences are counted silently\n",
+                   scene_.source.c_str(), (long long)(steps_ + 1), time_ + double(dt), double(r.residual),
+                   r.iterations, scene_.solver.cg_tolerance, scene_.solver.cg_max_iterations);
+  }
+}
+
+template <class T, int Dim>
 void Simulation<T, Dim>::grid_to_particles(T dt) {
   switch (scene_.solver.kernel) {
     case KernelKind::Linear: grid_to_particles_order<1>(dt); break;
@@ -386,8 +428,11 @@ void Simulation<T, Dim>::diagnose(T dt) const {
     if (worst >= r.begin && worst < r.end) mat = r.material;
   std::ostringstream msg;
   msg << scene_.source << ": simulation unstable at step " << steps_ + 1 << ", t = " << detail::fmt(time_ + double(dt))
-      << " s: particle " << worst << " (material \"" << scene_.materials[mat].name << "\") " << what
-      << ". No further frames are written. Try a smaller solver.cfl, solver.elastic_cfl or solver.max_dt"
+      << " s: particle " << worst << " (material \"" << scene_.materials[mat].name << "\") " << what;
+  if (cg_.unconverged > 0)
+    msg << " (the implicit CG solve missed solver.cg_tolerance in " << cg_.unconverged << " of " << cg_.solves
+        << " substeps; try a larger solver.cg_max_iterations)";
+  msg << ". No further frames are written. Try a smaller solver.cfl, solver.elastic_cfl or solver.max_dt"
       << ", or a stiffer boundary.";
   throw SimulationError(msg.str());
 }

@@ -54,7 +54,9 @@ struct SolverParams {
   double elastic_cfl = 0.5;  ///< dt <= elastic_cfl dx / c with c = sqrt((lambda + 2 mu) / rho)
   Eigen::Vector3d gravity{0, -9.81, 0};  ///< m/s^2
   double max_dt = 1e-3;                  ///< upper bound on the substep (s)
-  Integrator integrator = Integrator::Explicit;
+  Integrator integrator = Integrator::Explicit;  ///< "explicit" or "implicit" (MPM solids)
+  double cg_tolerance = 1e-6;  ///< implicit: CG relative residual, (0, 1)
+  int cg_max_iterations = 500;  ///< implicit: CG iteration cap, >= 1
 };
 
 struct MaterialParams {

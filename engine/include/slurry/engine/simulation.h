@@ -14,6 +14,11 @@
 /// The time step is the smallest of solver.max_dt, cfl dx / max |v_p| and
 /// elastic_cfl dx / max_materials sqrt((lambda + 2 mu) / rho) (sqrt(K / rho) for fluids).
 ///
+/// With solver.integrator "implicit", update_grid is replaced by the linearly implicit
+/// backward-Euler solve of engine/src/implicit_update.h ((M + dt^2 H) v = M v*, matrix-free
+/// Jacobi-preconditioned CG; Stomakhin et al. 2013, sec. 9), and the time step ignores the
+/// elastic limit (only max_dt and the CFL limit remain).
+///
 /// Two API levels: `run_scene` (run.h) for the common case, and this class for control.
 #include <Eigen/Core>
 #include <cstdint>
@@ -52,6 +57,18 @@ class SimulationBase {
 std::unique_ptr<SimulationBase> make_simulation(const Scene& scene);
 
 template <class T, int Dim>
+class ImplicitUpdate;
+
+/// Conjugate-gradient statistics of the implicit grid update (all zero for "explicit").
+struct CgStats {
+  int last_iterations = 0;       ///< iterations of the last substep's solve
+  double last_residual = 0;      ///< its relative residual
+  std::int64_t solves = 0;       ///< substeps solved
+  std::int64_t iterations = 0;   ///< iterations summed over all solves
+  std::int64_t unconverged = 0;  ///< solves that hit solver.cg_max_iterations (or broke down)
+};
+
+template <class T, int Dim>
 class Simulation final : public SimulationBase {
  public:
   using Vec = Eigen::Matrix<T, Dim, 1>;
@@ -60,6 +77,7 @@ class Simulation final : public SimulationBase {
 
   /// Validates the scene and seeds its bodies with particles.
   explicit Simulation(const Scene& scene);
+  ~Simulation() override;
 
   /// The substep the stability limits allow now (not clipped to a frame boundary).
   T stable_dt() const;
@@ -83,6 +101,9 @@ class Simulation final : public SimulationBase {
   T kinetic_energy() const;
   /// Total elastic energy sum_p V_p^0 psi(F_p) (zero for fluids).
   T elastic_energy() const;
+  /// CG iterations of the last substep's implicit solve (0 for "explicit").
+  int last_cg_iterations() const { return cg_.last_iterations; }
+  const CgStats& cg_stats() const { return cg_; }
 
  private:
   /// A contiguous range of particles made of one material.
@@ -95,6 +116,7 @@ class Simulation final : public SimulationBase {
   void compute_stress(T dt);
   void particles_to_grid();
   void update_grid(T dt);
+  void update_grid_implicit(T dt);
   void grid_to_particles(T dt);
   void return_mapping();
   [[noreturn]] void diagnose(T dt) const;
@@ -117,6 +139,8 @@ class Simulation final : public SimulationBase {
   std::int64_t steps_ = 0;
   T max_speed_ = 0;
   T max_wave_speed_ = 0;
+  std::unique_ptr<ImplicitUpdate<T, Dim>> implicit_;  // null for "explicit"
+  CgStats cg_;
 };
 
 extern template class Simulation<float, 2>;
