@@ -11,7 +11,7 @@
 ///
 ///   (M + dt^2 H) v^{n+1} = M v*.
 ///
-/// H is applied matrix-free (Stomakhin et al. 2013, eqs. 10-11). For a field u on the nodes,
+/// H is applied matrix-free (Stomakhin et al. 2013, sec. 9). For a field u on the nodes,
 ///
 ///   G_p(u) = sum_i u_i g_ip^T,   (H u)_i = sum_p Q_p g_ip,   vec(Q_p) = K_p vec(G_p),
 ///   K_p = V_p^0 d^2/dG^2 psi((I + G) F_p) at G = 0, i.e. K_p vec(G) = vec(V_p^0 dP(F_p, G F_p) F_p^T)
@@ -26,7 +26,7 @@
 /// definiteness fix of Teran, Sifakis, Irving and Fedkiw 2005, "Robust quasistatic finite elements
 /// and flesh simulation", applied per particle), so M + dt^2 H is positive definite and CG applies.
 ///
-/// Boundary conditions enter as a projection (filtered CG, Baraff & Witkin 1998 sec. 5.3;
+/// Boundary conditions enter as a projection (filtered CG, Baraff & Witkin 1998 sec. 5;
 /// Stomakhin et al. 2013 sec. 9): the explicit rule of update_grid (colliders.h) is applied to
 /// v*, which also applies the Coulomb friction impulse of "separate" boundaries, and each node
 /// gets a projection S_i = I - sum_q q q^T onto the components the solve may change: none for
@@ -47,8 +47,8 @@
 /// SVD is evaluated inside CG.
 ///
 /// Every transfer scheme and kernel of the explicit path is supported (MLS needs quadratic or
-/// cubic, as there). Fluid materials are rejected at validation: their pressure has no
-/// definiteness fix here and the weakly compressible step gains little from a larger dt.
+/// cubic, as there). Fluid materials are rejected at validation: fluid particles carry J, not F,
+/// and their pressure term is not linearized here.
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <Eigen/Eigenvalues>
