@@ -42,7 +42,7 @@ const NameTable<ColliderShape> kColliderShape{{"half_space", ColliderShape::Half
                                               {"sphere", ColliderShape::Sphere}};
 const NameTable<Condition> kCondition{
     {"sticky", Condition::Sticky}, {"slip", Condition::Slip}, {"separate", Condition::Separate}};
-const NameTable<GridKind> kGrid{{"sparse", GridKind::Sparse}, {"dense", GridKind::Dense}};
+const NameTable<GridKind> kGrid{{"auto", GridKind::Auto}, {"sparse", GridKind::Sparse}, {"dense", GridKind::Dense}};
 const NameTable<PlyEncoding> kEncoding{{"binary", PlyEncoding::Binary}, {"ascii", PlyEncoding::Ascii}};
 const NameTable<AdvectionScheme> kAdvection{{"euler", AdvectionScheme::Euler},
                                             {"midpoint", AdvectionScheme::Midpoint},
@@ -328,8 +328,14 @@ void Scene::validate() const {
   const bool flip = solver.type == SolverType::FLIP;
   if (solver.type == SolverType::FEM)
     fail(source, "solver.type", "expected \"mpm\" or \"flip\" (\"fem\" is not available in this build)");
-  if (solver.integrator != Integrator::Explicit)
-    fail(source, "solver.integrator", "expected \"explicit\" (\"implicit\" is not available in this build)");
+  if (flip && solver.integrator != Integrator::Explicit)
+    fail(source, "solver.integrator", "expected \"explicit\" for solver.type \"flip\" (\"implicit\" is for MPM solids)");
+  if (solver.integrator == Integrator::Implicit)
+    for (std::size_t i = 0; i < materials.size(); ++i)
+      if (materials[i].model == ElasticModel::Fluid)
+        fail(source, "solver.integrator",
+             "\"implicit\" is for solids; materials[" + std::to_string(i) + "] (\"" + materials[i].name +
+                 "\") is a \"fluid\", which runs with \"explicit\" only");
   for (std::size_t i = 0; i < bodies.size(); ++i)
     if (!bodies[i].mesh.empty())
       fail(source, "bodies[" + std::to_string(i) + "].mesh", "meshes are read by solver.type \"fem\" only");
@@ -347,7 +353,10 @@ void Scene::validate() const {
     nodes *= n + 7;
     blocks *= std::ceil((n + 7) / (dim == 3 ? 4 : 8));
   }
-  if (domain.grid == GridKind::Dense && nodes > 2.0e9)
+  const bool dense = domain.grid == GridKind::Dense || (domain.grid == GridKind::Auto && solver.integrator == Integrator::Implicit);
+  if (domain.grid == GridKind::Sparse && solver.integrator == Integrator::Implicit)
+    fail(source, "domain.grid", "expected \"dense\" or \"auto\" with solver.integrator \"implicit\" (its solve runs on the dense grid)");
+  if (dense && nodes > 2.0e9)
     fail(source, "domain.dx",
          "the dense grid would have " + fmt_num(nodes) + " nodes (limit 2e9); use a larger dx or domain.grid \"sparse\"");
   // The sparse grid's page table holds one int32 per block of the domain (two tables: grid and
@@ -363,6 +372,9 @@ void Scene::validate() const {
   c.in_range("solver.cfl", solver.cfl, 0, flip ? 5 : 1, true, false);
   c.in_range("solver.elastic_cfl", solver.elastic_cfl, 0, 1, true, false);
   c.positive("solver.max_dt", solver.max_dt);
+  c.in_range("solver.cg_tolerance", solver.cg_tolerance, 0, 1, true, true);
+  if (solver.cg_max_iterations < 1)
+    fail(source, "solver.cg_max_iterations", "expected an integer >= 1, got " + std::to_string(solver.cg_max_iterations));
 
   if (flip) validate_flip();
   if (!flip && !emitters.empty()) fail(source, "emitters", "emitters need solver.type \"flip\"");
@@ -543,6 +555,8 @@ Scene parse_scene(std::string_view text, const std::string& source) {
         q.integer("max_per_cell", s.solver.reseed.max_per_cell);
       });
     }
+    r.number("cg_tolerance", s.solver.cg_tolerance);
+    r.integer("cg_max_iterations", s.solver.cg_max_iterations);
   });
   if (!top.has("materials")) fail(source, "materials", "missing (expected an array of materials)");
   top.objects("materials", [&](ObjectReader& r, std::size_t) {

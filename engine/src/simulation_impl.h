@@ -5,12 +5,14 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <random>
 #include <cstring>
 #include <sstream>
 #include <type_traits>
 
+#include "implicit_update.h"
 #include "slurry/engine/simulation.h"
 #include "slurry/transfer/parallel.h"
 #include "slurry/transfer/transfers.h"
@@ -51,7 +53,8 @@ Simulation<T, Dim>::Simulation(const Scene& scene) : scene_(scene) {
   dx_ = dx;
   origin_ = origin;
   const bool flip = scene_.solver.transfer == TransferKind::FLIP;
-  if (dom.grid == GridKind::Sparse) {
+  sparse_grid_ = dom.grid == GridKind::Sparse || (dom.grid == GridKind::Auto && scene_.solver.integrator != Integrator::Implicit);
+  if (sparse_grid_) {
     sparse_.resize(origin, dx, res);
     sparse_.keep_old_velocity(flip);
   } else {
@@ -69,7 +72,16 @@ Simulation<T, Dim>::Simulation(const Scene& scene) : scene_(scene) {
   seed_bodies();
   stress_.resize(particles_.size());
   for (const auto& v : particles_.v) max_speed_ = std::max(max_speed_, v.norm());
+  if (scene_.solver.integrator == Integrator::Implicit) {
+    typename ImplicitUpdate<T, Dim>::Options o;
+    o.tolerance = T(scene_.solver.cg_tolerance);
+    o.max_iterations = scene_.solver.cg_max_iterations;
+    implicit_ = std::make_unique<ImplicitUpdate<T, Dim>>(scene_.solver.kernel, scene_.solver.transfer, o);
+  }
 }
+
+template <class T, int Dim>
+Simulation<T, Dim>::~Simulation() = default;
 
 template <class T, int Dim>
 void Simulation<T, Dim>::seed_bodies() {
@@ -146,7 +158,8 @@ void Simulation<T, Dim>::seed_bodies() {
 
 template <class T, int Dim>
 std::size_t Simulation<T, Dim>::bytes() const {
-  return particles_.bytes() + stress_.capacity() * sizeof(Mat) + bins_.bytes() + dense_.bytes() + sparse_.bytes();
+  return particles_.bytes() + stress_.capacity() * sizeof(Mat) + bins_.bytes() + dense_.bytes() + sparse_.bytes() +
+         (implicit_ ? implicit_->bytes() : 0);
 }
 
 template <class T, int Dim>
@@ -158,7 +171,7 @@ T Simulation<T, Dim>::stable_dt() const {
   // round-off into ringing at elastic_cfl 0.5 and stays exact at 0.1 (tests/engine/physics_test),
   // so its elastic limit is scaled by a quarter.
   const T kernel_factor = scene_.solver.kernel == KernelKind::Linear ? T(0.25) : T(1);
-  if (max_wave_speed_ > T(0))
+  if (max_wave_speed_ > T(0) && !implicit_)  // the implicit update has no elastic limit
     dt = std::min(dt, kernel_factor * T(scene_.solver.elastic_cfl) * dx / max_wave_speed_);
   return dt;
 }
@@ -185,7 +198,7 @@ std::int64_t Simulation<T, Dim>::advance_to(double t_end) {
 
 template <class T, int Dim>
 void Simulation<T, Dim>::step(T dt) {
-  if (scene_.domain.grid == GridKind::Sparse)
+  if (sparse_grid_)
     step_on(sparse_, dt);
   else
     step_on(dense_, dt);
@@ -204,13 +217,20 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
     t = now;
   };
   bin_particles();
-  if (steps_ % kReorderInterval == 0) reorder_particles();
+  if (implicit_ || steps_ % kReorderInterval == 0) reorder_particles();
   lap(phase_times_.binning);
   compute_stress(dt);
   lap(phase_times_.stress);
   particles_to_grid(grid);
   lap(phase_times_.p2g);
-  update_grid(grid, dt);
+  if constexpr (std::is_same_v<G, DenseGrid>) {
+    if (implicit_)
+      update_grid_implicit(grid, dt);
+    else
+      update_grid(grid, dt);
+  } else {
+    update_grid(grid, dt);
+  }
   lap(phase_times_.grid);
   grid_to_particles(grid, dt);
   lap(phase_times_.g2p);
@@ -252,6 +272,35 @@ void Simulation<T, Dim>::compute_stress(T dt) {
       }
     });
   });
+}
+
+template <class T, int Dim>
+void Simulation<T, Dim>::update_grid_implicit(DenseGrid& grid, T dt) {
+  // The implicit solve walks particles by (block, material) bins in storage order: particles are
+  // re-stored in bin order every substep for it (step_on), so the bins are storage ranges.
+  GridBoundaries<T, Dim> bc;
+  bc.lo = detail::kPad + scene_.boundaries.thickness;
+  for (int d = 0; d < Dim; ++d) bc.hi[d] = grid.res()[d] - 1 - detail::kPad - scene_.boundaries.thickness;
+  bc.walls = scene_.boundaries.walls;
+  bc.friction = T(scene_.boundaries.friction);
+  bc.colliders = &colliders_;
+  bc.time = T(time_) + dt;
+  const auto r = implicit_->update_grid(grid, particles_, materials_, bins_.bins(), bc, gravity_, dt);
+  cg_.last_iterations = r.iterations;
+  cg_.last_residual = double(r.residual);
+  ++cg_.solves;
+  cg_.iterations += r.iterations;
+  if (!r.converged) {
+    // Not silent: counted in cg_stats(), named by diagnose() if the state then blows up, and
+    // reported once on stderr.
+    if (cg_.unconverged++ == 0)
+      std::fprintf(stderr,
+                   "slurry: warning: %s: implicit CG did not converge at step %lld (t = %g s): relative residual "
+                   "%g after %d iterations (solver.cg_tolerance %g, solver.cg_max_iterations %d); further "
+                   "occurrences are counted silently\n",
+                   scene_.source.c_str(), (long long)(steps_ + 1), time_ + double(dt), double(r.residual),
+                   r.iterations, scene_.solver.cg_tolerance, scene_.solver.cg_max_iterations);
+  }
 }
 
 template <class T, int Dim>
@@ -518,8 +567,11 @@ void Simulation<T, Dim>::diagnose(T dt) const {
   const std::int64_t id = worst >= 0 ? std::int64_t(P.id[std::size_t(worst)]) : -1;
   std::ostringstream msg;
   msg << scene_.source << ": simulation unstable at step " << steps_ + 1 << ", t = " << detail::fmt(time_ + double(dt))
-      << " s: particle " << id << " (material \"" << scene_.materials[mat].name << "\") " << what
-      << ". No further frames are written. Try a smaller solver.cfl, solver.elastic_cfl or solver.max_dt"
+      << " s: particle " << id << " (material \"" << scene_.materials[mat].name << "\") " << what;
+  if (cg_.unconverged > 0)
+    msg << " (the implicit CG solve missed solver.cg_tolerance in " << cg_.unconverged << " of " << cg_.solves
+        << " substeps; try a larger solver.cg_max_iterations)";
+  msg << ". No further frames are written. Try a smaller solver.cfl, solver.elastic_cfl or solver.max_dt"
       << ", or a stiffer boundary.";
   throw SimulationError(msg.str());
 }

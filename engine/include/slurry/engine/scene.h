@@ -36,8 +36,9 @@ enum class ColliderShape { HalfSpace, Box, Sphere };
 /// approaching, tangential part reduced by Coulomb friction mu |v_n|).
 enum class Condition { Sticky, Slip, Separate };
 enum class PlyEncoding { Binary, Ascii };
-/// Background grid storage: blocks allocated where particles are (sparse), or one box.
-enum class GridKind { Sparse, Dense };
+/// Background grid storage: blocks allocated where particles are (sparse), or one box (dense);
+/// auto: sparse, except for the implicit integrator, which runs on the dense grid.
+enum class GridKind { Auto, Sparse, Dense };
 /// FLIP particle advection through the grid velocity: forward Euler (order 1), explicit
 /// midpoint (RK2), trapezoidal / Heun (RK2) or Kutta's third-order method (RK3).
 enum class AdvectionScheme { Euler, Midpoint, Heun, RK3 };
@@ -48,9 +49,10 @@ struct DomainParams {
   Eigen::Vector3d min{0, 0, 0};  ///< lower corner (m)
   Eigen::Vector3d max{1, 1, 1};  ///< upper corner (m); rounded up to whole cells of dx
   double dx = 0.02;              ///< grid spacing (m), > 0
-  /// "sparse": 4^3 (2D: 8^2) node blocks allocated each step where particles reach, memory
-  /// follows the occupied volume; "dense": one array over the domain (same results).
-  GridKind grid = GridKind::Sparse;
+  /// MPM grid. "sparse": 4^3 (2D: 8^2) node blocks allocated each step where particles reach,
+  /// memory follows the occupied volume; "dense": one array over the domain (same results);
+  /// "auto": sparse, or dense for solver.integrator "implicit" (which needs it).
+  GridKind grid = GridKind::Auto;
 };
 
 /// FLIP pressure projection: PCG on the Poisson system (relative residual tolerance).
@@ -79,10 +81,12 @@ struct SolverParams {
   double elastic_cfl = 0.5;  ///< dt <= elastic_cfl dx / c with c = sqrt((lambda + 2 mu) / rho)
   Eigen::Vector3d gravity{0, -9.81, 0};  ///< m/s^2
   double max_dt = 1e-3;                  ///< upper bound on the substep (s)
-  Integrator integrator = Integrator::Explicit;
   AdvectionScheme advection = AdvectionScheme::Midpoint;  ///< FLIP only
   PressureParams pressure;                                ///< FLIP only
   ReseedParams reseed;                                    ///< FLIP only
+  Integrator integrator = Integrator::Explicit;  ///< "explicit" or "implicit" (MPM solids)
+  double cg_tolerance = 1e-6;  ///< implicit: CG relative residual, (0, 1)
+  int cg_max_iterations = 500;  ///< implicit: CG iteration cap, >= 1
 };
 
 struct MaterialParams {

@@ -16,6 +16,11 @@
 /// The time step is the smallest of solver.max_dt, cfl dx / max |v_p| and
 /// elastic_cfl dx / max_materials sqrt((lambda + 2 mu) / rho) (sqrt(K / rho) for fluids).
 ///
+/// With solver.integrator "implicit", update_grid is replaced by the linearly implicit
+/// backward-Euler solve of engine/src/implicit_update.h ((M + dt^2 H) v = M v*, matrix-free
+/// Jacobi-preconditioned CG; Stomakhin et al. 2013, sec. 9), and the time step ignores the
+/// elastic limit (only max_dt and the CFL limit remain).
+///
 /// Two API levels: `run_scene` (run.h) for the common case, and this class for control.
 #include <Eigen/Core>
 #include <cstdint>
@@ -66,6 +71,18 @@ struct PhaseTimes {
 std::unique_ptr<SimulationBase> make_simulation(const Scene& scene);
 
 template <class T, int Dim>
+class ImplicitUpdate;
+
+/// Conjugate-gradient statistics of the implicit grid update (all zero for "explicit").
+struct CgStats {
+  int last_iterations = 0;       ///< iterations of the last substep's solve
+  double last_residual = 0;      ///< its relative residual
+  std::int64_t solves = 0;       ///< substeps solved
+  std::int64_t iterations = 0;   ///< iterations summed over all solves
+  std::int64_t unconverged = 0;  ///< solves that hit solver.cg_max_iterations (or broke down)
+};
+
+template <class T, int Dim>
 class Simulation final : public SimulationBase {
  public:
   using Vec = Eigen::Matrix<T, Dim, 1>;
@@ -75,6 +92,7 @@ class Simulation final : public SimulationBase {
 
   /// Validates the scene and seeds its bodies with particles.
   explicit Simulation(const Scene& scene);
+  ~Simulation() override;
 
   /// The substep the stability limits allow now (not clipped to a frame boundary).
   T stable_dt() const;
@@ -99,6 +117,9 @@ class Simulation final : public SimulationBase {
   const PhaseTimes& phase_times() const { return phase_times_; }
   /// Total elastic energy sum_p V_p^0 psi(F_p) (zero for fluids).
   T elastic_energy() const;
+  /// CG iterations of the last substep's implicit solve (0 for "explicit").
+  int last_cg_iterations() const { return cg_.last_iterations; }
+  const CgStats& cg_stats() const { return cg_; }
 
  private:
   /// Particles are re-stored in bin order every this many substeps (between, they are reached
@@ -117,6 +138,7 @@ class Simulation final : public SimulationBase {
   void update_grid(G& grid, T dt);
   template <class G>
   void grid_to_particles(G& grid, T dt);
+  void update_grid_implicit(DenseGrid& grid, T dt);
   void return_mapping();
   [[noreturn]] void diagnose(T dt) const;
 
@@ -137,6 +159,7 @@ class Simulation final : public SimulationBase {
   transfer::ParticleBins<Dim> bins_;
   DenseGrid dense_;    // domain.grid "dense"
   SparseGrid sparse_;  // domain.grid "sparse" (the unused one stays empty)
+  bool sparse_grid_ = true;
   T dx_ = T(1);
   Vec origin_;
   Vec gravity_;
@@ -146,6 +169,8 @@ class Simulation final : public SimulationBase {
   PhaseTimes phase_times_;
   T max_speed_ = 0;
   T max_wave_speed_ = 0;
+  std::unique_ptr<ImplicitUpdate<T, Dim>> implicit_;  // null for "explicit"
+  CgStats cg_;
 };
 
 extern template class Simulation<float, 2>;

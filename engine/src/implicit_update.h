@@ -1,0 +1,460 @@
+#pragma once
+/// \file implicit_update.h
+/// Linearly implicit backward-Euler grid update for MPM solids (Stomakhin et al. 2013, "A
+/// material point method for snow simulation", sec. 9 with beta = 1; Baraff & Witkin 1998,
+/// "Large steps in cloth simulation", eq. 6 for the linearization).
+///
+/// After P2G with the explicit stress impulse, the grid holds v* = v^n + dt (f^n / m + g). With
+/// H the Hessian of the elastic energy Phi(x^) = sum_p V_p^0 psi(F^_p(x^)) with respect to the
+/// grid node positions x^_i = x_i + dt v_i, at the current F, one Newton step of backward Euler
+/// M v = M v* + dt (f(x + dt v) - f(x)) ~ M v* - dt^2 H v reads
+///
+///   (M + dt^2 H) v^{n+1} = M v*.
+///
+/// H is applied matrix-free (Stomakhin et al. 2013, sec. 9). For a field u on the nodes,
+///
+///   G_p(u) = sum_i u_i g_ip^T,   (H u)_i = sum_p Q_p g_ip,   vec(Q_p) = K_p vec(G_p),
+///   K_p = V_p^0 d^2/dG^2 psi((I + G) F_p) at G = 0, i.e. K_p vec(G) = vec(V_p^0 dP(F_p, G F_p) F_p^T)
+///
+/// where dP is the stress differential of each constitutive model (snow: the model scaled by its
+/// hardening, as in the explicit stress) and g_ip the weight gradient grad w_ip for PIC, FLIP and
+/// APIC, and the MLS gradient w_ip D_p^-1 (x_i - x_p) for MLS-MPM (Hu et al. 2018, eq. 17; that
+/// is how their F update and stress force see the grid). Then w^T H u = sum_p vec(G_p(w))^T K_p
+/// vec(G_p(u)): H is symmetric, and positive semidefinite when every K_p is. K_p is built once
+/// per substep by applying dP to the Dim^2 unit directions (so no SVD runs inside CG) and, when
+/// it is indefinite (compression, inversion), projected onto its nonnegative eigenvalues (the
+/// definiteness fix of Teran, Sifakis, Irving and Fedkiw 2005, "Robust quasistatic finite elements
+/// and flesh simulation", applied per particle), so M + dt^2 H is positive definite and CG applies.
+///
+/// Boundary conditions enter as a projection (filtered CG, Baraff & Witkin 1998 sec. 5;
+/// Stomakhin et al. 2013 sec. 9): the explicit rule of update_grid (colliders.h) is applied to
+/// v*, which also applies the Coulomb friction impulse of "separate" boundaries, and each node
+/// gets a projection S_i = I - sum_q q q^T onto the components the solve may change: none for
+/// sticky, the tangent plane for slip, and for "separate" the tangent plane if the node was
+/// approaching the boundary at v* (linearized as slip), everything if it was separating. With
+/// v0 the result, the solve is S A S x = S (M v0 - A v0), v^{n+1} = v0 + x; the boundary rule
+/// is then applied once more, so that a node left free that ends up approaching is stopped.
+///
+/// Preconditioner: Jacobi with the exact diagonal of M + dt^2 H. CG stops when the residual is
+/// below solver.cg_tolerance times the initial one, ||S (M v0 - A v0)|| (the elastic impulse to
+/// correct), or below the round-off of A v0's terms (64 eps ||diag(A) v0||), whichever is
+/// larger. A tolerance relative to M v0 instead would let a fast rigid motion hide the elastic
+/// error, which the explicit impulse in v0 amplifies step after step at large dt.
+///
+/// Cost per CG iteration: one gather (G_p, then Q_p = K_p G_p; parallel over particles) and one
+/// scatter (serial for now; fused with the gather in one pass on one thread), both over each
+/// particle's stencil cached once per substep (unknown index and g_ip per node), so no kernel or
+/// SVD is evaluated inside CG.
+///
+/// Every transfer scheme and kernel of the explicit path is supported (MLS needs quadratic or
+/// cubic, as there). Fluid materials are rejected at validation: fluid particles carry J, not F,
+/// and their pressure term is not linearized here.
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "slurry/engine/colliders.h"
+#include "slurry/engine/material.h"
+#include "slurry/engine/numerics/pcg.h"
+#include "slurry/engine/particles.h"
+#include "slurry/engine/scene.h"
+#include "slurry/transfer/grid.h"
+#include "slurry/transfer/kernels.h"
+#include "slurry/transfer/parallel.h"
+
+namespace slurry {
+
+/// Where the domain walls hold (node index ranges) and the colliders, for a grid update.
+template <class T, int Dim>
+struct GridBoundaries {
+  int lo = 0;                                             ///< nodes with an index < lo lie in a wall
+  Eigen::Matrix<int, Dim, 1> hi = Eigen::Matrix<int, Dim, 1>::Zero();  ///< ... or > hi[d]
+  Condition walls = Condition::Separate;
+  T friction = 0;
+  const std::vector<Collider<T, Dim>>* colliders = nullptr;
+  T time = 0;  ///< time at the end of the substep (collider positions)
+};
+
+/// The implicit grid solve; one object per simulation keeps its scratch buffers between steps.
+template <class T, int Dim>
+class ImplicitUpdate {
+ public:
+  using Vec = Eigen::Matrix<T, Dim, 1>;
+  using Mat = Eigen::Matrix<T, Dim, Dim>;
+  using IVec = Eigen::Matrix<int, Dim, 1>;
+  using Grid = transfer::DenseGrid<T, Dim>;
+  using VectorX = Eigen::Matrix<T, Eigen::Dynamic, 1>;
+  static constexpr int D2 = Dim * Dim;
+  /// Per-particle stiffness K_p acting on column-major vec(G).
+  using Stiffness = Eigen::Matrix<T, D2, D2>;
+
+  struct Options {
+    T tolerance = T(1e-6);     ///< CG stops at ||S (M v0 - A v)|| <= tolerance ||S (M v0 - A v0)||
+    int max_iterations = 500;  ///< CG iteration cap
+    bool definite = true;      ///< project each K_p onto its nonnegative eigenvalues
+  };
+
+  /// Outcome of one solve.
+  struct Result {
+    int iterations = 0;
+    T residual = 0;  ///< ||S (M v0 - A v)|| / ||S (M v0 - A v0)|| at return
+    bool converged = true;
+    std::int64_t unknowns = 0;  ///< nodes with mass
+  };
+
+  ImplicitUpdate(KernelKind kernel, TransferKind transfer, const Options& options)
+      : order_(kernel == KernelKind::Linear ? 1 : kernel == KernelKind::Quadratic ? 2 : 3),
+        mls_(transfer == TransferKind::MLS),
+        options_(options) {}
+
+  const Options& options() const { return options_; }
+  Options& options() { return options_; }
+
+  /// The whole grid update of an implicit substep, after P2G: v* = p/m + dt g (FLIP keeps p/m as
+  /// the old velocity), boundary conditions, the solve, boundary conditions again. Writes the
+  /// new velocities into the nodes. `ranges` lists {material, begin, end} particle ranges.
+  template <class Ranges>
+  Result update_grid(Grid& grid, const Particles<T, Dim>& P, const std::vector<Material<T, Dim>>& materials,
+                     const Ranges& ranges, const GridBoundaries<T, Dim>& bc, const Vec& gravity, T dt) {
+    collect_unknowns(grid);
+    const std::int64_t n = unknowns();
+    const bool flip = grid.keeps_old_velocity();
+    v0_.resize(Dim * n);
+    mass_.resize(n);
+    boundary_.clear();
+    projections_.clear();
+    projection_of_.assign(std::size_t(n), -1);
+    for (std::int64_t i = 0; i < n; ++i) {
+      const std::int64_t k = nodes_[std::size_t(i)];
+      const auto& node = grid.node(k);
+      const T m = node[Dim];
+      Vec v = node.template head<Dim>() / m;
+      if (flip) grid.old_velocity(k) = v;
+      v += dt * gravity;
+      Basis basis;
+      if (apply_boundaries(grid, grid.coord(k), bc, v, &basis)) {
+        boundary_.push_back(i);
+        if (basis.rank > 0) {
+          projection_of_[std::size_t(i)] = std::int32_t(projections_.size());
+          projections_.push_back(basis.projection());
+        }
+      }
+      mass_[i] = m;
+      v0_.template segment<Dim>(Dim * i) = v;
+    }
+    linearize(P, materials, ranges);
+
+    // rhs = S (M v0 - (M + dt^2 H) v0) = -dt^2 S H v0
+    apply_stiffness(v0_, tmp_);
+    VectorX rhs = (-dt * dt) * tmp_;
+    filter(rhs);
+    // Jacobi: the exact diagonal of M + dt^2 H, inverted.
+    stiffness_diagonal(diag_);
+    diag_ *= dt * dt;
+    for (std::int64_t i = 0; i < n; ++i) diag_.template segment<Dim>(Dim * i).array() += mass_[i];
+
+    // The tolerance is relative to the correction's right-hand side (the elastic impulse). It
+    // must not be relative to M v0: a fast rigid motion would then hide errors in the elastic
+    // part, which the explicit impulse in v0 amplifies at large dt. A residual at the round-off
+    // level of the terms of A v0 counts as converged, so that a rigid motion (H v0 = round-off)
+    // needs no iteration.
+    tmp_ = diag_.cwiseProduct(v0_);
+    filter(tmp_);
+    const T floor = T(64) * std::numeric_limits<T>::epsilon() * tmp_.norm(), rhs_norm = rhs.norm();
+    diag_ = diag_.cwiseInverse();
+
+    const auto apply_a = [&](const VectorX& x, VectorX& out) {
+      apply_stiffness(x, out);  // x = S x already: CG's iterates stay in the range of S
+      out *= dt * dt;
+      for (std::int64_t i = 0; i < n; ++i) out.template segment<Dim>(Dim * i) += mass_[i] * x.template segment<Dim>(Dim * i);
+      filter(out);
+    };
+    const auto precondition = [&](const VectorX& r, VectorX& z) {
+      z = diag_.cwiseProduct(r);
+      filter(z);
+    };
+    numerics::PcgOptions<T> cg;
+    cg.tolerance = rhs_norm > T(0) ? std::max(options_.tolerance, floor / rhs_norm) : options_.tolerance;
+    cg.max_iterations = options_.max_iterations;
+    VectorX x = VectorX::Zero(Dim * n);
+    const auto r = numerics::pcg(apply_a, rhs, x, precondition, cg);
+
+    filter(x);
+    for (std::int64_t i = 0; i < n; ++i) {
+      auto& node = grid.node(nodes_[std::size_t(i)]);
+      node.template head<Dim>() = v0_.template segment<Dim>(Dim * i) + x.template segment<Dim>(Dim * i);
+    }
+    for (const std::int64_t i : boundary_) {
+      const std::int64_t k = nodes_[std::size_t(i)];
+      Vec v = grid.node(k).template head<Dim>();
+      apply_boundaries(grid, grid.coord(k), bc, v, nullptr);
+      grid.node(k).template head<Dim>() = v;
+    }
+    Result result;
+    result.iterations = r.iterations;
+    result.residual = r.relative_residual;
+    result.converged = r.converged;
+    result.unknowns = n;
+    return result;
+  }
+
+  // ---- the pieces, public for the tests -------------------------------------------------------
+
+  /// Numbers the nodes with mass > 0 in the grid's active box (index order); reads the grid's
+  /// geometry for the operator.
+  void collect_unknowns(const Grid& grid) {
+    if (dof_of_.size() != grid.size()) {
+      dof_of_.assign(grid.size(), -1);
+    } else {
+      for (const std::int64_t k : nodes_) dof_of_[std::size_t(k)] = -1;
+    }
+    nodes_.clear();
+    const int len = grid.active_row_length();
+    for (std::int64_t r = 0; r < grid.active_rows(); ++r) {
+      const std::int64_t k0 = grid.active_row_start(r);
+      for (std::int64_t k = k0; k < k0 + len; ++k)
+        if (grid.node(k)[Dim] > T(0)) {
+          dof_of_[std::size_t(k)] = std::int32_t(nodes_.size());
+          nodes_.push_back(k);
+        }
+    }
+    origin_ = grid.origin();
+    dx_ = grid.dx();
+    inv_dx_ = grid.inv_dx();
+    for (int d = 0; d < Dim; ++d) stride_[d] = grid.stride(d);
+  }
+
+  std::int64_t unknowns() const { return std::int64_t(nodes_.size()); }
+  /// Grid index of unknown i.
+  std::int64_t node(std::int64_t i) const { return nodes_[std::size_t(i)]; }
+
+  /// Builds K_p for every particle at its current F (see the file comment).
+  template <class Ranges>
+  void linearize(const Particles<T, Dim>& P, const std::vector<Material<T, Dim>>& materials, const Ranges& ranges) {
+    particles_ = std::int64_t(P.size());
+    K_.resize(P.size());
+    Q_.resize(P.size());
+    switch (order_) {
+      case 1: cache_stencils<1>(P); break;
+      case 2: cache_stencils<2>(P); break;
+      default: cache_stencils<3>(P); break;
+    }
+    for (const auto& r : ranges) {
+      const auto& mat = materials[std::size_t(r.material)];
+      mat.visit_elastic([&](const auto& model) {
+        parallel::parallel_for(r.begin, r.end, [&](std::int64_t p) {
+          if (mat.plastic_kind == PlasticModel::Snow)
+            K_[std::size_t(p)] = stiffness(model.scaled(mat.hardening_factor(P.plastic[std::size_t(p)])),
+                                           P.F[std::size_t(p)], P.vol0[std::size_t(p)]);
+          else
+            K_[std::size_t(p)] = stiffness(model, P.F[std::size_t(p)], P.vol0[std::size_t(p)]);
+        });
+      });
+    }
+  }
+
+  /// out = H u for u, out of length Dim * unknowns().
+  void apply_stiffness(const VectorX& u, VectorX& out) {
+    out.setZero(Dim * unknowns());
+    if (parallel::max_threads() == 1) {
+      // One pass: each particle's stencil is still in cache for its scatter. The same operations
+      // in the same order as the two-pass form, so the result does not depend on the threads.
+      for (std::int64_t p = 0; p < particles_; ++p) {
+        gather(p, u);
+        scatter(p, out);
+      }
+      return;
+    }
+    parallel::parallel_for(0, particles_, [&](std::int64_t p) { gather(p, u); });
+    for (std::int64_t p = 0; p < particles_; ++p) scatter(p, out);  // serial for now
+  }
+
+  /// The diagonal of H (exact), length Dim * unknowns():
+  /// e_{i,d}^T H e_{i,d} = sum_p sum_{b,e} g_b K_p[(d,b),(d,e)] g_e.
+  void stiffness_diagonal(VectorX& diag) const {
+    diag.setZero(Dim * unknowns());
+    for (std::int64_t p = 0; p < particles_; ++p) {
+      const Stiffness& K = K_[std::size_t(p)];
+      for_each_unknown(p, [&](std::int32_t i, const Vec& g) {
+        for (int d = 0; d < Dim; ++d) {
+          T s = 0;
+          for (int b = 0; b < Dim; ++b)
+            for (int e = 0; e < Dim; ++e) s += g[b] * K(d + Dim * b, d + Dim * e) * g[e];
+          diag[Dim * std::int64_t(i) + d] += s;
+        }
+      });
+    }
+  }
+
+  /// Bytes held by the scratch buffers (per particle: K_p, Q_p and the cached stencil).
+  std::size_t bytes() const {
+    return dof_of_.capacity() * sizeof(std::int32_t) + nodes_.capacity() * sizeof(std::int64_t) +
+           std::size_t(mass_.size() + v0_.size() + diag_.size() + tmp_.size()) * sizeof(T) +
+           K_.capacity() * sizeof(Stiffness) + Q_.capacity() * sizeof(Mat) +
+           stencil_dof_.capacity() * sizeof(std::int32_t) + stencil_grad_.capacity() * sizeof(Vec);
+  }
+
+  /// The per-particle stiffness of the last linearize().
+  const Stiffness& particle_stiffness(std::int64_t p) const { return K_[std::size_t(p)]; }
+
+ private:
+  /// Orthonormal normals of the components a node's boundary conditions fix.
+  struct Basis {
+    Mat q = Mat::Zero();
+    int rank = 0;
+    void add(const Vec& n) {
+      if (rank == Dim) return;
+      Vec r = n;
+      for (int j = 0; j < rank; ++j) r -= q.col(j).dot(r) * q.col(j);
+      const T len = r.norm();
+      if (len > T(1e-4)) q.col(rank++) = r / len;
+    }
+    void fix_all() { rank = Dim; }
+    /// S = I - sum_q q q^T
+    Mat projection() const {
+      if (rank == Dim) return Mat::Zero();
+      Mat S = Mat::Identity();
+      for (int j = 0; j < rank; ++j) S -= q.col(j) * q.col(j).transpose();
+      return S;
+    }
+  };
+
+  /// The explicit boundary rule of update_grid at node idx; if `basis` is given, collects the
+  /// normals the solve must hold. Returns whether any wall or collider covers the node.
+  static bool apply_boundaries(const Grid& g, const IVec& idx, const GridBoundaries<T, Dim>& bc, Vec& v, Basis* basis) {
+    bool any = false;
+    auto one = [&](const Vec& vb, const Vec& n, Condition c, T friction) {
+      any = true;
+      if (basis) {
+        if (c == Condition::Sticky)
+          basis->fix_all();
+        else if (c == Condition::Slip || (v - vb).dot(n) < T(0))
+          basis->add(n);
+      }
+      v = apply_condition<T, Dim>(v, vb, n, c, friction);
+    };
+    for (int d = 0; d < Dim; ++d) {
+      if (idx[d] < bc.lo) one(Vec::Zero(), Vec::Unit(d), bc.walls, bc.friction);
+      if (idx[d] > bc.hi[d]) one(Vec::Zero(), -Vec::Unit(d), bc.walls, bc.friction);
+    }
+    if (bc.colliders && !bc.colliders->empty()) {
+      const Vec xi = g.position(idx);
+      Vec n;
+      for (const auto& c : *bc.colliders)
+        if (c.inside(xi, bc.time, n)) one(c.velocity, n, c.condition, c.friction);
+    }
+    return any;
+  }
+
+  /// x <- S x, node by node.
+  void filter(VectorX& x) const {
+    for (std::size_t i = 0; i < projection_of_.size(); ++i)
+      if (projection_of_[i] >= 0)
+        x.template segment<Dim>(Dim * std::int64_t(i)) =
+            projections_[std::size_t(projection_of_[i])] * x.template segment<Dim>(Dim * std::int64_t(i));
+  }
+
+  /// K_p = V0 d^2 psi((I + G) F)/dG^2: column (c, e) is vec(V0 dP(F, E_ce F) F^T).
+  template <class Model>
+  Stiffness stiffness(const Model& model, const Mat& F, T vol0) const {
+    Stiffness K;
+    for (int e = 0; e < Dim; ++e)
+      for (int c = 0; c < Dim; ++c) {
+        Mat dF = Mat::Zero();
+        dF.row(c) = F.row(e);  // E_ce F
+        const Mat Q = model.dP(F, dF) * F.transpose();
+        K.col(c + Dim * e) = vol0 * Eigen::Map<const Eigen::Matrix<T, D2, 1>>(Q.data());
+      }
+    K = T(0.5) * (K + K.transpose());  // symmetric up to round-off
+    if (!options_.definite) return K;
+    // Cheap test first: by Sylvester's law of inertia the pivots of L D L^T carry the signs of
+    // the eigenvalues, so only indefinite K_p pay for an eigendecomposition.
+    const T scale = K.diagonal().cwiseAbs().maxCoeff();
+    Eigen::LDLT<Stiffness> ldlt(K);
+    if (ldlt.info() == Eigen::Success && (ldlt.vectorD().array() >= -T(1e-8) * scale).all()) return K;
+    Eigen::SelfAdjointEigenSolver<Stiffness> eig(K);
+    const Eigen::Matrix<T, D2, 1> lambda = eig.eigenvalues().cwiseMax(T(0));
+    return eig.eigenvectors() * lambda.asDiagonal() * eig.eigenvectors().transpose();
+  }
+
+  /// Stores, for every particle, the unknown of each node of its stencil (-1 for a node without
+  /// mass: it carries no unknown, as in the explicit update) and the gradient g_ip (weight
+  /// gradient, or the MLS one). CG then never re-evaluates a kernel.
+  template <int Order>
+  void cache_stencils(const Particles<T, Dim>& P) {
+    using St = transfer::Stencil<T, Dim, Order>;
+    stencil_nodes_ = St::nodes;
+    stencil_dof_.resize(std::size_t(particles_ * St::nodes));
+    stencil_grad_.resize(std::size_t(particles_ * St::nodes));
+    const T Dinv = transfer::BSpline<Order>::inverse_inertia(dx_);
+    const bool mls = mls_;
+    parallel::parallel_for(0, particles_, [&](std::int64_t p) {
+      const St s(P.x[std::size_t(p)] - origin_, inv_dx_, dx_);
+      std::int64_t k0 = 0;
+      for (int d = 0; d < Dim; ++d) k0 += stride_[d] * s.base[d];
+      std::size_t j = std::size_t(p * St::nodes);
+      transfer::for_each_node(s, [&](int a, int b, int c, T w, const Vec& grad, const Vec& off) {
+        std::int64_t k = k0 + a * stride_[0] + b * stride_[1];
+        if constexpr (Dim == 3) k += c;
+        stencil_dof_[j] = dof_of_[std::size_t(k)];
+        stencil_grad_[j] = mls ? Vec((Dinv * w) * off) : grad;
+        ++j;
+      });
+    });
+  }
+
+  /// Q_p = K_p vec(G_p) with G_p = sum_i u_i g_ip^T.
+  void gather(std::int64_t p, const VectorX& u) {
+    Mat G = Mat::Zero();
+    for_each_unknown(p, [&](std::int32_t i, const Vec& g) {
+      const Vec ui = u.template segment<Dim>(Dim * std::int64_t(i));
+      for (int b = 0; b < Dim; ++b)
+        for (int a = 0; a < Dim; ++a) G(a, b) += ui[a] * g[b];
+    });
+    // lazyProduct: a coefficient-wise loop, not the generic matrix-vector kernel, for this size.
+    Eigen::Map<Eigen::Matrix<T, D2, 1>>(Q_[std::size_t(p)].data()) =
+        K_[std::size_t(p)].lazyProduct(Eigen::Map<const Eigen::Matrix<T, D2, 1>>(G.data()));
+  }
+
+  /// out_i += Q_p g_ip over particle p's stencil.
+  void scatter(std::int64_t p, VectorX& out) const {
+    const Mat& Q = Q_[std::size_t(p)];
+    for_each_unknown(p, [&](std::int32_t i, const Vec& g) { out.template segment<Dim>(Dim * std::int64_t(i)).noalias() += Q.lazyProduct(g); });
+  }
+
+  /// fn(unknown, g_ip) for the nodes of particle p's stencil that carry an unknown.
+  template <class Fn>
+  void for_each_unknown(std::int64_t p, Fn&& fn) const {
+    const std::size_t j0 = std::size_t(p * stencil_nodes_);
+    for (std::size_t j = j0; j < j0 + std::size_t(stencil_nodes_); ++j)
+      if (stencil_dof_[j] >= 0) fn(stencil_dof_[j], stencil_grad_[j]);
+  }
+
+  int order_;
+  bool mls_;
+  Options options_;
+  // Unknowns.
+  std::vector<std::int32_t> dof_of_;  // grid index -> unknown, -1 for nodes without mass
+  std::vector<std::int64_t> nodes_;   // unknown -> grid index
+  Vec origin_ = Vec::Zero();
+  T dx_ = 1, inv_dx_ = 1;
+  std::int64_t stride_[Dim] = {};
+  VectorX mass_, v0_, diag_, tmp_;
+  std::vector<std::int64_t> boundary_;      // unknowns covered by a wall or collider
+  std::vector<std::int32_t> projection_of_;  // unknown -> index into projections_, -1 = free
+  std::vector<Mat> projections_;
+  // Particles.
+  std::int64_t particles_ = 0;
+  int stencil_nodes_ = 0;
+  std::vector<std::int32_t> stencil_dof_;  // particle p, node j -> unknown (or -1)
+  std::vector<Vec> stencil_grad_;          // particle p, node j -> g_ip
+  std::vector<Stiffness> K_;
+  std::vector<Mat> Q_;
+};
+
+}  // namespace slurry
