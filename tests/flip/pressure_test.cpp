@@ -227,10 +227,10 @@ TEST(PressureSolver, Mic0FewerIterationsThanCG) {
     b[std::size_t(c)] = phi < 0 ? noise(rng) : 0.0;
   });
   const double tol = 1e-6;
-  int iters[4];
-  const Preconditioner kinds[4] = {Preconditioner::None, Preconditioner::Jacobi, Preconditioner::MIC0,
-                                   Preconditioner::MIC0};
-  for (int k = 0; k < 4; ++k) {
+  int iters[5];
+  const Preconditioner kinds[5] = {Preconditioner::None, Preconditioner::Jacobi, Preconditioner::MIC0,
+                                   Preconditioner::MIC0, Preconditioner::Multigrid};
+  for (int k = 0; k < 5; ++k) {
     PressureSolver<double, Dim> solver;
     ProjectionOptions opt = tight(kinds[k], tol);
     opt.mic_blocks = k == 3 ? 4 : 0;  // the slab-parallel variant
@@ -253,6 +253,7 @@ TEST(PressureSolver, Mic0FewerIterationsThanCG) {
   EXPECT_LT(iters[2], iters[1]);
   EXPECT_LT(iters[3], iters[0]);
   EXPECT_LE(iters[2], iters[3]) << "cutting the slab couplings cannot help";
+  EXPECT_LT(iters[4], iters[2]) << "multigrid needs fewer iterations than MIC(0)";
 }
 
 // ---------------------------------------------------------------------------------------------
