@@ -275,11 +275,18 @@ void FlipSimulation<T, Dim>::advect(T dt) {
   const auto scheme = scene_.solver.advection;
   const T t_end = T(time_) + dt, margin = T(1e-3) * grid_.dx;
   const Grid& g = grid_;
-  auto velocity = [&g](const Vec& x) { return g.velocity(x); };
+  auto velocity = [&g](const Vec& x) {
+    Vec u;
+    gather_faces_linear(g, x, nullptr, u, nullptr, nullptr);  // trilinear, flat indices
+    return u;
+  };
   auto& P = particles_;
-  parallel::parallel_for(0, std::int64_t(P.size()), [&](std::int64_t p) {
-    const Vec x = advect_point(scheme, P.x[p], dt, velocity);
-    P.x[p] = solids_.push_out(x, t_end, x_lo_, x_hi_, margin);
+  const bool solids = !solids_.empty();
+  parallel::parallel_chunks(0, std::int64_t(P.size()), [&](std::int64_t lo, std::int64_t hi) {
+    for (std::int64_t p = lo; p < hi; ++p) {
+      const Vec x = advect_point(scheme, P.x[p], dt, velocity);
+      P.x[p] = solids ? solids_.push_out(x, t_end, x_lo_, x_hi_, margin) : Vec(x.cwiseMax(x_lo_).cwiseMin(x_hi_));
+    }
   });
 }
 

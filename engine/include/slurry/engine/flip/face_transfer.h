@@ -256,20 +256,34 @@ inline void gather_faces_linear(const MacGrid<T, Dim>& g, const Eigen::Matrix<T,
                                 typename NoDeduce<Eigen::Matrix<T, Dim, 1>>::type* c) {
   using Vec = Eigen::Matrix<T, Dim, 1>;
   const T inv_dx = T(1) / g.dx;
+  // Per axis a, the clamped neighbours and weights for both staggerings: faces of axis a sit at
+  // integer positions along a (stag = 1), faces of the other axes at half-integer ones (stag = 0).
+  int idx[Dim][2][2];
+  T wt[Dim][2][2];
+  for (int a = 0; a < Dim; ++a) {
+    const T xa = (x[a] - g.origin[a]) * inv_dx;
+    for (int stag = 0; stag < 2; ++stag) {
+      const int n = g.res[a] + stag;
+      const T sa = stag ? xa : xa - T(0.5);
+      const int b = int(std::floor(sa));
+      const T f = sa - T(b);
+      idx[a][stag][0] = std::clamp(b, 0, n - 1);
+      idx[a][stag][1] = std::clamp(b + 1, 0, n - 1);
+      wt[a][stag][0] = T(1) - f;
+      wt[a][stag][1] = f;
+    }
+  }
   for (int d = 0; d < Dim; ++d) {
     std::int64_t off[Dim][2];
     T w[Dim][2];
     std::int64_t stride = 1;
     for (int a = Dim - 1; a >= 0; --a) {
-      const int n = g.res[a] + (a == d ? 1 : 0);
-      const T s = (x[a] - g.origin[a]) * inv_dx - (a == d ? T(0) : T(0.5));
-      const int b = int(std::floor(s));
-      const T f = s - T(b);
-      off[a][0] = std::int64_t(std::clamp(b, 0, n - 1)) * stride;
-      off[a][1] = std::int64_t(std::clamp(b + 1, 0, n - 1)) * stride;
-      w[a][0] = T(1) - f;
-      w[a][1] = f;
-      stride *= n;
+      const int stag = a == d ? 1 : 0;
+      off[a][0] = std::int64_t(idx[a][stag][0]) * stride;
+      off[a][1] = std::int64_t(idx[a][stag][1]) * stride;
+      w[a][0] = wt[a][stag][0];
+      w[a][1] = wt[a][stag][1];
+      stride *= g.res[a] + stag;
     }
     const T* U = g.u[d].data();
     const T* O = old ? (*old)[d].data() : nullptr;
