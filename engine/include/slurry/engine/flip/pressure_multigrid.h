@@ -7,30 +7,43 @@
 /// Hierarchy: level 0 is the assembled fine system (diagonal with the ghost-fluid terms, face
 /// weights; copied to the scalar type S, float by default: the preconditioner may be inexact,
 /// the outer PCG stays in double). Level l + 1 has ceil(n / 2) cells per axis; cell I has the
-/// children 2I + {0, 1}^Dim. Labels are coarsened so that a coarse cell is fluid if any child is
-/// fluid, else air if any child is air, else solid. A coarse face's weight is the mean of the
-/// open weights of the fine faces it covers. The coarse operator is the re-discretised Laplacian
-/// with these weights, Dirichlet p = 0 at air cell centres, Neumann at solids, scaled by 1/4 per
-/// level: with R averaging and P interpolating, R A_h P ~ -h^2 lap = (1/4) (-(2h)^2 lap).
+/// children 2I + {0, 1}^Dim.
+/// - Labels: a coarse cell is air if any child is air, else fluid if any child is fluid, else
+///   solid. (The rule "fluid if any child is fluid" loses the free surface where it runs
+///   inside a coarse cell next to a wall: measured on a 32^3 box with one air layer at the
+///   domain edge, the V-cycle then amplified the residual 4.6x per cycle and PCG took 63
+///   iterations against 26 for MIC(0). With air dominant and the coarse ghost fluid below it
+///   contracts by ~0.4 per cycle.)
+/// - Level set: a coarse cell's phi is the mean over its non-solid children (exact at the
+///   coarse centre for a linear phi).
+/// - Faces: a coarse face's weight is the mean open weight of the fine faces it covers.
+/// - Operator: the re-discretised Laplacian with these weights, Neumann at solids, Dirichlet
+///   p = 0 at air with the ghost-fluid fraction theta = phi_c / (phi_c - phi_air) of the coarse
+///   level set (Gibou et al. 2002, as on the fine level), scaled by 1/4 per level: with R
+///   averaging and P interpolating, R A_h P ~ -h^2 lap = (1/4) (-(2h)^2 lap).
+/// The hierarchy stops at the first level with every axis <= kCoarsest cells, or above a
+/// level that would have no free-surface coupling left while the finer one has.
 ///
-/// Transfers (cell centred, McAdams et al. 2010 Sec. 4): prolongation P is trilinear (per axis
-/// the fine cell takes 3/4 of its parent and 1/4 of the parent's neighbour on its side),
-/// restriction R = 2^-Dim P^T (per axis (1, 3, 3, 1) / 8 over fine cells 2I - 1 .. 2I + 2).
+/// Transfers (cell centred, McAdams et al. 2010): prolongation P is trilinear (per axis the
+/// fine cell takes 3/4 of its parent and 1/4 of the parent's neighbour on its side), with the
+/// weights of solid parents dropped and the rest renormalised (P 1 = 1 next to walls:
+/// Neumann; air parents keep their weight with value 0: Dirichlet); restriction
+/// R = 2^-Dim P^T (per axis (1, 3, 3, 1) / 8 over fine cells 2I - 1 .. 2I + 2 in the interior).
 /// Values outside the unknowns are zero on every level (masked R and P).
 ///
 /// Smoothing: red-black Gauss-Seidel, `smoothing` sweeps red-then-black before the coarse
 /// correction and the same number black-then-red after it; `boundary_smoothing` extra sweeps
 /// on the boundary band (unknowns with an open face to air or a partly open face: where the
-/// coarsened labels and the ghost-fluid diagonal differ most from a plain Laplacian) before
-/// the interior sweeps and, mirrored, after them (McAdams et al. boundary smoothing). The
-/// coarsest level (every axis <= kCoarsest cells) gets kCoarseSweeps symmetric sweeps. With
-/// post-smoothing the adjoint of pre-smoothing and R proportional to P^T, M^-1 is symmetric
-/// and positive definite, so PCG stays valid (every sweep count is fixed: M is linear).
+/// coarse levels approximate the fine operator worst) after the interior pre-sweeps and,
+/// mirrored, before the interior post-sweeps (McAdams et al. boundary smoothing). The coarsest
+/// level gets kCoarseSweeps symmetric sweeps. With post-smoothing the adjoint of
+/// pre-smoothing and R proportional to P^T, M^-1 is symmetric and positive definite, so PCG
+/// stays valid (every sweep count is fixed: M is linear).
 ///
 /// Parallel and deterministic: each half-sweep updates one colour from the other, transfers
 /// write one cell each, so the result does not depend on the thread count; levels below
 /// kParallelCells cells run serially (a parallel region costs more than their work).
-/// Memory: ~48 bytes per fine cell for level 0 (S = float), ~1/7 of that more for the rest.
+/// Memory: ~56 bytes per fine cell for level 0 (S = float), ~1/7 of that more for the rest.
 #include <Eigen/Core>
 #include <algorithm>
 #include <array>
@@ -51,7 +64,8 @@ class MultigridPreconditioner {
   static constexpr int kCoarsest = 8;      ///< stop coarsening when every axis has <= this many cells
   static constexpr int kCoarseSweeps = 12;  ///< symmetric RB-GS sweeps on the coarsest level (each way)
   static constexpr std::int64_t kRowGrain = 16;
-  static constexpr S kCoarseThetaMin = S(0.05);  ///< ghost-fluid clamp on the coarse levels  ///< rows per chunk of the fixed-order dot product
+  static constexpr S kCoarseThetaMin = S(0.05);  ///< ghost-fluid clamps on the coarse levels
+  static constexpr S kCoarseThetaMax = S(4);  ///< rows per chunk of the fixed-order dot product
 
   /// Sets up level 0 from the fine system and coarsens it. Fine arrays are row-major over
   /// `res` (last axis fastest): diag[c] and plus[d][c] = A(c, c + e_d) as PressureSolver stores
@@ -111,7 +125,8 @@ class MultigridPreconditioner {
       Level& L = levels_[std::size_t(l)];
       // Pre-smoothing: [band R B]^bs, then R B ... (the first R was fused into the set-up).
       smooth(L, smoothing, boundary_smoothing, true);
-      residual_red(L);  // black residuals vanish after a black half-sweep
+      // Black residuals vanish after a black half-sweep, unless band sweeps came after it.
+      residual(L, boundary_smoothing == 0);
       restrict_to(L, levels_[std::size_t(l + 1)]);
     }
     {
@@ -270,9 +285,9 @@ class MultigridPreconditioner {
         }
         const std::size_t c = std::size_t(base + k);
         C.phi[c] = phi_count ? phi_sum / S(phi_count) : S(0);
-        // Fluid if a child is, unless air children share the cell and its centre lies outside
-        // the liquid: then it is air (Dirichlet), so every level keeps its free surface.
-        C.kind[c] = fluid && (!air || C.phi[c] < 0) ? kFluid : air ? kAir : kSolid;
+        // Air if any child is air, else fluid if any child is fluid, else solid: every level
+        // keeps a free surface where the fine one has it (see the file comment).
+        C.kind[c] = air ? kAir : fluid ? kFluid : kSolid;
         for (int d = 0; d < Dim; ++d) {
           if (I[d] == 0) continue;  // domain wall
           // Fine faces at 2 I_d along d, 2 I_a + {0, 1} along the others (inside the grid).
@@ -357,13 +372,16 @@ class MultigridPreconditioner {
   }
 
   /// Coarse ghost-fluid fraction between a fluid cell (level set phi_c) and an air neighbour
-  /// (phi_a), as on the fine level but clamped at kCoarseThetaMin. Coarse fluid cells whose
-  /// centre lies outside the liquid (fluid because one child is) get the clamp. Without this
-  /// the coarse Dirichlet condition sits at the air cell centre, one fine cell or more beyond
-  /// the fine surface, and the coarse correction overshoots (measured: eigenvalues of M A up
-  /// to 2.7 on a 12^3 tank).
+  /// (phi_a): theta = phi_c / (phi_c - phi_a) as on the fine level, in [kCoarseThetaMin, 1]
+  /// when phi changes sign, up to kCoarseThetaMax when the air cell (air because one child is)
+  /// has its centre inside the liquid. Without it the coarse Dirichlet condition sits at the
+  /// air cell centre, up to a coarse cell away from the fine surface, and the coarse
+  /// correction is off by the corresponding factor (measured: eigenvalues of M A up to 2.7
+  /// instead of 1.01 on a 12^3 tank with two levels).
   static S theta(S phi_c, S phi_a) {
-    if (!(phi_a >= 0 && phi_a > phi_c)) return S(1);
+    if (!(phi_a > phi_c)) return S(1);  // level set not increasing outwards: plain Dirichlet
+    // A mixed air cell whose centre is still inside the liquid: the surface lies beyond it.
+    if (phi_a < 0) return std::min(phi_c / (phi_c - phi_a), kCoarseThetaMax);
     const S t = phi_c < 0 ? phi_c / (phi_c - phi_a) : S(0);
     return std::clamp(t, kCoarseThetaMin, S(1));
   }
@@ -456,15 +474,15 @@ class MultigridPreconditioner {
     }
   }
 
-  /// r = pscale (b - A x) on red cells, 0 on black ones (exact after a black half-sweep); the
-  /// factor pscale makes R = 2^-Dim P^T with P's renormalised weights.
-  static void residual_red(Level& L) {
+  /// r = pscale (b - A x); with red_only on red cells and 0 on black ones (exact right after a
+  /// black half-sweep). The factor pscale makes R = 2^-Dim P^T with P's renormalised weights.
+  static void residual(Level& L, bool red_only) {
     rows_for(L, [&](std::int64_t row) {
       const std::int64_t base = L.row_base[std::size_t(row)];
       const int p = L.parity[std::size_t(row)];
       for (int k = L.lo[std::size_t(row)]; k < L.hi[std::size_t(row)]; ++k) {
         const std::int64_t c = base + k;
-        if ((p + k) & 1) {
+        if (red_only && ((p + k) & 1)) {
           L.r[std::size_t(c)] = S(0);
           continue;
         }
