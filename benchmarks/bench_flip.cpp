@@ -103,9 +103,13 @@ int run_phases(const slurry::Scene& scene, int frames) {
   std::printf("%s: %d frames, %lld substeps, %zu particles, %.3f s/frame, %.3g particle-steps/s, last PCG %d its\n",
               scene.source.c_str(), frames, static_cast<long long>(sim.steps()), sim.particle_count(), s / frames,
               double(sim.particle_count()) * double(sim.steps()) / s, sim.last_projection().iterations);
+  double cpu = 0;
+  for (int p = 0; p < slurry::flip::kPhaseCount; ++p) cpu += sim.phase_cpu_seconds()[p];
+  std::printf("  %-22s %8s %8s  (s/frame)\n", "phase", "wall", "cpu");
   for (int p = 0; p < slurry::flip::kPhaseCount; ++p)
-    std::printf("  %-22s %8.4f s/frame  %5.1f%%\n", slurry::flip::phase_name(p), sim.phase_seconds()[p] / frames,
-                100 * sim.phase_seconds()[p] / s);
+    std::printf("  %-22s %8.4f %8.4f  %5.1f%% of wall\n", slurry::flip::phase_name(p), sim.phase_seconds()[p] / frames,
+                sim.phase_cpu_seconds()[p] / frames, 100 * sim.phase_seconds()[p] / s);
+  std::printf("  %-22s %8.4f %8.4f\n", "total", s / frames, cpu / frames);
   return 0;
 }
 

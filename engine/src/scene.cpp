@@ -51,7 +51,7 @@ const NameTable<AdvectionScheme> kAdvection{{"euler", AdvectionScheme::Euler},
 const NameTable<PressurePreconditioner> kPreconditioner{{"mic0", PressurePreconditioner::MIC0},
                                                         {"jacobi", PressurePreconditioner::Jacobi},
                                                         {"none", PressurePreconditioner::None}};
-const std::vector<std::string> kAttributes{"position", "velocity", "material", "J", "plastic"};
+const std::vector<std::string> kAttributes{"position", "velocity", "material", "J", "plastic", "id"};
 
 template <class E>
 std::string_view name_of(const NameTable<E>& table, E value) {
@@ -316,7 +316,7 @@ void Scene::validate_flip() const {
     const auto& a = output.attributes[i];
     if (a == "J" || a == "plastic")
       fail(source, "output.attributes[" + std::to_string(i) + "]",
-           "solver.type \"flip\" writes \"position\", \"velocity\" and \"material\" (its liquid is incompressible), got \"" + a + "\"");
+           "solver.type \"flip\" writes \"position\", \"velocity\", \"material\" and \"id\" (its liquid is incompressible), got \"" + a + "\"");
   }
 }
 
@@ -494,7 +494,10 @@ void Scene::validate() const {
     const std::string p = "output.attributes[" + std::to_string(i) + "]";
     bool known = false;
     for (const auto& k : kAttributes) known = known || k == a;
-    if (!known) fail(source, p, "expected one of \"position\", \"velocity\", \"material\", \"J\", \"plastic\", got \"" + a + "\"");
+    if (!known)
+      fail(source, p, "expected one of \"position\", \"velocity\", \"material\", \"J\", \"plastic\", \"id\", got \"" + a + "\"");
+    if (a == "id" && solver.type != SolverType::FLIP)
+      fail(source, p, "\"id\" (persistent particle ids) is written by solver.type \"flip\" only");
     for (std::size_t j = 0; j < i; ++j)
       if (output.attributes[j] == a) fail(source, p, "duplicate attribute \"" + a + "\"");
     if (a == "plastic") {

@@ -2,7 +2,10 @@
 // value, what was expected), and a good one that keeps its values and runs from make_simulation.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cstdio>
 #include <nlohmann/json.hpp>
+#include <variant>
 
 #include "slurry/engine/flip/flip_simulation.h"
 #include "slurry/engine/scene.h"
@@ -50,7 +53,7 @@ const BadCase kBad[] = {
      "materials[0].bulk_modulus: unknown key"},
     {"sticky_walls", R"({"boundaries": {"walls": "sticky"}})", "boundaries.walls: solver.type \"flip\" walls are free-slip"},
     {"J_attribute", R"({"output": {"attributes": ["position", "J"]}})",
-     "output.attributes[1]: solver.type \"flip\" writes \"position\", \"velocity\" and \"material\""},
+     "output.attributes[1]: solver.type \"flip\" writes \"position\", \"velocity\", \"material\" and \"id\""},
     {"emitter_rate", R"({"emitters": [{"shape": "box", "min": [0.1, 0.8], "max": [0.2, 0.9], "rate": 0, "material": "water"}]})",
      "emitters[0].rate: expected a number > 0, got 0"},
     {"emitter_end", R"({"emitters": [{"shape": "box", "min": [0.1, 0.8], "max": [0.2, 0.9], "rate": 1, "start": 2, "end": 1, "material": "water"}]})",
@@ -87,6 +90,23 @@ TEST(FlipScene, KeysOfTheMpmSolverAreRejected) {
   EXPECT_THROW(slurry::parse_scene(j.dump(), "mpm.json"), slurry::SceneError) << "advection is a FLIP key";
 }
 
+TEST(FlipScene, IdAttributeIsFlipOnly) {
+  json j = good_flip_scene();
+  j["output"]["attributes"] = {"position", "id"};
+  EXPECT_NO_THROW(slurry::parse_scene(j.dump(), "flip.json"));
+  json m = json::parse(R"({"domain": {"min": [0, 0], "max": [1, 1], "dx": 0.05},
+    "solver": {"type": "mpm", "dimension": 2},
+    "materials": [{"name": "jelly", "model": "neo_hookean"}],
+    "bodies": [{"shape": "box", "min": [0.2, 0.2], "max": [0.4, 0.4], "material": "jelly"}],
+    "output": {"attributes": ["position", "id"]}})");
+  try {
+    slurry::parse_scene(m.dump(), "mpm.json");
+    FAIL() << "an MPM scene accepted output attribute \"id\"";
+  } catch (const slurry::SceneError& e) {
+    EXPECT_NE(std::string(e.what()).find("output.attributes[1]: \"id\""), std::string::npos) << e.what();
+  }
+}
+
 TEST(FlipScene, GoodSceneKeepsItsValuesAndRuns) {
   const auto s = slurry::parse_scene(good_flip_scene().dump(), "good.json");
   EXPECT_EQ(s.solver.type, slurry::SolverType::FLIP);
@@ -105,8 +125,17 @@ TEST(FlipScene, GoodSceneKeepsItsValuesAndRuns) {
   const auto n0 = sim->particle_count();
   sim->advance_to(0.5);
   EXPECT_GT(sim->particle_count(), n0) << "the emitter added liquid";
-  const auto frame = sim->frame({"position", "velocity"});
-  EXPECT_EQ(frame.elements[0].properties.size(), 4u);
+  const auto frame = sim->frame({"position", "velocity", "id"});
+  ASSERT_EQ(frame.elements[0].properties.size(), 5u);
+  // Emitted particles take new ids: all distinct.
+  const auto* ids = std::get_if<std::vector<std::uint32_t>>(&frame.elements[0].properties[4].data);
+  ASSERT_NE(ids, nullptr) << "id is a uint32 property";
+  EXPECT_EQ(frame.elements[0].properties[4].name, "id");
+  std::vector<std::uint32_t> sorted = *ids;
+  std::sort(sorted.begin(), sorted.end());
+  EXPECT_EQ(std::adjacent_find(sorted.begin(), sorted.end()), sorted.end()) << "duplicate ids";
+  std::printf("[ figure ] emitter scene: %zu particles (%zu at start), ids %u..%u, all distinct\n", ids->size(), n0,
+              sorted.front(), sorted.back());
 }
 
 }  // namespace

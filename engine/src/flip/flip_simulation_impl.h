@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <ctime>
 #include <sstream>
 
 #include "slurry/engine/flip/advection.h"
@@ -123,10 +124,14 @@ template <class T, int Dim>
 void FlipSimulation<T, Dim>::step(T dt) {
   using Clock = std::chrono::steady_clock;
   auto t0 = Clock::now();
+  std::clock_t c0 = std::clock();
   const auto lap = [&](Phase p) {
     const auto t1 = Clock::now();
+    const std::clock_t c1 = std::clock();
     phase_seconds_[p] += std::chrono::duration<double>(t1 - t0).count();
+    phase_cpu_seconds_[p] += double(c1 - c0) / CLOCKS_PER_SEC;
     t0 = t1;
+    c0 = c1;
   };
   emit(dt);
   lap(kEmit);
@@ -222,7 +227,7 @@ template <class T, int Dim>
 void FlipSimulation<T, Dim>::extrapolate_velocities() {
   // Particles read faces up to cfl cells (plus the kernel's reach) away from where they start.
   const int layers = int(std::ceil(scene_.solver.cfl)) + order_ + 1;
-  flip::extrapolate(grid_, layers);
+  extrapolator_.run(grid_, layers);
 }
 
 template <class T, int Dim>
@@ -272,13 +277,16 @@ void FlipSimulation<T, Dim>::advect(T dt) {
   const Grid& g = grid_;
   auto velocity = [&g](const Vec& x) {
     Vec u;
-    gather_faces<1>(g, x, nullptr, u, nullptr, nullptr);
+    gather_faces_linear(g, x, nullptr, u, nullptr, nullptr);  // trilinear, flat indices
     return u;
   };
   auto& P = particles_;
-  parallel::parallel_for(0, std::int64_t(P.size()), [&](std::int64_t p) {
-    const Vec x = advect_point(scheme, P.x[p], dt, velocity);
-    P.x[p] = solids_.push_out(x, t_end, x_lo_, x_hi_, margin);
+  const bool solids = !solids_.empty();
+  parallel::parallel_chunks(0, std::int64_t(P.size()), [&](std::int64_t lo, std::int64_t hi) {
+    for (std::int64_t p = lo; p < hi; ++p) {
+      const Vec x = advect_point(scheme, P.x[p], dt, velocity);
+      P.x[p] = solids ? solids_.push_out(x, t_end, x_lo_, x_hi_, margin) : Vec(x.cwiseMax(x_lo_).cwiseMin(x_hi_));
+    }
   });
 }
 
@@ -289,7 +297,7 @@ void FlipSimulation<T, Dim>::reseed() {
   const int order = order_;
   auto init = [&g, order](const Vec& x, Vec& v, Vec* c) {
     if (order == 1)
-      gather_faces<1>(g, x, nullptr, v, nullptr, c);
+      gather_faces_linear(g, x, nullptr, v, nullptr, c);
     else
       gather_faces<2>(g, x, nullptr, v, nullptr, c);
   };
@@ -336,6 +344,8 @@ io::PlyData FlipSimulation<T, Dim>::frame(const std::vector<std::string>& attrib
     } else if (a == "material") {
       std::vector<std::uint16_t> m = P.has_material ? P.material : std::vector<std::uint16_t>(n, 0);
       el.properties.push_back({"material", std::move(m)});
+    } else if (a == "id") {
+      el.properties.push_back({"id", P.id});
     }
   }
   return data;

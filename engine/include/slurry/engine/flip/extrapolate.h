@@ -14,6 +14,13 @@
 /// A layer reads only faces valid before it, so the result does not depend on the order or the
 /// thread count. Faces of open weight 0 (MacGrid::open_weight: walls, solids) keep u = u_solid
 /// and are neither sources nor targets. Filled faces are marked valid.
+///
+/// Cost: one pass over every face (closed/valid stamps and layer 1), then each later layer
+/// visits only the faces filled by the layer before it (a narrow band around the liquid, not the
+/// whole grid). A face of layer L is found from its neighbour of layer L - 1 with the smallest
+/// index, so the band lists are built in parallel without atomics; the values depend only on
+/// faces of earlier layers, so the result is bitwise independent of the thread count.
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <vector>
@@ -25,74 +32,228 @@ namespace slurry::flip {
 
 enum class Extrapolation { Constant, Linear };
 
-/// Fills up to `layers` layers of invalid faces from valid neighbours; returns the number of faces
-/// filled.
+/// Extrapolation with its scratch kept between calls (no allocation once sizes have settled).
 template <class T, int Dim>
-std::int64_t extrapolate(MacGrid<T, Dim>& g, int layers, Extrapolation rule = Extrapolation::Linear) {
+class Extrapolator {
+ public:
   using IVec = typename MacGrid<T, Dim>::IVec;
-  std::int64_t filled = 0;
-  for (int d = 0; d < Dim; ++d) {
+
+  /// Fills up to `layers` (at most 120) layers of invalid faces from valid neighbours; returns
+  /// the number of faces filled.
+  std::int64_t run(MacGrid<T, Dim>& g, int layers, Extrapolation rule = Extrapolation::Linear) {
+    layers = std::clamp(layers, 0, 120);
+    std::int64_t filled = 0;
+    for (int d = 0; d < Dim; ++d) filled += run_axis(g, d, layers, rule);
+    return filled;
+  }
+
+ private:
+  static constexpr int L = Dim - 1;       // rows run along the last axis
+  static constexpr std::int64_t kRowsPerTask = 32;
+  static constexpr std::int64_t kFacesPerTask = 2048;
+  std::vector<std::int8_t> stamp_;       // -2 closed, -1 unknown, 0 valid on entry, L filled by layer L
+  std::vector<std::vector<std::int64_t>> lists_;  // faces found per task
+  std::vector<std::int64_t> band_, next_;          // faces of the last layer
+
+  // Per-axis geometry of the face grid being filled.
+  IVec fr_;
+  std::array<std::int64_t, Dim> stride_{};
+
+  IVec coord(std::int64_t f) const {
+    IVec i;
+    for (int a = Dim - 1; a >= 0; --a) {
+      i[a] = int(f % fr_[a]);
+      f /= fr_[a];
+    }
+    return i;
+  }
+
+  bool known(std::int64_t f, int layer) const {
+    const int s = stamp_[std::size_t(f)];
+    return s >= 0 && s < layer;
+  }
+
+  /// Value of face f (coordinates fi) from the faces known before `layer`; false if none is.
+  bool value(const MacGrid<T, Dim>& g, int d, std::int64_t f, const IVec& fi, int layer, Extrapolation rule,
+             T& out) const {
+    const T* u = g.u[d].data();
+    double lin = 0, con = 0;
+    int n_lin = 0, n_con = 0;
+    for (int a = 0; a < Dim; ++a) {
+      for (int dir = -1; dir <= 1; dir += 2) {
+        const int i1 = fi[a] + dir, i2 = fi[a] + 2 * dir;
+        if (i1 < 0 || i1 >= fr_[a]) continue;
+        const std::int64_t f1 = f + dir * stride_[a];
+        if (!known(f1, layer)) continue;
+        const double u1 = double(u[f1]);
+        con += u1;
+        ++n_con;
+        if (rule == Extrapolation::Linear && i2 >= 0 && i2 < fr_[a]) {
+          const std::int64_t f2 = f + 2 * dir * stride_[a];
+          if (known(f2, layer)) {
+            lin += 2 * u1 - double(u[f2]);
+            ++n_lin;
+          }
+        }
+      }
+    }
+    if (n_con == 0) return false;
+    out = T(n_lin > 0 ? lin / n_lin : con / n_con);
+    return true;
+  }
+
+  /// Concatenates the first `tasks` task lists into band_ (in task order).
+  void gather_lists(std::int64_t tasks) {
+    band_.clear();
+    for (std::int64_t t = 0; t < tasks; ++t) band_.insert(band_.end(), lists_[t].begin(), lists_[t].end());
+  }
+
+  void ensure_lists(std::int64_t tasks) {
+    if (std::int64_t(lists_.size()) < tasks) lists_.resize(std::size_t(tasks));
+  }
+
+  std::int64_t run_axis(MacGrid<T, Dim>& g, int d, int layers, Extrapolation rule) {
     const std::int64_t nf = g.num_faces(d);
-    const IVec fr = g.face_res(d);
-    std::array<std::int64_t, Dim> stride;
-    for (int a = 0; a < Dim; ++a) stride[a] = g.face_stride(d, a);
-    // stamp: -2 closed, -1 unknown, 0 valid on entry, L filled by layer L.
-    std::vector<int> stamp(static_cast<std::size_t>(nf));
-    std::vector<std::uint8_t> fill(std::size_t(nf), 0);
-    parallel::parallel_for(0, nf, [&](std::int64_t f) {
-      const IVec fi = g.face_coord(d, f);
-      if (g.open_weight(d, fi) <= T(0)) {
-        stamp[std::size_t(f)] = -2;
-        g.u[d][std::size_t(f)] = g.u_solid[d][std::size_t(f)];
-      } else {
-        stamp[std::size_t(f)] = g.valid[d][std::size_t(f)] ? 0 : -1;
+    fr_ = g.face_res(d);
+    for (int a = 0; a < Dim; ++a) stride_[a] = g.face_stride(d, a);
+    stamp_.resize(std::size_t(nf));
+    const std::int64_t row_len = fr_[L], rows = nf / row_len;
+    std::array<std::int64_t, Dim> cstride{};
+    for (int a = 0; a < Dim; ++a) cstride[a] = g.cell_stride(a);
+    T* u = g.u[d].data();
+    const T* us = g.u_solid[d].data();
+    const T* w = g.weight[d].data();
+    std::uint8_t* valid = g.valid[d].data();
+    const std::uint8_t* label = g.label.data();
+    const auto row_coord = [&](std::int64_t r, IVec& i) {
+      for (int a = L - 1; a >= 0; --a) {
+        i[a] = int(r % fr_[a]);
+        r /= fr_[a];
+      }
+      i[L] = 0;
+    };
+    // Stamps: closed faces (MacGrid::open_weight <= 0) take u_solid; valid faces are layer 0.
+    parallel::parallel_chunks(0, rows, [&](std::int64_t r0, std::int64_t r1) {
+      IVec i;
+      for (std::int64_t r = r0; r < r1; ++r) {
+        row_coord(r, i);
+        bool row_closed = false;
+        std::int64_t cell0 = 0;  // cell i (with i[L] = 0) when the row's faces are interior along d
+        for (int a = 0; a < L; ++a) cell0 += std::int64_t(i[a]) * cstride[a];
+        if (d != L) row_closed = i[d] <= 0 || i[d] >= g.res[d];
+        const std::int64_t f0 = r * row_len;
+        for (std::int64_t j = 0; j < row_len; ++j) {
+          const std::int64_t f = f0 + j;
+          bool closed = row_closed;
+          if (!closed) {
+            if (d == L) {
+              closed = j <= 0 || j >= g.res[L] || label[cell0 + j - 1] == MacGrid<T, Dim>::Solid ||
+                       label[cell0 + j] == MacGrid<T, Dim>::Solid;
+            } else {
+              closed = label[cell0 + j - cstride[d]] == MacGrid<T, Dim>::Solid ||
+                       label[cell0 + j] == MacGrid<T, Dim>::Solid;
+            }
+            closed = closed || !(w[f] > T(0));
+          }
+          if (closed) {
+            stamp_[std::size_t(f)] = -2;
+            u[f] = us[f];
+          } else {
+            stamp_[std::size_t(f)] = valid[f] ? 0 : -1;
+          }
+        }
       }
     });
-    for (int layer = 1; layer <= layers; ++layer) {
-      const auto known = [&](std::int64_t f) { return stamp[std::size_t(f)] >= 0 && stamp[std::size_t(f)] < layer; };
-      filled += parallel::parallel_sum<std::int64_t>(0, nf, 4096, [&](std::int64_t lo, std::int64_t hi) {
-        std::int64_t count = 0;
-        for (std::int64_t f = lo; f < hi; ++f) {
-          if (stamp[std::size_t(f)] != -1) continue;
-          const IVec fi = g.face_coord(d, f);
-          double lin = 0, con = 0;
-          int n_lin = 0, n_con = 0;
-          for (int a = 0; a < Dim; ++a) {
-            for (int dir = -1; dir <= 1; dir += 2) {
-              const int i1 = fi[a] + dir, i2 = fi[a] + 2 * dir;
-              if (i1 < 0 || i1 >= fr[a]) continue;
-              const std::int64_t f1 = f + dir * stride[a];
-              if (!known(f1)) continue;
-              const double u1 = double(g.u[d][std::size_t(f1)]);
-              con += u1;
-              ++n_con;
-              if (rule == Extrapolation::Linear && i2 >= 0 && i2 < fr[a]) {
-                const std::int64_t f2 = f + 2 * dir * stride[a];
-                if (known(f2)) {
-                  lin += 2 * u1 - double(g.u[d][std::size_t(f2)]);
-                  ++n_lin;
-                }
-              }
-            }
-          }
-          if (n_con == 0) continue;
-          // Writing f is safe: this layer reads only faces known before it, and f is not one.
-          g.u[d][std::size_t(f)] = T(n_lin > 0 ? lin / n_lin : con / n_con);
-          fill[std::size_t(f)] = 1;
-          ++count;
+    if (layers == 0) return 0;
+    // Layer 1: every unknown face next to a valid one (one pass over the grid).
+    const std::int64_t row_tasks = (rows + kRowsPerTask - 1) / kRowsPerTask;
+    ensure_lists(row_tasks);
+    std::int64_t filled = parallel::parallel_sum<std::int64_t>(0, row_tasks, 1, [&](std::int64_t t, std::int64_t) {
+      auto& list = lists_[std::size_t(t)];
+      list.clear();
+      IVec i;
+      const std::int64_t r1 = std::min(rows, (t + 1) * kRowsPerTask);
+      for (std::int64_t r = t * kRowsPerTask; r < r1; ++r) {
+        row_coord(r, i);
+        const std::int64_t f0 = r * row_len;
+        for (std::int64_t j = 0; j < row_len; ++j) {
+          const std::int64_t f = f0 + j;
+          if (stamp_[std::size_t(f)] != -1) continue;
+          i[L] = int(j);
+          T v;
+          if (!value(g, d, f, i, 1, rule, v)) continue;
+          u[f] = v;  // safe: this layer reads only faces known before it, and f is not one
+          list.push_back(f);
         }
-        return count;
+      }
+      return std::int64_t(list.size());
+    });
+    gather_lists(row_tasks);
+    mark(valid, 1);
+    // Later layers: the unknown neighbours of the last layer's faces.
+    for (int layer = 2; layer <= layers && !band_.empty(); ++layer) {
+      const std::int64_t n = std::int64_t(band_.size());
+      const std::int64_t tasks = (n + kFacesPerTask - 1) / kFacesPerTask;
+      ensure_lists(tasks);
+      filled += parallel::parallel_sum<std::int64_t>(0, tasks, 1, [&](std::int64_t t, std::int64_t) {
+        auto& list = lists_[std::size_t(t)];
+        list.clear();
+        const std::int64_t b1 = std::min(n, (t + 1) * kFacesPerTask);
+        for (std::int64_t b = t * kFacesPerTask; b < b1; ++b) {
+          const std::int64_t src = band_[std::size_t(b)];
+          const IVec si = coord(src);
+          for (int a = 0; a < Dim; ++a)
+            for (int dir = -1; dir <= 1; dir += 2) {
+              const int ia = si[a] + dir;
+              if (ia < 0 || ia >= fr_[a]) continue;
+              const std::int64_t f = src + dir * stride_[a];
+              if (stamp_[std::size_t(f)] != -1) continue;
+              IVec fi = si;
+              fi[a] = ia;
+              if (owner(f, fi, layer - 1) != src) continue;  // found once, by its lowest source
+              T v;
+              value(g, d, f, fi, layer, rule, v);  // src is known: never false
+              u[f] = v;
+              list.push_back(f);
+            }
+        }
+        return std::int64_t(list.size());
       });
-      // Mark after the whole layer was computed (the reads above saw only older layers).
-      parallel::parallel_for(0, nf, [&](std::int64_t f) {
-        if (fill[std::size_t(f)]) stamp[std::size_t(f)] = layer, fill[std::size_t(f)] = 0;
-      });
+      gather_lists(tasks);
+      mark(valid, layer);
     }
-    parallel::parallel_for(0, nf, [&](std::int64_t f) {
-      if (stamp[std::size_t(f)] >= 0) g.valid[d][std::size_t(f)] = 1;
+    return filled;
+  }
+
+  /// Lowest-index neighbour of f (coordinates fi) stamped `layer`.
+  std::int64_t owner(std::int64_t f, const IVec& fi, int layer) const {
+    std::int64_t best = -1;
+    // Neighbours in increasing index order: -stride along axes 0..L, then +stride along L..0.
+    for (int a = 0; a < Dim && best < 0; ++a)
+      if (fi[a] > 0 && stamp_[std::size_t(f - stride_[a])] == layer) best = f - stride_[a];
+    for (int a = Dim - 1; a >= 0 && best < 0; --a)
+      if (fi[a] + 1 < fr_[a] && stamp_[std::size_t(f + stride_[a])] == layer) best = f + stride_[a];
+    return best;
+  }
+
+  /// Stamps the faces in band_ with `layer` and marks them valid.
+  void mark(std::uint8_t* valid, int layer) {
+    const std::int64_t* b = band_.data();
+    parallel::parallel_chunks(0, std::int64_t(band_.size()), [&](std::int64_t lo, std::int64_t hi) {
+      for (std::int64_t k = lo; k < hi; ++k) {
+        stamp_[std::size_t(b[k])] = std::int8_t(layer);
+        valid[b[k]] = 1;
+      }
     });
   }
-  return filled;
+};
+
+/// Fills up to `layers` layers of invalid faces from valid neighbours; returns the number of faces
+/// filled (one-call form of Extrapolator::run).
+template <class T, int Dim>
+std::int64_t extrapolate(MacGrid<T, Dim>& g, int layers, Extrapolation rule = Extrapolation::Linear) {
+  Extrapolator<T, Dim> e;
+  return e.run(g, layers, rule);
 }
 
 }  // namespace slurry::flip

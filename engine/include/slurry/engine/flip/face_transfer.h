@@ -247,6 +247,97 @@ inline void gather_faces(const MacGrid<T, Dim>& g, const Eigen::Matrix<T, Dim, 1
   }
 }
 
+/// gather_faces for the linear kernel with flat index arithmetic: per component one base index
+/// and 2^Dim loads (the same clamped stencil, weights and gradients as FaceStencil<.., 1>).
+template <class T, int Dim>
+inline void gather_faces_linear(const MacGrid<T, Dim>& g, const Eigen::Matrix<T, Dim, 1>& x,
+                                const typename NoDeduce<FaceArrays<T, Dim>>::type* old,
+                                Eigen::Matrix<T, Dim, 1>& u, typename NoDeduce<Eigen::Matrix<T, Dim, 1>>::type* delta,
+                                typename NoDeduce<Eigen::Matrix<T, Dim, 1>>::type* c) {
+  using Vec = Eigen::Matrix<T, Dim, 1>;
+  const T inv_dx = T(1) / g.dx;
+  // Per axis a, the clamped neighbours and weights for both staggerings: faces of axis a sit at
+  // integer positions along a (stag = 1), faces of the other axes at half-integer ones (stag = 0).
+  int idx[Dim][2][2];
+  T wt[Dim][2][2];
+  for (int a = 0; a < Dim; ++a) {
+    const T xa = (x[a] - g.origin[a]) * inv_dx;
+    for (int stag = 0; stag < 2; ++stag) {
+      const int n = g.res[a] + stag;
+      const T sa = stag ? xa : xa - T(0.5);
+      const int b = int(std::floor(sa));
+      const T f = sa - T(b);
+      idx[a][stag][0] = std::clamp(b, 0, n - 1);
+      idx[a][stag][1] = std::clamp(b + 1, 0, n - 1);
+      wt[a][stag][0] = T(1) - f;
+      wt[a][stag][1] = f;
+    }
+  }
+  for (int d = 0; d < Dim; ++d) {
+    std::int64_t off[Dim][2];
+    T w[Dim][2];
+    std::int64_t stride = 1;
+    for (int a = Dim - 1; a >= 0; --a) {
+      const int stag = a == d ? 1 : 0;
+      off[a][0] = std::int64_t(idx[a][stag][0]) * stride;
+      off[a][1] = std::int64_t(idx[a][stag][1]) * stride;
+      w[a][0] = wt[a][stag][0];
+      w[a][1] = wt[a][stag][1];
+      stride *= g.res[a] + stag;
+    }
+    const T* U = g.u[d].data();
+    const T* O = old ? (*old)[d].data() : nullptr;
+    T sum = 0, dsum = 0;
+    Vec grad = Vec::Zero();
+    if constexpr (Dim == 2) {
+      for (int a = 0; a < 2; ++a)
+        for (int b = 0; b < 2; ++b) {
+          const std::int64_t k = off[0][a] + off[1][b];
+          const T uf = U[k], wk = w[0][a] * w[1][b];
+          sum += wk * uf;
+          if (O) dsum += wk * (uf - O[k]);
+          if (c) {
+            grad[0] += (a ? uf : -uf) * w[1][b];
+            grad[1] += (b ? uf : -uf) * w[0][a];
+          }
+        }
+    } else {
+      for (int a = 0; a < 2; ++a)
+        for (int b = 0; b < 2; ++b) {
+          const T wab = w[0][a] * w[1][b];
+          const std::int64_t kab = off[0][a] + off[1][b];
+          for (int e = 0; e < 2; ++e) {
+            const std::int64_t k = kab + off[2][e];
+            const T uf = U[k];
+            sum += wab * w[2][e] * uf;
+            if (O) dsum += wab * w[2][e] * (uf - O[k]);
+            if (c) {
+              const T su = a ? uf : -uf, tu = b ? uf : -uf, ru = e ? uf : -uf;
+              grad[0] += su * w[1][b] * w[2][e];
+              grad[1] += tu * w[0][a] * w[2][e];
+              grad[2] += ru * wab;
+            }
+          }
+        }
+    }
+    u[d] = sum;
+    if (delta) (*delta)[d] = dsum;
+    if (c) c[d] = grad * inv_dx;
+  }
+}
+
+/// gather_faces with the kernel of the given order (the linear one through gather_faces_linear).
+template <int Order, class T, int Dim>
+inline void gather_faces_fast(const MacGrid<T, Dim>& g, const Eigen::Matrix<T, Dim, 1>& x,
+                              const typename NoDeduce<FaceArrays<T, Dim>>::type* old, Eigen::Matrix<T, Dim, 1>& u,
+                              typename NoDeduce<Eigen::Matrix<T, Dim, 1>>::type* delta,
+                              typename NoDeduce<Eigen::Matrix<T, Dim, 1>>::type* c) {
+  if constexpr (Order == 1)
+    gather_faces_linear(g, x, old, u, delta, c);
+  else
+    gather_faces<Order>(g, x, old, u, delta, c);
+}
+
 /// Faces -> particles with the given scheme; `old` holds the face velocities before the grid
 /// update (FLIP only). Returns the largest particle speed (infinity if any is non-finite).
 template <int Order, class T, int Dim>
@@ -260,13 +351,13 @@ T faces_to_particles(const MacGrid<T, Dim>& g, const typename NoDeduce<FaceArray
     for (std::int64_t p = lo; p < hi; ++p) {
       Vec u, delta, c[Dim];
       switch (scheme) {
-        case FaceScheme::PIC: gather_faces<Order>(g, P.x[p], nullptr, u, nullptr, nullptr); P.v[p] = u; break;
+        case FaceScheme::PIC: gather_faces_fast<Order>(g, P.x[p], nullptr, u, nullptr, nullptr); P.v[p] = u; break;
         case FaceScheme::FLIP:
-          gather_faces<Order>(g, P.x[p], old, u, &delta, nullptr);
+          gather_faces_fast<Order>(g, P.x[p], old, u, &delta, nullptr);
           P.v[p] = flip_ratio * (P.v[p] + delta) + (T(1) - flip_ratio) * u;
           break;
         case FaceScheme::APIC:
-          gather_faces<Order>(g, P.x[p], nullptr, u, nullptr, c);
+          gather_faces_fast<Order>(g, P.x[p], nullptr, u, nullptr, c);
           P.v[p] = u;
           for (int d = 0; d < Dim; ++d) P.c[d][p] = c[d];
           break;

@@ -3,8 +3,11 @@
 /// Marker particles of the FLIP/APIC liquid solver, as a structure of arrays with only the
 /// channels FLIP needs: position, velocity, and for APIC the affine vectors c_d (one per velocity
 /// component: u_d(x) ~ v_d + c_d . (x - x_p), Jiang et al. 2015, sec. 6 for staggered grids);
-/// a material id only when the scene has more than one liquid. No deformation gradient, no mass
-/// (every particle carries the same volume dx^Dim / particles_per_cell).
+/// a material id only when the scene has more than one liquid; a persistent id (a counter:
+/// every new particle, seeded, emitted or reseeded, takes the next one) that survives the
+/// reordering by cell of every substep, so a particle can be followed across frames. No
+/// deformation gradient, no mass (every particle carries the same volume dx^Dim /
+/// particles_per_cell).
 #include <Eigen/Core>
 #include <array>
 #include <cstddef>
@@ -25,12 +28,15 @@ struct FlipParticles {
   std::vector<Vec> v;         ///< velocity (m/s)
   std::array<std::vector<Vec>, Dim> c;  ///< APIC: c[d][p] = affine vector of component d (1/s)
   std::vector<std::uint16_t> material;
+  std::vector<std::uint32_t> id;  ///< persistent particle id
+  std::uint32_t next_id = 0;      ///< id of the next particle added
 
   std::size_t size() const { return x.size(); }
 
   void push_back(const Vec& pos, const Vec& vel, std::uint16_t mat) {
     x.push_back(pos);
     v.push_back(vel);
+    id.push_back(next_id++);
     if (affine)
       for (int d = 0; d < Dim; ++d) c[d].push_back(Vec::Zero());
     if (has_material) material.push_back(mat);
@@ -40,6 +46,7 @@ struct FlipParticles {
   void truncate(std::size_t n) {
     x.resize(n);
     v.resize(n);
+    id.resize(n);
     if (affine)
       for (int d = 0; d < Dim; ++d) c[d].resize(n);
     if (has_material) material.resize(n);
@@ -49,6 +56,7 @@ struct FlipParticles {
   void move(std::size_t to, std::size_t from) {
     x[to] = x[from];
     v[to] = v[from];
+    id[to] = id[from];
     if (affine)
       for (int d = 0; d < Dim; ++d) c[d][to] = c[d][from];
     if (has_material) material[to] = material[from];
@@ -59,8 +67,10 @@ struct FlipParticles {
     const std::size_t n = order.size();
     out.affine = affine;
     out.has_material = has_material;
+    out.next_id = next_id;
     out.x.resize(n);
     out.v.resize(n);
+    out.id.resize(n);
     if (affine)
       for (int d = 0; d < Dim; ++d) out.c[d].resize(n);
     if (has_material) out.material.resize(n);
@@ -69,6 +79,7 @@ struct FlipParticles {
       const std::size_t p = std::size_t(o[i]);
       out.x[i] = x[p];
       out.v[i] = v[p];
+      out.id[i] = id[p];
       if (affine)
         for (int d = 0; d < Dim; ++d) out.c[d][i] = c[d][p];
       if (has_material) out.material[i] = material[p];
@@ -80,13 +91,15 @@ struct FlipParticles {
     std::swap(has_material, o.has_material);
     x.swap(o.x);
     v.swap(o.v);
+    id.swap(o.id);
+    std::swap(next_id, o.next_id);
     for (int d = 0; d < Dim; ++d) c[d].swap(o.c[d]);
     material.swap(o.material);
   }
 
   /// Bytes held (capacity).
   std::size_t bytes() const {
-    std::size_t b = x.capacity() * sizeof(Vec) + v.capacity() * sizeof(Vec) + material.capacity() * 2;
+    std::size_t b = x.capacity() * sizeof(Vec) + v.capacity() * sizeof(Vec) + material.capacity() * 2 + id.capacity() * 4;
     for (int d = 0; d < Dim; ++d) b += c[d].capacity() * sizeof(Vec);
     return b;
   }

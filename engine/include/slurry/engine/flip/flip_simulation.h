@@ -32,6 +32,7 @@
 #include <vector>
 
 #include "slurry/engine/flip/cell_sort.h"
+#include "slurry/engine/flip/extrapolate.h"
 #include "slurry/engine/flip/face_transfer.h"
 #include "slurry/engine/flip/flip_particles.h"
 #include "slurry/engine/flip/mac_grid.h"
@@ -69,7 +70,7 @@ class FlipSimulation final : public SimulationBase {
   std::size_t particle_count() const override { return particles_.size(); }
   std::size_t bytes() const override;
   std::int64_t advance_to(double t_end) override;
-  /// position, velocity, material.
+  /// position, velocity, material, id (the persistent particle id, uint32).
   io::PlyData frame(const std::vector<std::string>& attributes) const override;
 
   FlipParticles<T, Dim>& particles() { return particles_; }
@@ -93,6 +94,8 @@ class FlipSimulation final : public SimulationBase {
   std::int64_t reseeded_removed() const { return reseed_removed_; }
   /// Wall seconds spent in each phase so far (index: Phase).
   const std::array<double, kPhaseCount>& phase_seconds() const { return phase_seconds_; }
+  /// CPU seconds of the process (all threads) spent in each phase so far (std::clock).
+  const std::array<double, kPhaseCount>& phase_cpu_seconds() const { return phase_cpu_seconds_; }
 
  private:
   void emit(T dt);
@@ -122,13 +125,14 @@ class FlipSimulation final : public SimulationBase {
   std::vector<Emitter<T, Dim>> emitters_;
   Reseeder<T, Dim> reseeder_;
   PressureSolver<T, Dim> pressure_;
+  Extrapolator<T, Dim> extrapolator_;
   ProjectionOptions projection_options_;
   ProjectionReport last_projection_;
   Vec gravity_, x_lo_, x_hi_;
   T particle_volume_ = 0, particle_radius_ = 0, max_speed_ = 0;
   double time_ = 0;
   std::int64_t steps_ = 0, reseed_added_ = 0, reseed_removed_ = 0;
-  std::array<double, kPhaseCount> phase_seconds_{};
+  std::array<double, kPhaseCount> phase_seconds_{}, phase_cpu_seconds_{};
 };
 
 extern template class FlipSimulation<float, 2>;

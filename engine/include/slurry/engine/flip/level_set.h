@@ -38,48 +38,73 @@ void label_cells(MacGrid<T, Dim>& g, const FlipParticles<T, Dim>& P, const CellS
   using IVec = Eigen::Matrix<int, Dim, 1>;
   const std::int64_t cells = g.num_cells();
   const T far = T(3) * g.dx, min_air = T(0.01) * g.dx;
-  parallel::parallel_for(0, cells, [&](std::int64_t k) {
-    if (sort.count(k) > 0) {
-      g.label[k] = MacGrid<T, Dim>::Fluid;
-      g.phi[k] = T(-0.5) * g.dx;
-      return;
+  constexpr int L = Dim - 1;  // rows of cells run along the last axis
+  const int row_len = g.res[L];
+  const std::int64_t rows = cells / row_len;
+  const std::int64_t* start = sort.start.data();
+  const Vec* X = P.x.data();
+  std::int64_t cstride[Dim];
+  for (int d = 0; d < Dim; ++d) cstride[d] = g.cell_stride(d);
+  parallel::parallel_for(0, rows, [&](std::int64_t row) {
+    // Row coordinates and the first cells of the 3^(Dim-1) neighbouring rows.
+    IVec i;
+    std::int64_t rr = row;
+    for (int a = L - 1; a >= 0; --a) i[a] = int(rr % g.res[a]), rr /= g.res[a];
+    std::int64_t nb[Dim == 3 ? 9 : 3];
+    int n_nb = 0;
+    if constexpr (Dim == 2) {
+      for (int a = std::max(i[0] - 1, 0); a <= std::min(i[0] + 1, g.res[0] - 1); ++a) nb[n_nb++] = a * cstride[0];
+    } else {
+      for (int a = std::max(i[0] - 1, 0); a <= std::min(i[0] + 1, g.res[0] - 1); ++a)
+        for (int b = std::max(i[1] - 1, 0); b <= std::min(i[1] + 1, g.res[1] - 1); ++b)
+          nb[n_nb++] = a * cstride[0] + b * cstride[1];
     }
-    const IVec i = g.cell_coord(k);
-    const Vec xc = g.cell_center(i);
-    g.label[k] = !solids.empty() && solids.distance(xc, t) < T(0) ? MacGrid<T, Dim>::Solid : MacGrid<T, Dim>::Air;
-    // Nearest particle among the 3^Dim neighbouring cells.
-    T best2 = std::numeric_limits<T>::max();
-    IVec lo, hi;
-    for (int d = 0; d < Dim; ++d) lo[d] = std::max(i[d] - 1, 0), hi[d] = std::min(i[d] + 1, g.res[d] - 1);
-    IVec j = lo;
-    while (true) {
-      const std::int64_t c = g.cell(j);
-      for (std::int64_t p = sort.start[c]; p < sort.start[c + 1]; ++p) best2 = std::min(best2, (P.x[p] - xc).squaredNorm());
-      int d = Dim - 1;
-      while (d >= 0 && j[d] == hi[d]) j[d] = lo[d], --d;
-      if (d < 0) break;
-      ++j[d];
+    const std::int64_t k0 = row * row_len;
+    for (int j = 0; j < row_len; ++j) {
+      const std::int64_t k = k0 + j;
+      if (start[k + 1] > start[k]) {
+        g.label[k] = MacGrid<T, Dim>::Fluid;
+        g.phi[k] = T(-0.5) * g.dx;
+        continue;
+      }
+      i[L] = j;
+      const Vec xc = g.cell_center(i);
+      g.label[k] = !solids.empty() && solids.distance(xc, t) < T(0) ? MacGrid<T, Dim>::Solid : MacGrid<T, Dim>::Air;
+      // Nearest particle among the 3^Dim neighbouring cells: per neighbouring row, the cells
+      // j - 1 .. j + 1 hold one contiguous range of sorted particles.
+      const int j0 = std::max(j - 1, 0), j1 = std::min(j + 1, row_len - 1);
+      T best2 = std::numeric_limits<T>::max();
+      for (int q = 0; q < n_nb; ++q)
+        for (std::int64_t p = start[nb[q] + j0], p1 = start[nb[q] + j1 + 1]; p < p1; ++p)
+          best2 = std::min(best2, (X[p] - xc).squaredNorm());
+      g.phi[k] = best2 == std::numeric_limits<T>::max() ? far : std::min(far, std::max(min_air, std::sqrt(best2) - r));
     }
-    g.phi[k] = best2 == std::numeric_limits<T>::max() ? far : std::min(far, std::max(min_air, std::sqrt(best2) - r));
   });
   // Holes: an empty cell whose every face neighbour holds particles (or is solid, or is outside
   // the domain) is inside the liquid. Left as air it would be a pressure sink the liquid
   // collapses into, and the particles would clump (FLIP's sampling noise makes such holes common
   // at 4 particles per cell in 2D).
   holes.resize(std::size_t(cells));
-  parallel::parallel_for(0, cells, [&](std::int64_t k) {
-    holes[k] = 0;
-    if (sort.count(k) > 0 || g.label[k] == MacGrid<T, Dim>::Solid) return;
-    const IVec i = g.cell_coord(k);
-    for (int d = 0; d < Dim; ++d)
-      for (int s = -1; s <= 1; s += 2) {
-        IVec j = i;
-        j[d] += s;
-        if (j[d] < 0 || j[d] >= g.res[d]) continue;
-        const std::int64_t kj = g.cell(j);
-        if (sort.count(kj) == 0 && g.label[kj] != MacGrid<T, Dim>::Solid) return;
+  parallel::parallel_for(0, rows, [&](std::int64_t row) {
+    IVec i;
+    std::int64_t rr = row;
+    for (int a = L - 1; a >= 0; --a) i[a] = int(rr % g.res[a]), rr /= g.res[a];
+    const auto full = [&](std::int64_t kj) {
+      return start[kj + 1] > start[kj] || g.label[kj] == MacGrid<T, Dim>::Solid;
+    };
+    const std::int64_t k0 = row * row_len;
+    for (int j = 0; j < row_len; ++j) {
+      const std::int64_t k = k0 + j;
+      holes[k] = 0;
+      if (full(k)) continue;
+      i[L] = j;
+      bool enclosed = true;
+      for (int d = 0; d < Dim && enclosed; ++d) {
+        if (i[d] > 0) enclosed = full(k - cstride[d]);
+        if (enclosed && i[d] + 1 < g.res[d]) enclosed = full(k + cstride[d]);
       }
-    holes[k] = 1;
+      holes[k] = enclosed;
+    }
   });
   parallel::parallel_for(0, cells, [&](std::int64_t k) {
     if (!holes[k]) return;

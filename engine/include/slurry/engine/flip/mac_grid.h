@@ -149,42 +149,39 @@ struct MacGrid {
 
   /// Component d at x by (bi/tri)linear interpolation of the axis-d face values; x is clamped
   /// to the box spanned by the face positions, so points outside read the nearest boundary.
+  /// Flat index arithmetic: one base index and 2^Dim loads (the advection's inner loop).
   T sample(int d, const Vec& x) const {
-    const IVec fr = face_res(d);
-    IVec base;
-    Vec frac;
-    for (int a = 0; a < Dim; ++a) {
-      // Face coordinate along a: faces of axis d sit at integer positions along d, half-integer
-      // positions along the other axes.
-      T s = (x[a] - origin[a]) / dx - (a == d ? T(0) : T(0.5));
-      const T hi = T(fr[a] - 1);
-      s = std::clamp(s, T(0), hi);
-      int b = int(std::floor(s));
-      if (b >= fr[a] - 1) b = std::max(fr[a] - 2, 0);
-      base[a] = b;
-      frac[a] = fr[a] > 1 ? s - T(b) : T(0);
+    const T inv_dx = T(1) / dx;
+    std::int64_t base = 0, step[Dim];
+    T frac[Dim];
+    std::int64_t stride = 1;
+    for (int a = Dim - 1; a >= 0; --a) {
+      const int n = res[a] + (a == d ? 1 : 0);
+      // Faces of axis d sit at integer positions along d, half-integer ones along the others.
+      T s = (x[a] - origin[a]) * inv_dx - (a == d ? T(0) : T(0.5));
+      s = std::clamp(s, T(0), T(n - 1));
+      int b = int(s);  // s >= 0: truncation is floor
+      if (b >= n - 1) b = std::max(n - 2, 0);
+      frac[a] = n > 1 ? s - T(b) : T(0);
+      step[a] = n > 1 ? stride : 0;
+      base += std::int64_t(b) * stride;
+      stride *= n;
     }
-    const std::vector<T>& f = u[d];
-    T value = T(0);
-    for (int corner = 0; corner < (1 << Dim); ++corner) {
-      IVec j = base;
-      T w = T(1);
-      for (int a = 0; a < Dim; ++a) {
-        const bool up = (corner >> a) & 1;
-        if (up) {
-          if (fr[a] == 1) {
-            w = T(0);
-            break;
-          }
-          j[a] += 1;
-          w *= frac[a];
-        } else {
-          w *= T(1) - frac[a];
-        }
-      }
-      if (w != T(0)) value += w * f[std::size_t(face(d, j))];
+    const T* f = u[d].data() + base;
+    if constexpr (Dim == 2) {
+      const T a0 = f[0] + frac[1] * (f[step[1]] - f[0]);
+      const T a1 = f[step[0]] + frac[1] * (f[step[0] + step[1]] - f[step[0]]);
+      return a0 + frac[0] * (a1 - a0);
+    } else {
+      const std::int64_t s0 = step[0], s1 = step[1], s2 = step[2];
+      const T a00 = f[0] + frac[2] * (f[s2] - f[0]);
+      const T a01 = f[s1] + frac[2] * (f[s1 + s2] - f[s1]);
+      const T a10 = f[s0] + frac[2] * (f[s0 + s2] - f[s0]);
+      const T a11 = f[s0 + s1] + frac[2] * (f[s0 + s1 + s2] - f[s0 + s1]);
+      const T b0 = a00 + frac[1] * (a01 - a00);
+      const T b1 = a10 + frac[1] * (a11 - a10);
+      return b0 + frac[0] * (b1 - b0);
     }
-    return value;
   }
 
   /// All components at x (sample() per axis).
