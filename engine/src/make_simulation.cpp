@@ -1,3 +1,4 @@
+#include "slurry/engine/fem/fem_simulation.h"
 #include "slurry/engine/simulation.h"
 
 namespace slurry {
@@ -5,6 +6,14 @@ namespace slurry {
 std::unique_ptr<SimulationBase> make_simulation(const Scene& scene) {
   scene.validate();
   const bool dbl = scene.solver.precision == Precision::Double;
+  if (scene.solver.type == SolverType::FEM) {
+    if (scene.solver.dimension == 2) {
+      if (dbl) return std::make_unique<FemSimulation<double, 2>>(scene);
+      return std::make_unique<FemSimulation<float, 2>>(scene);
+    }
+    if (dbl) return std::make_unique<FemSimulation<double, 3>>(scene);
+    return std::make_unique<FemSimulation<float, 3>>(scene);
+  }
   if (scene.solver.dimension == 2) {
     if (dbl) return std::make_unique<Simulation<double, 2>>(scene);
     return std::make_unique<Simulation<float, 2>>(scene);

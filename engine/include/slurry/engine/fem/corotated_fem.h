@@ -81,6 +81,20 @@ struct FreeBoundary {
   void apply(int, const Eigen::Matrix<T, Dim, 1>&, Eigen::Matrix<T, Dim, 1>&) const {}
 };
 
+namespace detail {
+/// Loops shorter than this run on the calling thread: a parallel region costs more than a few
+/// thousand element updates, much more when the cores are shared.
+inline constexpr std::int64_t kParallelGrain = 8192;
+template <class Fn>
+void for_each(std::int64_t begin, std::int64_t end, Fn&& fn) {
+  if (end - begin < kParallelGrain) {
+    for (std::int64_t i = begin; i < end; ++i) fn(i);
+  } else {
+    parallel::parallel_for(begin, end, fn);
+  }
+}
+}  // namespace detail
+
 template <class T, int Dim>
 class CorotatedFem {
  public:
@@ -209,7 +223,7 @@ class CorotatedFem {
   /// forces of velocities vs when given. Also stores each element's R for stiffness().
   void forces(const std::vector<Vec>& xs, std::vector<Vec>& f, const std::vector<Vec>* vs = nullptr) {
     const std::int64_t ne = std::int64_t(elements_.size());
-    parallel::parallel_for(0, ne, [&](std::int64_t ei) {
+    detail::for_each(0, ne, [&](std::int64_t ei) {
       const std::size_t e = std::size_t(ei);
       const Mat F = edges(e, xs) * Dm_inv_[e];
       Mat R;
@@ -257,7 +271,7 @@ class CorotatedFem {
   void step_symplectic(T dt, const Vec& gravity, const Boundary& boundary = {}) {
     forces(x, force_, &v);
     const std::int64_t n = std::int64_t(x.size());
-    parallel::parallel_for(0, n, [&](std::int64_t ii) {
+    detail::for_each(0, n, [&](std::int64_t ii) {
       const std::size_t i = std::size_t(ii);
       v[i] += dt * (force_[i] / mass_[i] + gravity);
       boundary.apply(int(i), Vec(x[i] + dt * v[i]), v[i]);
@@ -317,7 +331,7 @@ class CorotatedFem {
     const auto result = numerics::pcg(apply_a, rhs, y, jacobi, options);
     y += z;
     const std::int64_t nn = std::int64_t(n);
-    parallel::parallel_for(0, nn, [&](std::int64_t ii) {
+    detail::for_each(0, nn, [&](std::int64_t ii) {
       const std::size_t i = std::size_t(ii);
       for (int d = 0; d < Dim; ++d) v[i][d] = y[Eigen::Index(i) * Dim + d];
       boundary.apply(int(i), Vec(x[i] + dt * v[i]), v[i]);
@@ -373,7 +387,7 @@ class CorotatedFem {
   void gather(std::vector<Vec>& f) const {
     const std::int64_t n = std::int64_t(rest_.size());
     f.resize(rest_.size());
-    parallel::parallel_for(0, n, [&](std::int64_t i) {
+    detail::for_each(0, n, [&](std::int64_t i) {
       Vec s = Vec::Zero();
       for (int k = incidence_offset_[std::size_t(i)]; k < incidence_offset_[std::size_t(i) + 1]; ++k)
         s += element_force_[std::size_t(incidence_[std::size_t(k)])];

@@ -15,6 +15,8 @@
 /// corner tetrahedra) with the split mirrored on alternate cells, so that neighbouring cells
 /// share face diagonals and the mesh is symmetric under the box's reflections.
 ///
+/// `ball_mesh` maps the structured mesh of a cube radially onto a ball (a disk in 2D).
+///
 /// `boundary_faces` extracts the surface: in 3D the triangles that belong to exactly one
 /// tetrahedron, oriented with outward normals ((b - a) x (c - a) points out of the body); in 2D
 /// the triangles themselves (a 2D body is drawn as its filled triangles).
@@ -213,6 +215,23 @@ Mesh<Dim> box_mesh(const Eigen::Matrix<double, Dim, 1>& lo, const Eigen::Matrix<
   for (int d = 0; d < Dim; ++d)
     cells[d] = std::max(1, int(std::lround((hi[d] - lo[d]) / spacing)));
   return box_mesh<Dim>(lo, hi, cells);
+}
+
+/// A ball (a disk in 2D) of `radius` around `center`: the structured mesh of the cube
+/// [-1, 1]^Dim with `cells` cells per axis, each vertex p moved radially to
+/// p |p|_inf / |p|_2 (the cube's faces onto the sphere), then scaled and shifted. The map is
+/// continuous and keeps every element positively oriented for the cell counts used (checked).
+template <int Dim>
+Mesh<Dim> ball_mesh(const Eigen::Matrix<double, Dim, 1>& center, double radius, int cells) {
+  using V = Eigen::Matrix<double, Dim, 1>;
+  Mesh<Dim> m = box_mesh<Dim>(V::Constant(-1), V::Constant(1), Eigen::Matrix<int, Dim, 1>::Constant(std::max(1, cells)));
+  for (auto& p : m.x) {
+    const double n2 = p.norm();
+    const V q = n2 > 0 ? V(p * (p.cwiseAbs().maxCoeff() / n2)) : V::Zero();
+    p = center + radius * q;
+  }
+  check_mesh(m, "ball_mesh");
+  return m;
 }
 
 /// The surface for output: see the file comment. Each face lists Dim vertex indices in 3D
