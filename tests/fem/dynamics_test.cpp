@@ -33,14 +33,15 @@ TEST(FemCantilever, FirstBendingFrequencyConvergesToEulerBernoulli2D) {
 }
 
 // 3D CI variant (the 5% check at 6 elements across is FemCantileverValidation.FirstBendingFrequency3D,
-// label validation): 2 and 4 elements across; a stated looser bound (10%) and the refinement trend.
+// label validation): 2 and 3 elements across, a stated looser bound (15% at 3 across) and the
+// refinement trend (second order: the error falls by about (3/2)^2 = 2.25).
 TEST(FemCantilever, FirstBendingFrequencyTrend3D) {
   const auto r2 = cantilever_frequency<3>(1.0, 0.1, 2);
-  const auto r4 = cantilever_frequency<3>(1.0, 0.1, 4);
-  std::printf("[ figure ] 3D cantilever L/h = 10: error %+.2f%% (2 across, %d tets), %+.2f%% (4 across, %d tets)\n",
-              100 * r2.relative_error, r2.elements, 100 * r4.relative_error, r4.elements);
-  EXPECT_LT(std::abs(r4.relative_error), 0.10);
-  EXPECT_GT(r2.relative_error / r4.relative_error, 3.0);
+  const auto r3 = cantilever_frequency<3>(1.0, 0.1, 3);
+  std::printf("[ figure ] 3D cantilever L/h = 10: error %+.2f%% (2 across, %d tets), %+.2f%% (3 across, %d tets), ratio %.2f\n",
+              100 * r2.relative_error, r2.elements, 100 * r3.relative_error, r3.elements, r2.relative_error / r3.relative_error);
+  EXPECT_LT(std::abs(r3.relative_error), 0.15);
+  EXPECT_GT(r2.relative_error / r3.relative_error, 1.8);
 }
 
 // Linearly implicit Euler converges to the same motion as symplectic Euler: the tip at
@@ -51,7 +52,7 @@ TEST(FemIntegrators, ImplicitAndExplicitAgreeAtSmallDt) {
   const double t_end = 0.6;
   const auto run = [&](bool implicit, double dt_factor) {
     Beam<2> beam(1.0, 0.1, 2);
-    const double dt_e = beam.fem->explicit_dt(0.5);
+    const double dt_e = beam.fem->explicit_dt(0.9);
     const int n = int(std::lround(t_end / (dt_e * dt_factor)));
     const double dt = t_end / n;
     for (int i = 0; i < n; ++i) beam.step(dt, implicit);
@@ -73,7 +74,7 @@ TEST(FemIntegrators, ImplicitAndExplicitAgreeAtSmallDt) {
 // above its initial value, and the oscillation decays.
 TEST(FemIntegrators, ImplicitStableAt100TimesTheExplicitLimit) {
   Beam<2> beam(1.0, 0.1, 2);
-  const double dt = 100 * beam.fem->explicit_dt(0.5);
+  const double dt = 100 * beam.fem->explicit_dt(1.0);
   const double e0 = beam.fem->energy(beam.fem->x);
   double worst = 0;
   for (int i = 0; i < 200; ++i) {

@@ -50,7 +50,7 @@ TEST(FemScene, ExampleBallMeshMatchesItsGenerator) {
   std::printf("[ figure ] ball.node/.ele: %zu vertices, %zu tetrahedra, volume %.3f of the ball's\n", m.vertex_count(),
               m.element_count(), volume / ball);
   EXPECT_LT(dx, 1e-15);
-  EXPECT_NEAR(volume / ball, 1.0, 0.1);  // an inscribed polyhedron: a little smaller
+  EXPECT_NEAR(volume / ball, 1.0, 0.15);  // inscribed, and the caps at the cube edges are cut off
 }
 
 // Scene -> frames: a 3D body read from a TetGen file next to the scene (relative path), and a
@@ -139,14 +139,14 @@ TEST(FemScene, ClampedBeamSettlesToEulerBernoulliDeflection) {
   const double L = 0.8, h = 0.08, E = 1e8, rho = 1000, g = 9.81;
   auto scene = slurry::parse_scene(R"({
     "domain": {"min": [0, 0], "max": [1, 0.6], "dx": 0.01},
-    "solver": {"type": "fem", "dimension": 2, "precision": "double", "integrator": "implicit", "max_dt": 0.005},
+    "solver": {"type": "fem", "dimension": 2, "precision": "double", "integrator": "implicit", "max_dt": 0.01},
     "materials": [{"name": "beam", "model": "corotated_linear", "density": 1000, "E": 1e8, "nu": 0, "damping": 0.01}],
     "bodies": [{"shape": "box", "min": [0.1, 0.4], "max": [0.9, 0.48], "material": "beam"}],
     "colliders": [{"shape": "box", "min": [0, 0.3], "max": [0.105, 0.6], "condition": "sticky"}]
   })", "beam.json");
   slurry::FemSimulation<double, 2> sim(scene);
   const auto x0 = sim.fem().x;
-  sim.advance_to(1.5);
+  sim.advance_to(1.0);
   double tip = 0, clamped = 0;
   int ntip = 0;
   for (std::size_t i = 0; i < x0.size(); ++i) {

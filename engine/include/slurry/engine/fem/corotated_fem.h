@@ -27,17 +27,22 @@
 /// beta sigma(eps_v), eps_v = sym(R^T Vs Dm^-1), to sigma, and damps deformation but not rigid
 /// motion. Masses are lumped: m_i = sum over the elements around i of rho W / (Dim + 1).
 ///
+/// The explicit step is bounded by 2 / omega_max (reduced for damping), omega_max from the
+/// element eigenvalue bound (max_frequency()), which unlike h / c also sees flat elements.
+///
 /// Time steps (x, v per vertex; g gravity; boundary conditions through a Boundary object):
 ///   symplectic Euler         v += dt (f(x, v) / m + g), boundary, x += dt v
 ///   linearly implicit Euler  (M + dt D + dt^2 K) v' = M v + dt (f(x) + M g), boundary, x += dt v'
 ///                            (Mueller and Gross 2004, eq. 9, with K warped at x: one Newton step
-///                            of backward Euler without the derivative of R), solved by PCG with a
-///                            Jacobi preconditioner; sticky (pinned) vertices are eliminated.
+///                            of backward Euler without the derivative of R), solved by PCG with an
+///                            IC(0) (or Jacobi) preconditioner; sticky (pinned) vertices get identity
+///                            rows and columns and their velocity moved to the right-hand side.
 ///
 /// A Boundary has `bool pin(int i, const Vec& x, Vec& vb)` (true: vertex i moves at vb this
 /// step, used by the implicit solve) and `void apply(int i, const Vec& x_predicted, Vec& v)`
 /// (velocity conditions after the update, at the predicted position x + dt v).
 #include <Eigen/Core>
+#include <Eigen/Eigenvalues>
 #include <Eigen/Sparse>
 
 #include <algorithm>
@@ -106,6 +111,11 @@ class CorotatedFem {
 
   /// Current positions and velocities, one per vertex (start at the rest positions, at rest).
   std::vector<Vec> x, v;
+
+  /// Preconditioner of the implicit step's PCG: IC(0) (falls back to Jacobi if it breaks down)
+  /// or Jacobi (pcg.h).
+  enum class Preconditioner { IncompleteCholesky, Jacobi };
+  Preconditioner preconditioner = Preconditioner::IncompleteCholesky;
 
   /// A mesh (checked with check_mesh) whose element e has material materials[element_material[e]].
   CorotatedFem(const Mesh<Dim>& mesh, std::vector<FemMaterial<T>> materials, std::vector<int> element_material)
@@ -248,22 +258,32 @@ class CorotatedFem {
     return assemble([](std::size_t) { return T(1); });
   }
 
-  /// The explicit stability limit of symplectic Euler: elastic_cfl h / c with h the shortest
-  /// rest edge and c the largest P-wave speed, reduced for damping as for a damped oscillator
-  /// of frequency 2 c / h (dt <= 2/omega (sqrt(1 + zeta^2) - zeta), zeta = beta omega / 2).
+  /// Largest angular frequency of the mesh, bounded element by element: with lumped masses
+  /// omega_max^2 <= max_e lambda_max(K0_e) / m_e, m_e = rho W / (Dim + 1) (the element
+  /// eigenvalue inequality, Irons 1970; see Hughes, "The finite element method", 2000,
+  /// sec. 9.3). Unlike h / c it also sees flat elements (slivers), whose limit is far smaller.
+  T max_frequency() const {
+    T w = 0;
+    for (std::size_t e = 0; e < elements_.size(); ++e) w = std::max(w, element_frequency(e));
+    return w;
+  }
+
+  /// The explicit step: elastic_cfl times the stability limit of symplectic Euler,
+  /// dt <= (2 / omega_max) (sqrt(1 + zeta^2) - zeta), zeta = beta omega_max / 2 (the limit of
+  /// x'' = -omega^2 x - 2 zeta omega x' under symplectic Euler with the damping taken
+  /// explicitly), per element with its own beta, omega_max from max_frequency()'s element
+  /// bound. elastic_cfl <= 1 is stable; computed once (the bound uses rest quantities).
   T explicit_dt(T elastic_cfl) const {
-    T dt = std::numeric_limits<T>::max();
-    for (std::size_t e = 0; e < elements_.size(); ++e) {
-      T h = std::numeric_limits<T>::max();
-      for (int a = 0; a < kNodes; ++a)
-        for (int b = a + 1; b < kNodes; ++b)
-          h = std::min(h, (rest_[std::size_t(elements_[e][a])] - rest_[std::size_t(elements_[e][b])]).norm());
-      const auto& m = material(e);
-      const T c = m.wave_speed();
-      const T zeta = m.damping * c / h;
-      dt = std::min(dt, elastic_cfl * h / c * (std::sqrt(T(1) + zeta * zeta) - zeta));
+    if (!(element_dt_ > T(0))) {
+      T dt = std::numeric_limits<T>::max();
+      for (std::size_t e = 0; e < elements_.size(); ++e) {
+        const T w = element_frequency(e);
+        const T zeta = material(e).damping * w / T(2);
+        dt = std::min(dt, T(2) / w * (std::sqrt(T(1) + zeta * zeta) - zeta));
+      }
+      element_dt_ = dt;
     }
-    return dt;
+    return elastic_cfl * element_dt_;
   }
 
   /// One symplectic Euler step (see the file comment).
@@ -300,35 +320,36 @@ class CorotatedFem {
     }
     // A = M + sum_e (dt^2 + dt beta_e) R K0_e R^T on the free dofs, identity on the pinned ones.
     const Eigen::SparseMatrix<T>& K = assemble([&](std::size_t e) { return dt * dt + dt * material(e).damping; });
-    const auto apply_full = [&](const VecX& in, VecX& out) {
-      out.noalias() = K * in;
-      out += mdiag.cwiseProduct(in);
-    };
-    VecX az(N);
-    apply_full(z, az);
-    VecX rhs = b - az;
+    // rhs = b - A z on the free dofs (z: the pinned velocities), 0 on the pinned ones.
+    VecX rhs = b - K * z - mdiag.cwiseProduct(z);
+    system_ = K;
+    for (Eigen::Index col = 0; col < N; ++col)
+      for (typename Eigen::SparseMatrix<T>::InnerIterator it(system_, col); it; ++it) {
+        if (pinned[std::size_t(it.row())] || pinned[std::size_t(col)])
+          it.valueRef() = it.row() == col ? T(1) : T(0);
+        else if (it.row() == col)
+          it.valueRef() += mdiag[col];
+      }
     for (Eigen::Index k = 0; k < N; ++k)
       if (pinned[std::size_t(k)]) rhs[k] = T(0);
-    VecX tmp(N);
-    const auto apply_a = [&](const VecX& in, VecX& out) {
-      tmp = in;
-      for (Eigen::Index k = 0; k < N; ++k)
-        if (pinned[std::size_t(k)]) tmp[k] = T(0);
-      apply_full(tmp, out);
-      for (Eigen::Index k = 0; k < N; ++k)
-        if (pinned[std::size_t(k)]) out[k] = in[k];
-    };
-    VecX inv_diag(N);
-    const VecX kd = K.diagonal();
-    for (Eigen::Index k = 0; k < N; ++k) inv_diag[k] = pinned[std::size_t(k)] ? T(1) : T(1) / (mdiag[k] + kd[k]);
-    const auto jacobi = [&](const VecX& r, VecX& out) { out = inv_diag.cwiseProduct(r); };
     VecX y(N);
     for (std::size_t i = 0; i < n; ++i)
       for (int d = 0; d < Dim; ++d) {
         const Eigen::Index k = Eigen::Index(i) * Dim + d;
         y[k] = pinned[std::size_t(k)] ? T(0) : v[i][d];  // warm start from the current velocity
       }
-    const auto result = numerics::pcg(apply_a, rhs, y, jacobi, options);
+    numerics::PcgResult<T> result;
+    bool done = false;
+    if (preconditioner == Preconditioner::IncompleteCholesky) {
+      try {
+        const numerics::IncompleteCholesky0<T> ic(system_);
+        result = numerics::pcg(system_, rhs, y, ic, options);
+        done = true;
+      } catch (const std::domain_error&) {
+        // IC(0) broke down (a non-positive pivot; it is guaranteed only for M-matrices): Jacobi.
+      }
+    }
+    if (!done) result = numerics::pcg(system_, rhs, y, numerics::JacobiPreconditioner<T>(system_), options);
     y += z;
     const std::int64_t nn = std::int64_t(n);
     detail::for_each(0, nn, [&](std::int64_t ii) {
@@ -426,6 +447,24 @@ class CorotatedFem {
             }
   }
 
+  /// sqrt(lambda_max(K0_e) / m_e) of element e (see max_frequency()).
+  T element_frequency(std::size_t e) const {
+    using Block = Eigen::Matrix<T, Dim * kNodes, Dim * kNodes>;
+    const auto& m = material(e);
+    std::array<Vec, kNodes> g;
+    for (int a = 0; a < kNodes; ++a) g[std::size_t(a)] = -normals_[e][std::size_t(a)] / volume_[e];
+    Block K;
+    for (int a = 0; a < kNodes; ++a)
+      for (int b = 0; b < kNodes; ++b) {
+        const Vec& ga = g[std::size_t(a)];
+        const Vec& gb = g[std::size_t(b)];
+        K.template block<Dim, Dim>(a * Dim, b * Dim) =
+            volume_[e] * (m.mu * ga.dot(gb) * Mat::Identity() + m.mu * gb * ga.transpose() + m.lambda * ga * gb.transpose());
+      }
+    const T lambda_max = Eigen::SelfAdjointEigenSolver<Block>(K, Eigen::EigenvaluesOnly).eigenvalues().maxCoeff();
+    return std::sqrt(std::max(lambda_max, T(0)) / (m.density * volume_[e] / T(kNodes)));
+  }
+
   /// sum_e factor(e) R K0_e R^T into the fixed pattern (rotations of the last forces()).
   template <class Factor>
   const Eigen::SparseMatrix<T>& assemble(const Factor& factor) {
@@ -465,6 +504,8 @@ class CorotatedFem {
   std::vector<Mat> rotation_;
   Eigen::SparseMatrix<T> stiffness_;
   std::vector<int> slot_;
+  Eigen::SparseMatrix<T> system_;  // M + dt^2 K + dt D of the last implicit step, pinned dofs identity
+  mutable T element_dt_ = T(0);  // cached stability limit of explicit_dt
 };
 
 }  // namespace slurry::fem

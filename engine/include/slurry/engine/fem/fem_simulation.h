@@ -13,8 +13,9 @@
 ///   check_health    non-finite state -> SimulationError naming the step, time, vertex, material
 ///
 /// The substep is solver.max_dt for the implicit integrator; for the explicit one also at most
-/// elastic_cfl h_min / c (h_min the shortest rest edge, c the largest P-wave speed, reduced for
-/// damping). The particle count of SimulationBase is the vertex count; frames carry a "vertex"
+/// elastic_cfl 2 / omega_max (omega_max bounded element by element from the rest stiffness and
+/// lumped mass, reduced for damping; CorotatedFem::explicit_dt). On a regular mesh 2 / omega_max
+/// is about 0.5 to 0.65 h_min / c (h_min the shortest rest edge, c the P-wave speed). The particle count of SimulationBase is the vertex count; frames carry a "vertex"
 /// element (position, velocity, material, J = volume-weighted mean det F of the elements around
 /// the vertex) and a "face" element with the list property "vertex_indices": the outward
 /// boundary triangles in 3D, every triangle in 2D.

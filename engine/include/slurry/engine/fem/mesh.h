@@ -218,16 +218,39 @@ Mesh<Dim> box_mesh(const Eigen::Matrix<double, Dim, 1>& lo, const Eigen::Matrix<
 }
 
 /// A ball (a disk in 2D) of `radius` around `center`: the structured mesh of the cube
-/// [-1, 1]^Dim with `cells` cells per axis, each vertex p moved radially to
-/// p |p|_inf / |p|_2 (the cube's faces onto the sphere), then scaled and shifted. The map is
-/// continuous and keeps every element positively oriented for the cell counts used (checked).
+/// [-1, 1]^Dim with `cells` cells per axis, each vertex p moved radially by the factor
+/// 1 - s + s |p|_inf / |p|_2 with s = |p|_inf: the centre stays as it is and the cube's faces
+/// go onto the sphere, which distorts the elements much less than scaling every vertex by
+/// |p|_inf / |p|_2. Elements with every vertex on the cube's surface (at its edges and
+/// corners) are dropped first: on the sphere they would be flat caps (slivers) that limit the
+/// explicit step. Then scaled and shifted; every element is checked.
 template <int Dim>
 Mesh<Dim> ball_mesh(const Eigen::Matrix<double, Dim, 1>& center, double radius, int cells) {
   using V = Eigen::Matrix<double, Dim, 1>;
-  Mesh<Dim> m = box_mesh<Dim>(V::Constant(-1), V::Constant(1), Eigen::Matrix<int, Dim, 1>::Constant(std::max(1, cells)));
+  Mesh<Dim> m = box_mesh<Dim>(V::Constant(-1), V::Constant(1), Eigen::Matrix<int, Dim, 1>::Constant(std::max(2, cells)));
+  // Elements whose vertices all lie on the cube's surface (along its edges and corners) would
+  // become flat caps on the sphere: drop them, and the vertices only they used.
+  std::vector<char> surface(m.x.size()), used(m.x.size(), 0);
+  for (std::size_t i = 0; i < m.x.size(); ++i) surface[i] = m.x[i].cwiseAbs().maxCoeff() > 1 - 1e-12;
+  std::vector<typename Mesh<Dim>::Element> kept;
+  for (const auto& el : m.elements) {
+    bool all = true;
+    for (int k : el) all = all && surface[std::size_t(k)];
+    if (all) continue;
+    kept.push_back(el);
+    for (int k : el) used[std::size_t(k)] = 1;
+  }
+  std::vector<int> index(m.x.size(), -1);
+  std::vector<V> xs;
+  for (std::size_t i = 0; i < m.x.size(); ++i)
+    if (used[i]) index[i] = int(xs.size()), xs.push_back(m.x[i]);
+  for (auto& el : kept)
+    for (int& k : el) k = index[std::size_t(k)];
+  m.x = std::move(xs);
+  m.elements = std::move(kept);
   for (auto& p : m.x) {
-    const double n2 = p.norm();
-    const V q = n2 > 0 ? V(p * (p.cwiseAbs().maxCoeff() / n2)) : V::Zero();
+    const double n2 = p.norm(), ninf = p.cwiseAbs().maxCoeff();
+    const V q = n2 > 0 ? V(p * (1 - ninf + ninf * ninf / n2)) : V::Zero();
     p = center + radius * q;
   }
   check_mesh(m, "ball_mesh");
