@@ -181,7 +181,7 @@ class CorotatedFem {
     return (x.size() + v.size() + rest_.size()) * sizeof(Vec) + mass_.size() * sizeof(T) +
            elements_.size() * (sizeof(Element) + 2 * sizeof(Mat) + sizeof(T) + sizeof(int) + kNodes * 2 * sizeof(Vec)) +
            incidence_.size() * sizeof(int) + incidence_offset_.size() * sizeof(int) +
-           std::size_t(stiffness_.nonZeros()) * (sizeof(T) + sizeof(int)) + slot_.size() * sizeof(int);
+           std::size_t(stiffness_.nonZeros() + system_.nonZeros()) * (sizeof(T) + sizeof(int)) + slot_.size() * sizeof(int);
   }
 
   /// F = Ds Dm^-1 of element e at positions xs.

@@ -5,7 +5,7 @@
 /// A Mesh<Dim> holds rest positions and elements of Dim + 1 vertex indices. Elements are stored
 /// positively oriented, det Dm > 0 with Dm = [X_1 - X_0, ..., X_Dim - X_0] the rest edge matrix
 /// (counter-clockwise triangles; tetrahedra whose first three vertices are counter-clockwise seen
-/// from outside the face they span, i.e. from the side opposite X_3). `check_mesh` enforces
+/// from X_3, the fourth). `check_mesh` enforces
 /// this and rejects degenerate elements; `orient_mesh` first flips a mesh whose elements all
 /// follow the opposite convention (other mesh generators' choice) but rejects a mesh that mixes
 /// both, which is a folded (inverted) mesh.
