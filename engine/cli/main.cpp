@@ -94,7 +94,12 @@ int main(int argc, char** argv) {
     if (frames >= 0) opt.frames = frames;
     if (ascii) opt.format = slurry::PlyEncoding::Ascii;
     opt.threads = threads;
-    if (!quiet)
+    if (!quiet && scene.solver.type == slurry::SolverType::FEM)
+      std::fprintf(stderr, "slurry: %s (%dD %s, fem, %s), %s backend, %d threads\n", scene_path.c_str(),
+                   scene.solver.dimension, scene.solver.precision == slurry::Precision::Float ? "float" : "double",
+                   std::string(slurry::to_string(scene.solver.integrator)).c_str(), slurry::parallel::backend(),
+                   threads > 0 ? threads : slurry::parallel::max_threads());
+    else if (!quiet)
       std::fprintf(stderr, "slurry: %s (%dD %s, %s, %s kernel), %s backend, %d threads\n", scene_path.c_str(),
                    scene.solver.dimension, scene.solver.precision == slurry::Precision::Float ? "float" : "double",
                    std::string(slurry::to_string(scene.solver.transfer)).c_str(),

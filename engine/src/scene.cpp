@@ -221,6 +221,26 @@ std::string vec_str(const Eigen::Vector3d& v, int dim) {
   return s + "]";
 }
 
+/// The settings solver.type "fem" needs: co-rotated linear materials without plasticity, and
+/// bodies that are a mesh file, a box or a sphere (meshed with spacing domain.dx).
+void validate_fem(const Scene& s) {
+  const Checker c{s.source};
+  for (std::size_t i = 0; i < s.materials.size(); ++i) {
+    const auto& m = s.materials[i];
+    const std::string p = "materials[" + std::to_string(i) + "]";
+    if (m.model != ElasticModel::CorotatedLinear)
+      fail(s.source, p + ".model", "solver.type \"fem\" simulates \"corotated_linear\" only, got \"" +
+                                       std::string(to_string(m.model)) + "\"");
+    if (m.plasticity != PlasticModel::None)
+      fail(s.source, p + ".plasticity", "solver.type \"fem\" has no plasticity (expected \"none\")");
+    c.non_negative(p + ".damping", m.damping);
+  }
+  for (std::size_t i = 0; i < s.bodies.size(); ++i)
+    if (s.bodies[i].mesh.empty() && s.bodies[i].shape == Shape::Cylinder)
+      fail(s.source, "bodies[" + std::to_string(i) + "].shape",
+           "solver.type \"fem\" meshes \"box\" and \"sphere\" bodies; give a cylinder as a TetGen \"mesh\"");
+}
+
 }  // namespace
 
 std::string_view to_string(ElasticModel m) { return name_of(kElastic, m); }
@@ -326,19 +346,19 @@ void Scene::validate() const {
   if (dim != 2 && dim != 3) fail(source, "solver.dimension", "expected 2 or 3, got " + std::to_string(dim));
   // Solvers and integrators this build provides (each branch of the engine enables its own).
   const bool flip = solver.type == SolverType::FLIP;
-  if (solver.type == SolverType::FEM)
-    fail(source, "solver.type", "expected \"mpm\" or \"flip\" (\"fem\" is not available in this build)");
+  const bool fem = solver.type == SolverType::FEM;
   if (flip && solver.integrator != Integrator::Explicit)
-    fail(source, "solver.integrator", "expected \"explicit\" for solver.type \"flip\" (\"implicit\" is for MPM solids)");
-  if (solver.integrator == Integrator::Implicit)
+    fail(source, "solver.integrator", "expected \"explicit\" for solver.type \"flip\" (\"implicit\" is for MPM solids and FEM)");
+  if (solver.integrator == Integrator::Implicit && !fem)
     for (std::size_t i = 0; i < materials.size(); ++i)
       if (materials[i].model == ElasticModel::Fluid)
         fail(source, "solver.integrator",
              "\"implicit\" is for solids; materials[" + std::to_string(i) + "] (\"" + materials[i].name +
                  "\") is a \"fluid\", which runs with \"explicit\" only");
   for (std::size_t i = 0; i < bodies.size(); ++i)
-    if (!bodies[i].mesh.empty())
+    if (!bodies[i].mesh.empty() && !fem)
       fail(source, "bodies[" + std::to_string(i) + "].mesh", "meshes are read by solver.type \"fem\" only");
+  if (fem) validate_fem(*this);
 
   // Domain.
   c.positive("domain.dx", domain.dx);
@@ -425,6 +445,7 @@ void Scene::validate() const {
       for (const auto& m : materials) known += (known.empty() ? "\"" : ", \"") + m.name + "\"";
       fail(source, p + ".material", "expected the name of a material (" + known + "), got \"" + b.material + "\"");
     }
+    if (!b.mesh.empty()) continue;  // a mesh body's extent is checked when the mesh is read
     c.positive(p + ".particles_per_cell", b.particles_per_cell);
     if (b.particles_per_cell > 512) fail(source, p + ".particles_per_cell", "expected at most 512, got " + fmt_num(b.particles_per_cell));
     Eigen::Vector3d lo = b.min, hi = b.max;
@@ -578,6 +599,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
       r.number("E", m.E);
       r.number("nu", m.nu);
     }
+    if (s.solver.type == SolverType::FEM) r.number("damping", m.damping);
     if (m.plasticity == PlasticModel::Snow) {
       r.number("critical_compression", m.critical_compression);
       r.number("critical_stretch", m.critical_stretch);
@@ -595,7 +617,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     BodyParams b;
     r.choice("shape", kShape, b.shape);
     if (b.shape == Shape::Box) {
-      if (!r.has("min") || !r.has("max")) fail(source, r.at("min"), "a box needs \"min\" and \"max\"");
+      if ((!r.has("min") || !r.has("max")) && !r.has("mesh")) fail(source, r.at("min"), "a box needs \"min\" and \"max\"");
       r.vector("min", b.min);
       r.vector("max", b.max);
     } else {

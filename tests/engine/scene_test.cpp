@@ -60,7 +60,7 @@ const BadCase kBad[] = {
     {"plastic_attribute_without_plasticity", R"({"output": {"attributes": ["position", "plastic"]}})",
      "output.attributes[1]: \"plastic\" needs a material with plasticity"},
     {"unknown_attribute", R"({"output": {"attributes": ["position", "colour"]}})",
-     "output.attributes[1]: expected one of \"position\", \"velocity\", \"material\", \"J\", \"plastic\", got \"colour\""},
+     "output.attributes[1]: expected one of \"position\", \"velocity\", \"material\", \"J\", \"plastic\", \"id\", got \"colour\""},
     {"cfl_too_large", R"({"solver": {"cfl": 2}})", "solver.cfl: expected a number in (0, 1], got 2"},
     {"flip_ratio", R"({"solver": {"transfer": "flip", "flip_ratio": 1.5}})",
      "solver.flip_ratio: expected a number in [0, 1], got 1.5"},

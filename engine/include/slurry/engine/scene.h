@@ -103,6 +103,8 @@ struct MaterialParams {
   double hardening = 10;                 ///< snow xi
   double friction_angle = 30;            ///< Drucker-Prager, degrees in (0, 90)
   double yield_stress = 1e4;             ///< von Mises (Pa)
+  /// FEM only: Rayleigh stiffness-proportional damping beta (s), D = beta K; >= 0.
+  double damping = 0;
 };
 
 struct BodyParams {

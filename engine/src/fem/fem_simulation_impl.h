@@ -1,0 +1,239 @@
+// FemSimulation<T, Dim>: scene bodies -> one co-rotated FEM mesh, the substep loop, frames.
+// Included by fem_simulation_2.cpp and fem_simulation_3.cpp, one dimension each.
+#pragma once
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <sstream>
+
+#include "slurry/engine/fem/fem_simulation.h"
+#include "slurry/engine/fem/tetgen.h"
+
+namespace slurry {
+namespace fem_detail {
+
+inline std::string fmt(double x) {
+  std::ostringstream o;
+  o.precision(6);
+  o << x;
+  return o.str();
+}
+
+/// A body's mesh path, relative to the directory of the scene file.
+inline std::filesystem::path mesh_path(const Scene& scene, const std::string& mesh) {
+  const std::filesystem::path p(mesh);
+  if (p.is_absolute()) return p;
+  return std::filesystem::path(scene.source).parent_path() / p;
+}
+
+}  // namespace fem_detail
+
+/// Walls and colliders on vertex velocities (see fem_simulation.h).
+template <class T, int Dim>
+struct FemSimulation<T, Dim>::Boundary {
+  const FemSimulation& sim;
+  T t, dt;
+
+  bool pin(int, const Vec& x, Vec& vb) const {
+    const auto& b = sim.scene_.boundaries;
+    if (b.walls == Condition::Sticky && ((x.array() <= sim.lo_.array()).any() || (x.array() >= sim.hi_.array()).any())) {
+      vb.setZero();
+      return true;
+    }
+    for (const auto& c : sim.colliders_) {
+      Vec n = Vec::Zero();
+      if (c.condition == Condition::Sticky && c.inside(x, t, n)) {
+        vb = c.velocity;
+        return true;
+      }
+    }
+    return false;
+  }
+
+  void apply(int, const Vec& xp, Vec& v) const {
+    const auto& b = sim.scene_.boundaries;
+    const T friction = T(b.friction);
+    for (int d = 0; d < Dim; ++d) {
+      if (xp[d] < sim.lo_[d]) v = apply_condition<T, Dim>(v, Vec::Zero(), Vec::Unit(d), b.walls, friction);
+      if (xp[d] > sim.hi_[d]) v = apply_condition<T, Dim>(v, Vec::Zero(), Vec(-Vec::Unit(d)), b.walls, friction);
+    }
+    for (const auto& c : sim.colliders_) {
+      Vec n = Vec::Zero();
+      if (c.inside(xp, t + dt, n)) v = apply_condition<T, Dim>(v, c.velocity, n, c.condition, c.friction);
+    }
+  }
+};
+
+template <class T, int Dim>
+FemSimulation<T, Dim>::FemSimulation(const Scene& scene) : scene_(scene) {
+  scene_.validate();
+  if (scene_.solver.type != SolverType::FEM)
+    throw SceneError(scene_.source + ": solver.type: FemSimulation needs \"fem\", got \"" +
+                     std::string(to_string(scene_.solver.type)) + "\"");
+  if (scene_.solver.dimension != Dim)
+    throw SceneError(scene_.source + ": solver.dimension: expected " + std::to_string(Dim) + ", got " +
+                     std::to_string(scene_.solver.dimension));
+  using VecD = Eigen::Matrix<double, Dim, 1>;
+  const VecD lo = scene_.domain.min.head<Dim>(), hi = scene_.domain.max.head<Dim>();
+  lo_ = lo.template cast<T>();
+  hi_ = hi.template cast<T>();
+  gravity_ = scene_.solver.gravity.head<Dim>().template cast<T>();
+  for (const auto& c : scene_.colliders) colliders_.emplace_back(c);
+
+  std::vector<fem::FemMaterial<T>> materials;
+  for (const auto& m : scene_.materials)
+    materials.push_back(fem::FemMaterial<T>::from_young(T(m.E), T(m.nu), T(m.density), T(m.damping)));
+
+  fem::Mesh<Dim> all;
+  std::vector<int> element_material;
+  std::vector<VecD> velocity;
+  for (std::size_t bi = 0; bi < scene_.bodies.size(); ++bi) {
+    const auto& b = scene_.bodies[bi];
+    const std::string where = scene_.source + ": bodies[" + std::to_string(bi) + "]";
+    fem::Mesh<Dim> m;
+    if (b.mesh.empty() && b.shape == Shape::Sphere) {
+      m = fem::ball_mesh<Dim>(b.center.head<Dim>(), b.radius, std::max(2, int(std::lround(2 * b.radius / scene_.domain.dx))));
+    } else if (b.mesh.empty()) {
+      m = fem::box_mesh<Dim>(b.min.head<Dim>(), b.max.head<Dim>(), scene_.domain.dx);
+    } else {
+      m = fem::read_tetgen<Dim>(fem_detail::mesh_path(scene_, b.mesh));
+      for (const auto& x : m.x)
+        if ((x.array() < lo.array()).any() || (x.array() > hi.array()).any()) {
+          std::string p;
+          for (int d = 0; d < Dim; ++d) p += (d ? ", " : "") + fem_detail::fmt(x[d]);
+          throw SceneError(where + ".mesh: the mesh has a vertex at [" + p + "], expected every vertex inside the domain");
+        }
+    }
+    const int offset = int(all.x.size());
+    const int mi = scene_.material_index(b.material);
+    for (const auto& x : m.x) {
+      all.x.push_back(x);
+      velocity.push_back(b.velocity.head<Dim>());
+      vertex_material_.push_back(std::uint16_t(mi));
+    }
+    for (auto el : m.elements) {
+      for (int& k : el) k += offset;
+      all.elements.push_back(el);
+      element_material.push_back(mi);
+    }
+  }
+  check_mesh(all, scene_.source + ": bodies");
+  faces_ = fem::boundary_faces(all);
+  fem_ = std::make_unique<Fem>(all, std::move(materials), std::move(element_material));
+  for (std::size_t i = 0; i < velocity.size(); ++i) fem_->v[i] = velocity[i].template cast<T>();
+  explicit_dt_ = fem_->explicit_dt(T(scene_.solver.elastic_cfl));
+}
+
+template <class T, int Dim>
+T FemSimulation<T, Dim>::stable_dt() const {
+  const T max_dt = T(scene_.solver.max_dt);
+  return scene_.solver.integrator == Integrator::Implicit ? max_dt : std::min(max_dt, explicit_dt_);
+}
+
+template <class T, int Dim>
+std::int64_t FemSimulation<T, Dim>::advance_to(double t_end) {
+  std::int64_t n = 0;
+  while (time_ < t_end) {
+    const double remaining = t_end - time_;
+    double dt = double(stable_dt());
+    bool last = false;
+    if (dt >= remaining * (1 - 1e-9)) {
+      dt = remaining;
+      last = true;
+    } else if (dt > 0.5 * remaining) {
+      dt = 0.5 * remaining;  // two even steps rather than one long and one tiny
+    }
+    step(T(dt));
+    if (last) time_ = t_end;
+    ++n;
+  }
+  return n;
+}
+
+template <class T, int Dim>
+void FemSimulation<T, Dim>::step(T dt) {
+  const Boundary boundary{*this, T(time_), dt};
+  if (scene_.solver.integrator == Integrator::Implicit) {
+    const auto r = fem_->step_implicit(dt, gravity_, boundary);
+    last_iterations_ = r.iterations;
+    if (!r.converged) {
+      std::ostringstream msg;
+      msg << scene_.source << ": implicit FEM step " << steps_ + 1 << " at t = " << fem_detail::fmt(time_ + double(dt))
+          << ": the linear solve did not converge (relative residual " << fem_detail::fmt(double(r.relative_residual))
+          << " after " << r.iterations << " PCG iterations); try a smaller solver.max_dt";
+      throw SimulationError(msg.str());
+    }
+  } else {
+    fem_->step_symplectic(dt, gravity_, boundary);
+    last_iterations_ = 0;
+  }
+  const auto& x = fem_->x;
+  const auto& v = fem_->v;
+  bool bad = false;
+  for (std::size_t i = 0; i < x.size() && !bad; ++i) bad = !x[i].allFinite() || !v[i].allFinite();
+  if (bad) diagnose(dt);
+  time_ += double(dt);
+  ++steps_;
+}
+
+template <class T, int Dim>
+void FemSimulation<T, Dim>::diagnose(T dt) const {
+  std::size_t i = 0;
+  while (i < fem_->x.size() && fem_->x[i].allFinite() && fem_->v[i].allFinite()) ++i;
+  std::ostringstream msg;
+  msg << scene_.source << ": FEM simulation unstable at step " << steps_ + 1 << ", t = " << fem_detail::fmt(time_ + double(dt))
+      << ": vertex " << i << " (material \"" << scene_.materials[vertex_material_[i]].name
+      << "\") has a non-finite position or velocity (dt " << fem_detail::fmt(double(dt)) << " s, explicit limit "
+      << fem_detail::fmt(double(explicit_dt_)) << " s); reduce solver.max_dt or solver.elastic_cfl, or use solver.integrator \"implicit\"";
+  throw SimulationError(msg.str());
+}
+
+template <class T, int Dim>
+std::size_t FemSimulation<T, Dim>::bytes() const {
+  return fem_->bytes() + vertex_material_.size() * sizeof(std::uint16_t) + faces_.size() * sizeof(faces_[0]);
+}
+
+template <class T, int Dim>
+io::PlyData FemSimulation<T, Dim>::frame(const std::vector<std::string>& attributes) const {
+  const Fem& f = *fem_;
+  const std::size_t n = f.vertex_count();
+  io::PlyData data;
+  data.comments.push_back("slurry fem frame t=" + fem_detail::fmt(time_) + " source=" + scene_.source);
+  auto& el = data.elements.emplace_back();
+  el.name = "vertex";
+  el.count = n;
+  static const char* axes[3] = {"x", "y", "z"};
+  static const char* vaxes[3] = {"vx", "vy", "vz"};
+  auto column = [&](auto&& value) {
+    std::vector<T> c(n);
+    for (std::size_t i = 0; i < n; ++i) c[i] = value(i);
+    return c;
+  };
+  for (const auto& a : attributes) {
+    if (a == "position") {
+      for (int d = 0; d < Dim; ++d) el.properties.push_back({axes[d], column([&](std::size_t i) { return f.x[i][d]; })});
+    } else if (a == "velocity") {
+      for (int d = 0; d < Dim; ++d) el.properties.push_back({vaxes[d], column([&](std::size_t i) { return f.v[i][d]; })});
+    } else if (a == "material") {
+      el.properties.push_back({"material", vertex_material_});
+    } else if (a == "J") {
+      std::vector<T> J(n, T(0)), w(n, T(0));
+      for (std::size_t e = 0; e < f.element_count(); ++e) {
+        const T det = f.deformation_gradient(e, f.x).determinant();
+        for (int k : f.elements()[e]) J[std::size_t(k)] += f.volume(e) * det, w[std::size_t(k)] += f.volume(e);
+      }
+      for (std::size_t i = 0; i < n; ++i) J[i] = w[i] > T(0) ? J[i] / w[i] : T(1);
+      el.properties.push_back({"J", std::move(J)});
+    }
+  }
+  auto& faces = data.elements.emplace_back();
+  faces.name = "face";
+  faces.count = faces_.size();
+  io::PlyListProperty list{"vertex_indices", {}};
+  list.data.reserve(faces_.size());
+  for (const auto& t : faces_) list.data.push_back({t[0], t[1], t[2]});
+  faces.lists.push_back(std::move(list));
+  return data;
+}
+
+}  // namespace slurry
