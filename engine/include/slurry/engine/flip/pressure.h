@@ -227,10 +227,9 @@ class PressureSolver {
       build_multigrid();
       multigrid_built_ = true;
     }
-    std::vector<double> rhs(std::size_t(num_cells_), 0.0);
-    parallel::parallel_for(0, num_cells_, [&](std::int64_t c) {
-      if (is_unknown(c)) rhs[std::size_t(c)] = b[std::size_t(c)];
-    });
+    std::vector<double>& rhs = rhs_;  // a member: no allocation per solve
+    rhs.resize(std::size_t(num_cells_));
+    parallel::parallel_for(0, num_cells_, [&](std::int64_t c) { rhs[std::size_t(c)] = is_unknown(c) ? b[std::size_t(c)] : 0.0; });
     remove_closed_means(rhs.data());
     double* xs = x_.data() + pad_;
     if (std::int64_t(x.size()) == num_cells_) {
@@ -252,12 +251,14 @@ class PressureSolver {
     prepare_for(opt.preconditioner, opt.mic_blocks);
     assemble(g, opt.ghost_fluid);
     const double scale = opt.density * double(g.dx) / double(dt);  // b = -(rho dx / dt) D
-    std::vector<double> b(std::size_t(num_cells_), 0.0);
-    std::vector<double> p(std::size_t(num_cells_), 0.0);
+    std::vector<double>& b = project_b_;
+    std::vector<double>& p = project_p_;
+    b.resize(std::size_t(num_cells_));
+    p.resize(std::size_t(num_cells_));
     for_each_index(g.res, [&](std::int64_t c, const IVec& i) {
-      if (!is_unknown(c)) return;
-      b[std::size_t(c)] = -scale * double(open_flux_sum(g, i));
-      p[std::size_t(c)] = double(g.pressure[std::size_t(c)]);
+      const bool unknown = is_unknown(c);
+      b[std::size_t(c)] = unknown ? -scale * double(open_flux_sum(g, i)) : 0.0;
+      p[std::size_t(c)] = unknown ? double(g.pressure[std::size_t(c)]) : 0.0;
     });
     ProjectionReport rep = solve(b, p, opt);
     parallel::parallel_for(0, num_cells_, [&](std::int64_t c) { g.pressure[std::size_t(c)] = T(p[std::size_t(c)]); });
@@ -436,8 +437,10 @@ class PressureSolver {
     closed_cells_.clear();
     closed_start_.clear();
     const std::int64_t n = num_cells_;
-    std::vector<std::uint8_t> seen(std::size_t(n), 0);
-    std::vector<std::int64_t> queue;
+    std::vector<std::uint8_t>& seen = flood_seen_;  // members: no allocation per solve
+    std::vector<std::int64_t>& queue = flood_queue_;
+    seen.assign(std::size_t(n), 0);
+    queue.clear();
     const auto flood = [&](std::vector<std::int64_t>& q, std::size_t head) {
       while (head < q.size()) {
         const std::int64_t c = q[head++];
@@ -720,6 +723,7 @@ class PressureSolver {
   // Padded by pad_ = stride_[0] cells on both ends so that neighbour reads never leave the
   // arrays; the pads hold zeros, and so do coefficients across the domain boundary.
   std::vector<double> diag_, precon_, x_, r_, z_, p_, q_;
+  std::vector<double> rhs_, project_b_, project_p_;  ///< solve() / project() work vectors
   std::array<std::vector<double>, Dim> plus_;  ///< A(c, c + e_d) = -w, stored at c
   std::vector<std::uint8_t> dirichlet_;
   using Multigrid = MultigridPreconditioner<Dim, float>;
@@ -730,6 +734,8 @@ class PressureSolver {
   std::array<std::int64_t, Dim> face_up_{};  ///< axis-d face index step from a cell's lower to upper face
   std::vector<int> span_lo_, span_hi_;
   std::vector<std::int64_t> closed_cells_, closed_start_;
+  std::vector<std::uint8_t> flood_seen_;
+  std::vector<std::int64_t> flood_queue_;
 };
 
 /// One-call projection with a temporary PressureSolver (see PressureSolver::project).

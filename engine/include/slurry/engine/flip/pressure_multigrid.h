@@ -64,9 +64,9 @@ class MultigridPreconditioner {
   static constexpr std::int64_t kParallelCells = 32768;  ///< smaller levels run serially
   static constexpr int kCoarsest = 8;      ///< stop coarsening when every axis has <= this many cells
   static constexpr int kCoarseSweeps = 12;  ///< symmetric RB-GS sweeps on the coarsest level (each way)
-  static constexpr std::int64_t kRowGrain = 16;
+  static constexpr std::int64_t kRowGrain = 16;  ///< rows per chunk of the fixed-order dot product
   static constexpr S kCoarseThetaMin = S(0.05);  ///< ghost-fluid clamps on the coarse levels
-  static constexpr S kCoarseThetaMax = S(4);  ///< rows per chunk of the fixed-order dot product
+  static constexpr S kCoarseThetaMax = S(4);
 
   /// Sets up level 0 from the fine system and coarsens it. Fine arrays are row-major over
   /// `res` (last axis fastest): diag[c] and plus[d][c] = A(c, c + e_d) as PressureSolver stores
@@ -124,7 +124,8 @@ class MultigridPreconditioner {
     });
     for (int l = 0; l < last; ++l) {
       Level& L = levels_[std::size_t(l)];
-      // Pre-smoothing: [band R B]^bs, then R B ... (the first R was fused into the set-up).
+      // Pre-smoothing: (R B)^smoothing, then (band R, band B)^boundary_smoothing; the first R
+      // was fused into the set-up above or into restrict_to().
       smooth(L, smoothing, boundary_smoothing, true);
       // Black residuals vanish after a black half-sweep, unless band sweeps came after it.
       residual(L, boundary_smoothing == 0);
