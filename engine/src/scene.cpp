@@ -48,7 +48,8 @@ const NameTable<AdvectionScheme> kAdvection{{"euler", AdvectionScheme::Euler},
                                             {"midpoint", AdvectionScheme::Midpoint},
                                             {"heun", AdvectionScheme::Heun},
                                             {"rk3", AdvectionScheme::RK3}};
-const NameTable<PressurePreconditioner> kPreconditioner{{"mic0", PressurePreconditioner::MIC0},
+const NameTable<PressurePreconditioner> kPreconditioner{{"multigrid", PressurePreconditioner::Multigrid},
+                                                        {"mic0", PressurePreconditioner::MIC0},
                                                         {"jacobi", PressurePreconditioner::Jacobi},
                                                         {"none", PressurePreconditioner::None}};
 const std::vector<std::string> kAttributes{"position", "velocity", "material", "J", "plastic", "id"};

@@ -44,7 +44,7 @@ const BadCase kBad[] = {
     {"iterations", R"({"solver": {"pressure": {"max_iterations": 0}}})",
      "solver.pressure.max_iterations: expected an integer in [1, 1000000], got 0"},
     {"preconditioner", R"({"solver": {"pressure": {"preconditioner": "ilu"}}})",
-     "solver.pressure.preconditioner: expected one of \"mic0\", \"jacobi\", \"none\", got \"ilu\""},
+     "solver.pressure.preconditioner: expected one of \"multigrid\", \"mic0\", \"jacobi\", \"none\", got \"ilu\""},
     {"reseed_bounds", R"({"solver": {"reseed": {"min_per_cell": 5, "max_per_cell": 5}}})",
      "solver.reseed.max_per_cell: expected an integer in (min_per_cell = 5, 512], got 5"},
     {"solid", R"({"materials": [{"name": "water", "model": "neo_hookean"}]})",

@@ -50,7 +50,8 @@ FlipSimulation<T, Dim>::FlipSimulation(const Scene& scene) : scene_(scene) {
   }
   for (const auto& c : scene_.colliders) solids_.colliders.emplace_back(c);
   const auto& pp = scene_.solver.pressure;
-  projection_options_.preconditioner = pp.preconditioner == PressurePreconditioner::MIC0     ? Preconditioner::MIC0
+  projection_options_.preconditioner = pp.preconditioner == PressurePreconditioner::Multigrid ? Preconditioner::Multigrid
+                                       : pp.preconditioner == PressurePreconditioner::MIC0   ? Preconditioner::MIC0
                                        : pp.preconditioner == PressurePreconditioner::Jacobi ? Preconditioner::Jacobi
                                                                                              : Preconditioner::None;
   projection_options_.tolerance = pp.tolerance;
