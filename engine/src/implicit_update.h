@@ -80,6 +80,26 @@ struct GridBoundaries {
   T time = 0;  ///< time at the end of the substep (collider positions)
 };
 
+/// Calls fn(boundary velocity, normal into the domain, condition, friction) for every domain wall
+/// and collider that holds node `idx`, walls first (axis by axis, low side then high side), then
+/// colliders in scene order; `position()` gives the node's position and is evaluated only when
+/// there are colliders. The explicit grid update and the implicit solve both go through it.
+template <class T, int Dim, class Position, class Fn>
+void for_each_grid_condition(const Eigen::Matrix<int, Dim, 1>& idx, Position&& position,
+                             const GridBoundaries<T, Dim>& bc, Fn&& fn) {
+  using Vec = Eigen::Matrix<T, Dim, 1>;
+  for (int d = 0; d < Dim; ++d) {
+    if (idx[d] < bc.lo) fn(Vec(Vec::Zero()), Vec(Vec::Unit(d)), bc.walls, bc.friction);
+    if (idx[d] > bc.hi[d]) fn(Vec(Vec::Zero()), Vec(-Vec::Unit(d)), bc.walls, bc.friction);
+  }
+  if (bc.colliders && !bc.colliders->empty()) {
+    const Vec xi = position();
+    Vec n;
+    for (const auto& c : *bc.colliders)
+      if (c.inside(xi, bc.time, n)) fn(c.velocity, n, c.condition, c.friction);
+  }
+}
+
 /// The implicit grid solve; one object per simulation keeps its scratch buffers between steps.
 template <class T, int Dim>
 class ImplicitUpdate {
@@ -328,28 +348,20 @@ class ImplicitUpdate {
   /// normals the solve must hold. Returns whether any wall or collider covers the node.
   static bool apply_boundaries(const Grid& g, const IVec& idx, const GridBoundaries<T, Dim>& bc, Vec& v, Basis* basis) {
     bool any = false;
-    auto one = [&](const Vec& vb, const Vec& n, Condition c, T friction) {
-      any = true;
-      if (basis) {
-        if (c == Condition::Sticky)
-          basis->fix_all();
-        else if (c == Condition::Slip || (v - vb).dot(n) < T(0))
-          basis->add(n);
-      }
-      v = apply_condition<T, Dim>(v, vb, n, c, friction);
-    };
-    for (int d = 0; d < Dim; ++d) {
-      if (idx[d] < bc.lo) one(Vec::Zero(), Vec::Unit(d), bc.walls, bc.friction);
-      if (idx[d] > bc.hi[d]) one(Vec::Zero(), -Vec::Unit(d), bc.walls, bc.friction);
-    }
-    if (bc.colliders && !bc.colliders->empty()) {
-      const Vec xi = g.position(idx);
-      Vec n;
-      for (const auto& c : *bc.colliders)
-        if (c.inside(xi, bc.time, n)) one(c.velocity, n, c.condition, c.friction);
-    }
+    for_each_grid_condition(idx, [&] { return g.position(idx); }, bc,
+                            [&](const Vec& vb, const Vec& n, Condition c, T friction) {
+                              any = true;
+                              if (basis) {
+                                if (c == Condition::Sticky)
+                                  basis->fix_all();
+                                else if (c == Condition::Slip || (v - vb).dot(n) < T(0))
+                                  basis->add(n);
+                              }
+                              v = apply_condition<T, Dim>(v, vb, n, c, friction);
+                            });
     return any;
   }
+
 
   /// x <- S x, node by node.
   void filter(VectorX& x) const {

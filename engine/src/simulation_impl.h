@@ -52,6 +52,7 @@ Simulation<T, Dim>::Simulation(const Scene& scene) : scene_(scene) {
   }
   dx_ = dx;
   origin_ = origin;
+  res_ = res;
   const bool flip = scene_.solver.transfer == TransferKind::FLIP;
   sparse_grid_ = dom.grid == GridKind::Sparse || (dom.grid == GridKind::Auto && scene_.solver.integrator != Integrator::Implicit);
   if (sparse_grid_) {
@@ -178,22 +179,7 @@ T Simulation<T, Dim>::stable_dt() const {
 
 template <class T, int Dim>
 std::int64_t Simulation<T, Dim>::advance_to(double t_end) {
-  std::int64_t n = 0;
-  while (time_ < t_end) {
-    const double remaining = t_end - time_;
-    double dt = double(stable_dt());
-    bool last = false;
-    if (dt >= remaining * (1 - 1e-9)) {
-      dt = remaining;
-      last = true;
-    } else if (dt > 0.5 * remaining) {
-      dt = 0.5 * remaining;  // two even steps rather than one long and one tiny
-    }
-    step(T(dt));
-    if (last) time_ = t_end;  // no drift of frame times from summing substeps
-    ++n;
-  }
-  return n;
+  return substep_to(time_, t_end, [&] { return stable_dt(); }, [&](double dt) { step(T(dt)); });
 }
 
 template <class T, int Dim>
@@ -278,14 +264,8 @@ template <class T, int Dim>
 void Simulation<T, Dim>::update_grid_implicit(DenseGrid& grid, T dt) {
   // The implicit solve walks particles by (block, material) bins in storage order: particles are
   // re-stored in bin order every substep for it (step_on), so the bins are storage ranges.
-  GridBoundaries<T, Dim> bc;
-  bc.lo = detail::kPad + scene_.boundaries.thickness;
-  for (int d = 0; d < Dim; ++d) bc.hi[d] = grid.res()[d] - 1 - detail::kPad - scene_.boundaries.thickness;
-  bc.walls = scene_.boundaries.walls;
-  bc.friction = T(scene_.boundaries.friction);
-  bc.colliders = &colliders_;
-  bc.time = T(time_) + dt;
-  const auto r = implicit_->update_grid(grid, particles_, materials_, bins_.bins(), bc, gravity_, dt);
+  const auto r = implicit_->update_grid(grid, particles_, materials_, bins_.bins(), grid_boundaries(T(time_) + dt),
+                                        gravity_, dt);
   cg_.last_iterations = r.iterations;
   cg_.last_residual = double(r.residual);
   ++cg_.solves;
@@ -411,31 +391,32 @@ void Simulation<T, Dim>::particles_to_grid_order(G& grid) {
 }
 
 template <class T, int Dim>
+GridBoundaries<T, Dim> Simulation<T, Dim>::grid_boundaries(T t) const {
+  GridBoundaries<T, Dim> bc;
+  bc.lo = detail::kPad + scene_.boundaries.thickness;  // nodes with index < lo are in the wall
+  for (int d = 0; d < Dim; ++d) bc.hi[d] = res_[d] - 1 - detail::kPad - scene_.boundaries.thickness;
+  bc.walls = scene_.boundaries.walls;
+  bc.friction = T(scene_.boundaries.friction);
+  bc.colliders = &colliders_;
+  bc.time = t;
+  return bc;
+}
+
+template <class T, int Dim>
 template <class G>
 void Simulation<T, Dim>::update_grid(G& grid, T dt) {
   using IVec = Eigen::Matrix<int, Dim, 1>;
-  const auto& bc = scene_.boundaries;
-  const int cells_lo = detail::kPad + bc.thickness;  // nodes with index < this are in the wall
-  IVec cells_hi;
-  for (int d = 0; d < Dim; ++d) cells_hi[d] = grid.res()[d] - 1 - detail::kPad - bc.thickness;
-  const T t = T(time_) + dt;
-  const T friction = T(bc.friction);
+  const GridBoundaries<T, Dim> bc = grid_boundaries(T(time_) + dt);
   grid.for_each_active_node([&](typename G::Node& node, const IVec& idx, Vec* old) {
     const T m = node[Dim];
     if (m <= T(0)) return;
     Vec v = node.template head<Dim>() / m;
     if (old) *old = v;
     v += dt * gravity_;
-    for (int d = 0; d < Dim; ++d) {
-      if (idx[d] < cells_lo) v = apply_condition<T, Dim>(v, Vec::Zero(), Vec::Unit(d), bc.walls, friction);
-      if (idx[d] > cells_hi[d]) v = apply_condition<T, Dim>(v, Vec::Zero(), -Vec::Unit(d), bc.walls, friction);
-    }
-    if (!colliders_.empty()) {
-      const Vec xi = origin_ + dx_ * idx.template cast<T>();
-      Vec n;
-      for (const auto& c : colliders_)
-        if (c.inside(xi, t, n)) v = apply_condition<T, Dim>(v, c.velocity, n, c.condition, c.friction);
-    }
+    for_each_grid_condition(idx, [&] { return Vec(origin_ + dx_ * idx.template cast<T>()); }, bc,
+                            [&](const Vec& vb, const Vec& n, Condition c, T friction) {
+                              v = apply_condition<T, Dim>(v, vb, n, c, friction);
+                            });
     node.template head<Dim>() = v;
   });
 }

@@ -19,7 +19,6 @@ inline Scene determinism_scene(int dim, GridKind grid) {
   s.solver.transfer = TransferKind::MLS;
   s.domain.dx = dim == 3 ? 1.0 / 32 : 1.0 / 64;
   s.domain.grid = grid;
-  s.solver.gravity = dim == 3 ? Eigen::Vector3d(0, -9.81, 0) : Eigen::Vector3d(0, -9.81, 0);
   MaterialParams jelly, snow, sand, water;
   jelly.name = "jelly";
   jelly.E = 2e5;

@@ -103,22 +103,7 @@ T FlipSimulation<T, Dim>::stable_dt() const {
 
 template <class T, int Dim>
 std::int64_t FlipSimulation<T, Dim>::advance_to(double t_end) {
-  std::int64_t n = 0;
-  while (time_ < t_end) {
-    const double remaining = t_end - time_;
-    double dt = double(stable_dt());
-    bool last = false;
-    if (dt >= remaining * (1 - 1e-9)) {
-      dt = remaining;
-      last = true;
-    } else if (dt > 0.5 * remaining) {
-      dt = 0.5 * remaining;  // two even steps rather than one long and one tiny
-    }
-    step(T(dt));
-    if (last) time_ = t_end;
-    ++n;
-  }
-  return n;
+  return substep_to(time_, t_end, [&] { return stable_dt(); }, [&](double dt) { step(T(dt)); });
 }
 
 template <class T, int Dim>

@@ -57,6 +57,31 @@ class SimulationBase {
   virtual io::PlyData frame(const std::vector<std::string>& attributes) const = 0;
 };
 
+/// The substep loop every solver's advance_to shares: takes substeps of stable_dt() from `time`
+/// until it reaches t_end exactly. A substep that would overshoot ends on t_end (and `time` is
+/// set to t_end, so frame times do not drift by summing substeps); one longer than half the
+/// remainder is halved, giving two even substeps rather than a long and a tiny one. `step(dt)`
+/// advances `time` itself. Returns the number of substeps.
+template <class StableDt, class Step>
+std::int64_t substep_to(double& time, double t_end, StableDt&& stable_dt, Step&& step) {
+  std::int64_t n = 0;
+  while (time < t_end) {
+    const double remaining = t_end - time;
+    double dt = double(stable_dt());
+    bool last = false;
+    if (dt >= remaining * (1 - 1e-9)) {
+      dt = remaining;
+      last = true;
+    } else if (dt > 0.5 * remaining) {
+      dt = 0.5 * remaining;
+    }
+    step(dt);
+    if (last) time = t_end;
+    ++n;
+  }
+  return n;
+}
+
 /// Wall-clock seconds spent in each phase of the MPM substep since the simulation started.
 struct PhaseTimes {
   double stress = 0;      ///< compute_stress
@@ -72,6 +97,8 @@ std::unique_ptr<SimulationBase> make_simulation(const Scene& scene);
 
 template <class T, int Dim>
 class ImplicitUpdate;
+template <class T, int Dim>
+struct GridBoundaries;
 
 /// Conjugate-gradient statistics of the implicit grid update (all zero for "explicit").
 struct CgStats {
@@ -139,6 +166,8 @@ class Simulation final : public SimulationBase {
   template <class G>
   void grid_to_particles(G& grid, T dt);
   void update_grid_implicit(DenseGrid& grid, T dt);
+  /// Walls (node index ranges) and colliders at time t, for both grid updates.
+  GridBoundaries<T, Dim> grid_boundaries(T t) const;
   void return_mapping();
   [[noreturn]] void diagnose(T dt) const;
 
@@ -162,6 +191,7 @@ class Simulation final : public SimulationBase {
   bool sparse_grid_ = true;
   T dx_ = T(1);
   Vec origin_;
+  Eigen::Matrix<int, Dim, 1> res_;  // grid nodes per axis
   Vec gravity_;
   Vec x_lo_, x_hi_;  // particles must stay in this box (the domain plus one cell)
   double time_ = 0;

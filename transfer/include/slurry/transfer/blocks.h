@@ -108,6 +108,7 @@ class ParticleBins {
     //    depends on n and the slot count only (never on threads), and is capped so that the
     //    histograms stay small beside the particles when they are widely spread.
     const std::int64_t slots = nb * nm;
+    if (slots > std::numeric_limits<std::int32_t>::max()) throw std::length_error("ParticleBins: too many (block, material) bins");
     std::int64_t chunks = n == 0 ? 0 : std::min<std::int64_t>(kMaxChunks, (n + kMinChunk - 1) / kMinChunk);
     while (chunks > 1 && chunks * slots > 4 * n) chunks /= 2;
     const std::int64_t chunk = chunks == 0 ? 1 : (n + chunks - 1) / chunks;
@@ -115,9 +116,14 @@ class ParticleBins {
     std::uint32_t* count = count_.data();
     const std::int32_t* table = table_.data();
     auto slot_of = [&](std::int64_t p) { return std::int64_t(table[key[p]]) * nm + std::int64_t(material_of(p)); };
+    // The histogram pass leaves each particle's slot in key_, for the scatter pass.
     parallel::parallel_for(0, chunks, [&](std::int64_t c) {
       std::uint32_t* h = count + c * slots;
-      for (std::int64_t p = c * chunk, e = std::min(n, (c + 1) * chunk); p < e; ++p) ++h[slot_of(p)];
+      for (std::int64_t p = c * chunk, e = std::min(n, (c + 1) * chunk); p < e; ++p) {
+        const std::int64_t sl = slot_of(p);
+        key[p] = std::int32_t(sl);
+        ++h[sl];
+      }
     });
     bins_.clear();
     groups_.clear();
@@ -146,7 +152,7 @@ class ParticleBins {
     parallel::parallel_for(0, chunks, [&](std::int64_t c) {
       std::uint32_t* h = count + c * slots;
       for (std::int64_t p = c * chunk, e = std::min(n, (c + 1) * chunk); p < e; ++p)
-        order[h[slot_of(p)]++] = std::uint32_t(p);
+        order[h[key[p]]++] = std::uint32_t(p);
     });
     // 4. Blocks (groups) by colour (the parities of their block coordinates).
     for (auto& c : colour_) c.clear();
@@ -189,7 +195,7 @@ class ParticleBins {
   static constexpr std::int64_t kMaxChunks = 64;
   IVec block_res_ = IVec::Zero();
   std::vector<std::int32_t> table_;  // block key -> block index during build, -1 when unused
-  std::vector<std::int32_t> key_;    // per particle
+  std::vector<std::int32_t> key_;    // per particle: block key, then (block, material) slot
   std::vector<std::uint32_t> order_;
   std::vector<std::int32_t> distinct_;
   std::vector<std::uint32_t> count_;

@@ -72,41 +72,38 @@ inline int max_threads() {
 #endif
 }
 
-/// fn(i) for i in [begin, end); the calls must be independent.
+/// fn(i) for i in [begin, end), handed to threads `grain` indices at a time; the calls must be
+/// independent.
 template <class Fn>
-void parallel_for(std::int64_t begin, std::int64_t end, Fn&& fn) {
+void parallel_for_grain(std::int64_t begin, std::int64_t end, std::int64_t grain, Fn&& fn) {
   if (end <= begin) return;
 #if defined(SLURRY_PARALLEL_OPENMP)
   // Dynamic chunks: on a shared machine a descheduled thread then holds up one chunk, not a
   // fixed half of the loop. Which thread runs an index never changes the result.
-#pragma omp parallel for schedule(dynamic, 256)
+#pragma omp parallel for schedule(dynamic, grain)
   for (std::int64_t i = begin; i < end; ++i) fn(i);
 #elif defined(SLURRY_PARALLEL_TBB)
-  tbb::parallel_for(tbb::blocked_range<std::int64_t>(begin, end, 1024),
+  tbb::parallel_for(tbb::blocked_range<std::int64_t>(begin, end, std::size_t(grain)),
                     [&](const tbb::blocked_range<std::int64_t>& r) {
                       for (std::int64_t i = r.begin(); i < r.end(); ++i) fn(i);
                     });
 #else
+  (void)grain;
   for (std::int64_t i = begin; i < end; ++i) fn(i);
 #endif
+}
+
+/// fn(i) for i in [begin, end) over cheap, independent calls (one particle, one node).
+template <class Fn>
+void parallel_for(std::int64_t begin, std::int64_t end, Fn&& fn) {
+  parallel_for_grain(begin, end, 256, fn);
 }
 
 /// fn(i) for i in [begin, end) where each call is a sizeable independent task (a block of
 /// particles): handed out one at a time, so a few hundred tasks still balance.
 template <class Fn>
 void parallel_tasks(std::int64_t begin, std::int64_t end, Fn&& fn) {
-  if (end <= begin) return;
-#if defined(SLURRY_PARALLEL_OPENMP)
-#pragma omp parallel for schedule(dynamic, 1)
-  for (std::int64_t i = begin; i < end; ++i) fn(i);
-#elif defined(SLURRY_PARALLEL_TBB)
-  tbb::parallel_for(tbb::blocked_range<std::int64_t>(begin, end, 1),
-                    [&](const tbb::blocked_range<std::int64_t>& r) {
-                      for (std::int64_t i = r.begin(); i < r.end(); ++i) fn(i);
-                    });
-#else
-  for (std::int64_t i = begin; i < end; ++i) fn(i);
-#endif
+  parallel_for_grain(begin, end, 1, fn);
 }
 
 /// fn(lo, hi) over contiguous chunks of [begin, end) (for loops that keep per-chunk state).

@@ -115,7 +115,7 @@ class SparseGrid {
   /// Adds a patch of scattered particle contributions into the grid.
   template <int Order>
   void add_patch(const Patch<T, Dim, Order>& patch) {
-    for_each_patch_part(patch.first, [&](std::int64_t slot, const int* lo, const int* hi, const int* shift) {
+    for_each_patch_part<Order>(patch.first, [&](std::int64_t slot, const int* lo, const int* hi, const int* shift) {
       Node* block = nodes_.data() + slot * Shape::nodes;
       walk_part<Order>(lo, hi, shift, [&](int pk, int bk) { block[bk] += patch.nodes[std::size_t(pk)]; });
     });
@@ -126,7 +126,7 @@ class SparseGrid {
   template <int Order>
   void read_patch(Patch<T, Dim, Order>& patch) const {
     patch.zero();
-    for_each_patch_part(patch.first, [&](std::int64_t slot, const int* lo, const int* hi, const int* shift) {
+    for_each_patch_part<Order>(patch.first, [&](std::int64_t slot, const int* lo, const int* hi, const int* shift) {
       const Node* block = nodes_.data() + slot * Shape::nodes;
       const Vec* old = keep_old_ ? old_.data() + slot * Shape::nodes : nullptr;
       walk_part<Order>(lo, hi, shift, [&](int pk, int bk) {
@@ -181,8 +181,9 @@ class SparseGrid {
   /// Splits a patch starting at node `first` (a block corner) into its parts in the 2^Dim blocks
   /// it overlaps: fn(slot, lo, hi, shift) with patch-local ranges [lo, hi) per axis and the
   /// shift from patch-local to block-local coordinates.
-  template <class Fn>
+  template <int Order, class Fn>
   void for_each_patch_part(const IVec& first, Fn&& fn) const {
+    constexpr int E = Patch<T, Dim, Order>::extent;
     const IVec b0 = first / Shape::size;
     for (int o = 0; o < Shape::colours; ++o) {
       IVec b;
@@ -193,7 +194,7 @@ class SparseGrid {
         b[d] = b0[d] + od;
         inside = inside && b[d] < block_res_[d];
         lo[d] = od * Shape::size;
-        hi[d] = od ? -1 : Shape::size;  // the far part's end depends on the patch extent
+        hi[d] = od ? E : Shape::size;
         shift[d] = -od * Shape::size;
       }
       if (!inside) continue;
@@ -204,10 +205,8 @@ class SparseGrid {
   }
 
   template <int Order, class Fn>
-  static void walk_part(const int* lo, const int* hi_in, const int* shift, Fn&& fn) {
+  static void walk_part(const int* lo, const int* hi, const int* shift, Fn&& fn) {
     constexpr int E = Patch<T, Dim, Order>::extent;
-    int hi[Dim];
-    for (int d = 0; d < Dim; ++d) hi[d] = hi_in[d] < 0 ? E : hi_in[d];
     constexpr int S = Shape::size;
     if constexpr (Dim == 3) {
       for (int a = lo[0]; a < hi[0]; ++a)

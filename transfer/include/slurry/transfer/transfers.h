@@ -96,7 +96,8 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
     // and grad w = (dwx_a wy_b wz_c, wx_a dwy_b wz_c, wx_a wy_b dwz_c) the affine and gradient
     // terms are summed axis by axis (hoisted out of the inner loops), and every node update is a
     // few (Dim+1)-wide multiply-adds.
-    const bool has_A = carries_affine(S) && Order > 1 ? true : (S == Scheme::MLS && K != nullptr);
+    // MLS needs Order > 1, so every MLS particle has an affine term.
+    constexpr bool has_A = carries_affine(S) && Order > 1;
     const bool has_G = S != Scheme::MLS && ((carries_affine(S) && Order == 1) || K != nullptr);
     Node u0, a[Dim], g[Dim];
     u0.template head<Dim>() = mp * v[p];
@@ -193,7 +194,8 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
     // sum dwx_a wy_b T_ab, sum wx_a dwy_b T_ab, sum wab U_ab. Node vectors carry the mass as a
     // last component, which the sums ignore; they are (Dim+1)-wide for the vector units.
     constexpr int N = St::N;
-    const Node* n0 = nodes + grid.index(s.base);
+    const std::int64_t k0 = grid.index(s.base);
+    const Node* n0 = nodes + k0;
     Node vp = Node::Zero(), bc[Dim], gc[Dim];
     for (int d = 0; d < Dim; ++d) bc[d].setZero(), gc[d].setZero();
     Vec old_sum = Vec::Zero();
@@ -223,7 +225,7 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
             gc[2] += wab * Uab;
           }
           if constexpr (S == Scheme::FLIP) {
-            const std::int64_t k = grid.index(s.base) + r;
+            const std::int64_t k = k0 + r;
             for (int ic = 0; ic < N; ++ic) old_sum += (wab * s.w[2][ic]) * grid.old_velocity(k + ic);
           }
         }
@@ -237,7 +239,7 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
           if constexpr (need_B) Oa += (s.w[1][ib] * s.offset[1][ib]) * row[ib];
           if constexpr (need_grad) Ua += s.dw[1][ib] * row[ib];
           if constexpr (S == Scheme::FLIP)
-            old_sum += (s.w[0][ia] * s.w[1][ib]) * grid.old_velocity(grid.index(s.base) + r + ib);
+            old_sum += (s.w[0][ia] * s.w[1][ib]) * grid.old_velocity(k0 + r + ib);
         }
         vp += s.w[0][ia] * Ta;
         if constexpr (need_B) {
