@@ -203,8 +203,9 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
     t = now;
   };
   bin_particles();
-  if (implicit_ || steps_ % kReorderInterval == 0) reorder_particles();
   lap(phase_times_.binning);
+  if (implicit_ || steps_ % kReorderInterval == 0) reorder_particles();
+  lap(phase_times_.reorder);
   compute_stress(dt);
   lap(phase_times_.stress);
   particles_to_grid(grid);
@@ -323,10 +324,13 @@ void Simulation<T, Dim>::reorder_particles() {
     // Channel values are fixed-size Eigen objects or scalars: plain bytes, copied as such.
     static_assert(sizeof(V) <= sizeof(Mat));
     auto* c = reinterpret_cast<unsigned char*>(static_cast<void*>(channel.data()));
-    parallel::parallel_for(0, n, [&](std::int64_t i) {
-      std::memcpy(scratch + i * sizeof(V), c + std::size_t(order[i]) * sizeof(V), sizeof(V));
+    parallel::parallel_chunks(0, n, [&](std::int64_t lo, std::int64_t hi) {
+      for (std::int64_t i = lo; i < hi; ++i)
+        std::memcpy(scratch + i * sizeof(V), c + std::size_t(order[i]) * sizeof(V), sizeof(V));
     });
-    parallel::parallel_for(0, n, [&](std::int64_t i) { std::memcpy(c + i * sizeof(V), scratch + i * sizeof(V), sizeof(V)); });
+    parallel::parallel_chunks(0, n, [&](std::int64_t lo, std::int64_t hi) {
+      std::memcpy(c + lo * sizeof(V), scratch + lo * sizeof(V), std::size_t(hi - lo) * sizeof(V));
+    });
   };
   permute(P.x);
   permute(P.v);

@@ -85,7 +85,8 @@ std::int64_t substep_to(double& time, double t_end, StableDt&& stable_dt, Step&&
 /// Wall-clock seconds spent in each phase of the MPM substep since the simulation started.
 struct PhaseTimes {
   double stress = 0;      ///< compute_stress
-  double binning = 0;     ///< bin_particles (and the periodic re-sort of particle storage)
+  double binning = 0;     ///< bin_particles
+  double reorder = 0;     ///< the periodic re-sort of particle storage into bin order
   double p2g = 0;         ///< particles_to_grid (including grid block allocation)
   double grid = 0;        ///< update_grid
   double g2p = 0;         ///< grid_to_particles

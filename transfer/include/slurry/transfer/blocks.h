@@ -80,26 +80,32 @@ class ParticleBins {
     for (auto k : distinct_) table_[std::size_t(k)] = -1;
     distinct_.clear();
     const std::int64_t nm = std::max(1, materials);
-    // 1. Block key of every particle.
+    // 1. Block key of every particle, and per fixed chunk of particles the keys that start a run
+    //    of equal keys (neighbouring particles mostly share a block, so runs are few).
     std::int32_t* key = key_.data();
-    parallel::parallel_for(0, n, [&](std::int64_t p) {
-      const IVec b = base_of(p);
-      std::int64_t k = 0;
-      for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + (b[d] >> Shape::log2);
-      key[p] = std::int32_t(k);
-    });
-    // 2. The occupied blocks, sorted by key (neighbouring particles mostly share a block, so the
-    //    table is read once per run of equal keys).
-    std::int32_t prev = -1;
-    for (std::int64_t p = 0; p < n; ++p) {
-      const std::int32_t k = key[p];
-      if (k == prev) continue;
-      prev = k;
-      if (table_[std::size_t(k)] < 0) {
-        table_[std::size_t(k)] = 0;
-        distinct_.push_back(k);
+    const std::int64_t scan_chunks = (n + kScanChunk - 1) / kScanChunk;
+    if (std::int64_t(runs_.size()) < scan_chunks) runs_.resize(std::size_t(scan_chunks));
+    parallel::parallel_tasks(0, scan_chunks, [&](std::int64_t c) {
+      auto& runs = runs_[std::size_t(c)];
+      runs.clear();
+      const std::int64_t lo = c * kScanChunk, hi = std::min(n, (c + 1) * kScanChunk);
+      for (std::int64_t p = lo; p < hi; ++p) {  // kept free of branches: it vectorises
+        const IVec b = base_of(p);
+        std::int64_t k = 0;
+        for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + (b[d] >> Shape::log2);
+        key[p] = std::int32_t(k);
       }
-    }
+      std::int32_t prev = -1;
+      for (std::int64_t p = lo; p < hi; ++p)
+        if (key[p] != prev) runs.push_back(prev = key[p]);
+    });
+    // 2. The occupied blocks, sorted by key: the table is read once per run.
+    for (std::int64_t c = 0; c < scan_chunks; ++c)
+      for (const std::int32_t k : runs_[std::size_t(c)])
+        if (table_[std::size_t(k)] < 0) {
+          table_[std::size_t(k)] = 0;
+          distinct_.push_back(k);
+        }
     std::sort(distinct_.begin(), distinct_.end());
     const std::int64_t nb = std::int64_t(distinct_.size());
     for (std::int64_t j = 0; j < nb; ++j) table_[std::size_t(distinct_[std::size_t(j)])] = std::int32_t(j);
@@ -117,7 +123,7 @@ class ParticleBins {
     const std::int32_t* table = table_.data();
     auto slot_of = [&](std::int64_t p) { return std::int64_t(table[key[p]]) * nm + std::int64_t(material_of(p)); };
     // The histogram pass leaves each particle's slot in key_, for the scatter pass.
-    parallel::parallel_for(0, chunks, [&](std::int64_t c) {
+    parallel::parallel_tasks(0, chunks, [&](std::int64_t c) {
       std::uint32_t* h = count + c * slots;
       for (std::int64_t p = c * chunk, e = std::min(n, (c + 1) * chunk); p < e; ++p) {
         const std::int64_t sl = slot_of(p);
@@ -125,9 +131,37 @@ class ParticleBins {
         ++h[sl];
       }
     });
+    // Offsets in (slot, chunk) order: each slot's total over the chunks, an exclusive scan over
+    // the slots, then each chunk's start within its slot. The histograms are walked row by row
+    // over ranges of slots, in parallel; only the scan over slots is serial.
+    start_.resize(std::size_t(slots) + 1);
+    std::uint32_t* start = start_.data();
+    parallel::parallel_chunks(0, slots, [&](std::int64_t lo, std::int64_t hi) {
+      std::fill(start + lo, start + hi, 0u);
+      for (std::int64_t c = 0; c < chunks; ++c)
+        for (std::int64_t sl = lo; sl < hi; ++sl) start[sl] += count[c * slots + sl];
+    });
+    std::uint32_t offset = 0;
+    for (std::int64_t sl = 0; sl < slots; ++sl) {
+      const std::uint32_t cnt = start[sl];
+      start[sl] = offset;
+      offset += cnt;
+    }
+    start[slots] = offset;
+    running_.resize(std::size_t(slots));
+    std::uint32_t* running = running_.data();
+    parallel::parallel_chunks(0, slots, [&](std::int64_t lo, std::int64_t hi) {
+      std::copy(start + lo, start + hi, running + lo);
+      for (std::int64_t c = 0; c < chunks; ++c)
+        for (std::int64_t sl = lo; sl < hi; ++sl) {
+          std::uint32_t& h = count[c * slots + sl];
+          const std::uint32_t cnt = h;
+          h = running[sl];
+          running[sl] += cnt;
+        }
+    });
     bins_.clear();
     groups_.clear();
-    std::uint32_t offset = 0;
     for (std::int64_t j = 0; j < nb; ++j) {
       IVec block;
       std::int64_t k = distinct_[std::size_t(j)];
@@ -137,19 +171,13 @@ class ParticleBins {
       }
       groups_.push_back(std::uint32_t(bins_.size()));
       for (std::int64_t m = 0; m < nm; ++m) {
-        const std::uint32_t begin = offset;
-        for (std::int64_t c = 0; c < chunks; ++c) {
-          std::uint32_t& h = count[c * slots + j * nm + m];
-          const std::uint32_t cnt = h;
-          h = offset;
-          offset += cnt;
-        }
-        if (offset > begin) bins_.push_back({block, std::uint32_t(m), begin, offset});
+        const std::uint32_t begin = start[j * nm + m], end = start[j * nm + m + 1];
+        if (end > begin) bins_.push_back({block, std::uint32_t(m), begin, end});
       }
     }
     groups_.push_back(std::uint32_t(bins_.size()));
     std::uint32_t* order = order_.data();
-    parallel::parallel_for(0, chunks, [&](std::int64_t c) {
+    parallel::parallel_tasks(0, chunks, [&](std::int64_t c) {
       std::uint32_t* h = count + c * slots;
       for (std::int64_t p = c * chunk, e = std::min(n, (c + 1) * chunk); p < e; ++p)
         order[h[key[p]]++] = std::uint32_t(p);
@@ -187,17 +215,23 @@ class ParticleBins {
                     count_.capacity() * sizeof(std::uint32_t) + bins_.capacity() * sizeof(Bin) +
                     groups_.capacity() * sizeof(std::uint32_t);
     for (const auto& c : colour_) b += c.capacity() * sizeof(std::uint32_t);
+    for (const auto& r : runs_) b += r.capacity() * sizeof(std::int32_t);
+    b += (start_.capacity() + running_.capacity()) * sizeof(std::uint32_t);
     return b;
   }
 
  private:
   static constexpr std::int64_t kMinChunk = 16384;
+  static constexpr std::int64_t kScanChunk = 16384;
   static constexpr std::int64_t kMaxChunks = 64;
   IVec block_res_ = IVec::Zero();
   std::vector<std::int32_t> table_;  // block key -> block index during build, -1 when unused
   std::vector<std::int32_t> key_;    // per particle: block key, then (block, material) slot
   std::vector<std::uint32_t> order_;
   std::vector<std::int32_t> distinct_;
+  std::vector<std::uint32_t> start_;    // per (block, material) slot: first index in order_
+  std::vector<std::uint32_t> running_;  // per slot: next free index while offsets are built
+  std::vector<std::vector<std::int32_t>> runs_;  // per scan chunk: keys starting a run (reused)
   std::vector<std::uint32_t> count_;
   std::vector<Bin> bins_;
   std::vector<std::uint32_t> groups_;

@@ -93,10 +93,13 @@ void parallel_for_grain(std::int64_t begin, std::int64_t end, std::int64_t grain
 #endif
 }
 
-/// fn(i) for i in [begin, end) over cheap, independent calls (one particle, one node).
+/// fn(i) for i in [begin, end) over cheap, independent calls (one particle, one node). Chunks of
+/// at least 256 indices and at most a 32nd of a thread's share: few enough hand-outs that the
+/// shared chunk counter is not contended, enough that a descheduled thread delays little.
 template <class Fn>
 void parallel_for(std::int64_t begin, std::int64_t end, Fn&& fn) {
-  parallel_for_grain(begin, end, 256, fn);
+  const std::int64_t share = (end - begin) / (32 * std::int64_t(std::max(1, max_threads())));
+  parallel_for_grain(begin, end, std::max<std::int64_t>(256, share), fn);
 }
 
 /// fn(i) for i in [begin, end) where each call is a sizeable independent task (a block of
