@@ -48,8 +48,9 @@ class Progress {
                    human_seconds(eta).c_str());
       if (done == total) std::fputc('\n', stderr);
     } else {
-      std::fprintf(stderr, "frame %d/%d: %lld substeps, %zu particles, %.3f s, wrote %s\n", done, total,
-                   static_cast<long long>(r.substeps), r.particles, r.seconds, r.file.string().c_str());
+      std::fprintf(stderr, "frame %d/%d: %lld substeps, %zu particles, %.3f s, wrote %s%s%s\n", done, total,
+                   static_cast<long long>(r.substeps), r.particles, r.seconds, r.file.string().c_str(),
+                   r.solver.empty() ? "" : "; ", r.solver.c_str());
     }
     std::fflush(stderr);
   }

@@ -61,6 +61,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
       r.elapsed = seconds_since(start);
       r.particles = sim->particle_count();
       r.file = file;
+      r.solver = sim->solver_status();
       on_frame(r);
     }
   }

@@ -183,6 +183,15 @@ std::int64_t Simulation<T, Dim>::advance_to(double t_end) {
 }
 
 template <class T, int Dim>
+std::string Simulation<T, Dim>::solver_status() const {
+  if (!implicit_ || cg_.solves == 0) return {};
+  char buf[160];
+  std::snprintf(buf, sizeof buf, "implicit CG %d iterations, residual %.2g (%lld unconverged so far)",
+                cg_.last_iterations, cg_.last_residual, (long long)cg_.unconverged);
+  return buf;
+}
+
+template <class T, int Dim>
 void Simulation<T, Dim>::step(T dt) {
   if (sparse_grid_)
     step_on(sparse_, dt);

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <nlohmann/json.hpp>
+#include <string>
 #include <variant>
 
 #include "slurry/engine/flip/flip_simulation.h"
@@ -139,3 +140,25 @@ TEST(FlipScene, GoodSceneKeepsItsValuesAndRuns) {
 }
 
 }  // namespace
+
+// The per-frame log line names the last pressure solve: its iteration count and a relative
+// residual that met solver.pressure.tolerance (parsed back from the text the CLI prints).
+TEST(FlipScene, SolverStatusReportsThePressureSolve) {
+  auto j = good_flip_scene();
+  j["bodies"][0]["max"] = {0.4, 0.8};  // a collapsing column: every substep has work to do
+  const auto s = slurry::parse_scene(j.dump(), "column.json");
+  auto sim = slurry::make_simulation(s);
+  EXPECT_EQ(sim->solver_status(), "") << "no solve before the first substep";
+  sim->advance_to(0.1);
+  const std::string status = sim->solver_status();
+  int iterations = -1;
+  double residual = -1, divergence = -1;
+  ASSERT_EQ(std::sscanf(status.c_str(), "pressure PCG %d iterations, residual %lf, max |div u| %lf", &iterations,
+                        &residual, &divergence),
+            3)
+      << status;
+  EXPECT_GT(iterations, 0);
+  EXPECT_LE(residual, s.solver.pressure.tolerance);
+  EXPECT_GE(divergence, 0.0);
+  std::printf("[ figure ] %s\n", status.c_str());
+}

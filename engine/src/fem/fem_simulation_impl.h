@@ -3,8 +3,10 @@
 #pragma once
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <sstream>
+#include <string>
 
 #include "slurry/engine/fem/fem_simulation.h"
 #include "slurry/engine/fem/tetgen.h"
@@ -171,6 +173,12 @@ void FemSimulation<T, Dim>::diagnose(T dt) const {
       << "\") has a non-finite position or velocity (dt " << fem_detail::fmt(double(dt)) << " s, explicit limit "
       << fem_detail::fmt(double(explicit_dt_)) << " s); reduce solver.max_dt or solver.elastic_cfl, or use solver.integrator \"implicit\"";
   throw SimulationError(msg.str());
+}
+
+template <class T, int Dim>
+std::string FemSimulation<T, Dim>::solver_status() const {
+  if (last_iterations_ == 0) return {};
+  return "implicit PCG " + std::to_string(last_iterations_) + " iterations";
 }
 
 template <class T, int Dim>

@@ -3,8 +3,10 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <ctime>
 #include <sstream>
+#include <string>
 
 #include "slurry/engine/flip/advection.h"
 #include "slurry/engine/flip/extrapolate.h"
@@ -80,6 +82,16 @@ FlipSimulation<T, Dim>::FlipSimulation(const Scene& scene) : scene_(scene) {
   }
   for (const auto& e : scene_.emitters) emitters_.emplace_back(e, std::uint16_t(scene_.material_index(e.material)));
   for (const auto& v : P.v) max_speed_ = std::max(max_speed_, v.norm());
+}
+
+template <class T, int Dim>
+std::string FlipSimulation<T, Dim>::solver_status() const {
+  if (steps_ == 0) return {};
+  const auto& r = last_projection_;
+  char buf[192];
+  std::snprintf(buf, sizeof buf, "pressure PCG %d iterations, residual %.2g%s, max |div u| %.2g 1/s", r.iterations,
+                r.relative_residual, r.converged ? "" : " (not converged)", r.max_divergence);
+  return buf;
 }
 
 template <class T, int Dim>

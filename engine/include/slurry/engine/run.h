@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <functional>
 #include <optional>
+#include <string>
 
 #include "slurry/engine/scene.h"
 
@@ -33,6 +34,7 @@ struct FrameReport {
   double elapsed = 0;          ///< wall time since the run started
   std::size_t particles = 0;
   std::filesystem::path file;  ///< the frame written
+  std::string solver;          ///< SimulationBase::solver_status() after the frame's last substep
 };
 
 struct RunSummary {

@@ -55,6 +55,9 @@ class SimulationBase {
   /// The particles' current state as a PLY "vertex" element with the named attributes
   /// (position, velocity, material, J, plastic).
   virtual io::PlyData frame(const std::vector<std::string>& attributes) const = 0;
+  /// One line on the last substep's linear solve (iterations, relative residual), for the CLI's
+  /// per-frame log; empty for solvers without one (explicit MPM and FEM).
+  virtual std::string solver_status() const { return {}; }
 };
 
 /// The substep loop every solver's advance_to shares: takes substeps of stable_dt() from `time`
@@ -148,6 +151,7 @@ class Simulation final : public SimulationBase {
   /// CG iterations of the last substep's implicit solve (0 for "explicit").
   int last_cg_iterations() const { return cg_.last_iterations; }
   const CgStats& cg_stats() const { return cg_; }
+  std::string solver_status() const override;
 
  private:
   /// Particles are re-stored in bin order every this many substeps (between, they are reached

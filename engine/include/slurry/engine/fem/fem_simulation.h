@@ -61,6 +61,8 @@ class FemSimulation final : public SimulationBase {
   const std::vector<std::uint16_t>& vertex_material() const { return vertex_material_; }
   /// Iterations of the last implicit solve (0 for explicit steps).
   int last_solver_iterations() const { return last_iterations_; }
+  /// "implicit PCG <iterations> iterations" of the last substep; empty for explicit steps.
+  std::string solver_status() const override;
 
  private:
   struct Boundary;

@@ -79,6 +79,8 @@ class FlipSimulation final : public SimulationBase {
   const Scene& scene() const { return scene_; }
   /// What the last pressure projection did (iterations, residual, max divergence).
   const ProjectionReport& last_projection() const { return last_projection_; }
+  /// "pressure PCG <iterations> iterations, residual <r>, max |div u| <d> 1/s" of the last substep.
+  std::string solver_status() const override;
   /// Largest particle speed after the last substep (m/s).
   T max_speed() const { return max_speed_; }
   /// Particle volume dx^Dim / particles_per_cell (the nominal seeding density).
