@@ -273,9 +273,10 @@ void Scene::validate_flip() const {
   if (solver.reseed.min_per_cell < 0 || solver.reseed.min_per_cell > 64)
     fail(source, "solver.reseed.min_per_cell",
          "expected an integer in [0, 64], got " + std::to_string(solver.reseed.min_per_cell));
-  if (solver.reseed.max_per_cell <= solver.reseed.min_per_cell || solver.reseed.max_per_cell > 512)
+  if (solver.reseed.max_per_cell != 0 &&
+      (solver.reseed.max_per_cell <= solver.reseed.min_per_cell || solver.reseed.max_per_cell > 512))
     fail(source, "solver.reseed.max_per_cell",
-         "expected an integer in (min_per_cell = " + std::to_string(solver.reseed.min_per_cell) + ", 512], got " +
+         "expected 0 (off) or an integer in (min_per_cell = " + std::to_string(solver.reseed.min_per_cell) + ", 512], got " +
              std::to_string(solver.reseed.max_per_cell));
   for (std::size_t i = 0; i < materials.size(); ++i) {
     const std::string p = "materials[" + std::to_string(i) + "]";
@@ -390,6 +391,7 @@ void Scene::validate() const {
     fail(source, "solver.kernel",
          "transfer \"mls\" needs kernel \"quadratic\" or \"cubic\" (its D_p^-1 is not constant for the linear kernel)");
   c.in_range("solver.flip_ratio", solver.flip_ratio, 0, 1, false, false);
+  c.in_range("solver.volume_correction", solver.volume_correction, 0, 1, false, false);
   c.in_range("solver.cfl", solver.cfl, 0, flip ? 5 : 1, true, false);
   c.in_range("solver.elastic_cfl", solver.elastic_cfl, 0, 1, true, false);
   c.positive("solver.max_dt", solver.max_dt);
@@ -570,6 +572,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.choice("integrator", kIntegrator, s.solver.integrator);
     if (s.solver.type == SolverType::FLIP) {  // keys of the FLIP solver only
       r.choice("advection", kAdvection, s.solver.advection);
+      r.number("volume_correction", s.solver.volume_correction);
       r.object("pressure", [&](ObjectReader& q) {
         q.choice("preconditioner", kPreconditioner, s.solver.pressure.preconditioner);
         q.number("tolerance", s.solver.pressure.tolerance);

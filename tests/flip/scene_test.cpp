@@ -47,7 +47,7 @@ const BadCase kBad[] = {
     {"preconditioner", R"({"solver": {"pressure": {"preconditioner": "ilu"}}})",
      "solver.pressure.preconditioner: expected one of \"multigrid\", \"mic0\", \"jacobi\", \"none\", got \"ilu\""},
     {"reseed_bounds", R"({"solver": {"reseed": {"min_per_cell": 5, "max_per_cell": 5}}})",
-     "solver.reseed.max_per_cell: expected an integer in (min_per_cell = 5, 512], got 5"},
+     "solver.reseed.max_per_cell: expected 0 (off) or an integer in (min_per_cell = 5, 512], got 5"},
     {"solid", R"({"materials": [{"name": "water", "model": "neo_hookean"}]})",
      "materials[0].model: solver.type \"flip\" simulates liquids: expected \"fluid\", got \"neo_hookean\""},
     {"bulk_modulus", R"({"materials": [{"name": "water", "model": "fluid", "bulk_modulus": 1e6}]})",

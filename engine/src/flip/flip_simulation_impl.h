@@ -99,7 +99,7 @@ std::size_t FlipSimulation<T, Dim>::bytes() const {
   std::size_t b = particles_.bytes() + scratch_.bytes() + (sort_.key.capacity() + sort_.start.capacity() +
                                                            sort_.order.capacity()) * sizeof(std::int64_t);
   const std::size_t cells = std::size_t(grid_.num_cells());
-  b += cells * (2 + 2 * sizeof(T));
+  b += cells * (2 + 2 * sizeof(T)) + target_flux_.capacity() * sizeof(double);
   for (int d = 0; d < Dim; ++d)
     b += grid_.u[d].capacity() * (4 * sizeof(T) + 1) + weight_sum_[d].capacity() * sizeof(T) +
          old_u_[d].capacity() * sizeof(T);
@@ -218,7 +218,59 @@ void FlipSimulation<T, Dim>::build_boundaries(T t) {
 
 template <class T, int Dim>
 void FlipSimulation<T, Dim>::project(T dt) {
-  last_projection_ = pressure_.project(grid_, dt, projection_options_);
+  const double beta = scene_.solver.volume_correction;
+  if (beta <= 0) {
+    last_projection_ = pressure_.project(grid_, dt, projection_options_);
+    return;
+  }
+  // Volume correction. Particles bunched by large steps (or squeezed against walls) carry more
+  // liquid than their cells hold, and the discretely divergence-free grid velocity does not
+  // spread them out again, so the liquid shrinks (40% of the 2D dam break's filled cells in 5 s
+  // at one substep per frame). The particle density of a cell, relative to the seeding
+  // density, is read from the face weight sums of the last P2G (sum_p w_pf, about
+  // particles_per_cell on every face of a uniformly filled cell): rho_c = mean over the cell's
+  // open faces / particles_per_cell. The projection then aims at
+  // div u = beta (rho_c - 1) / dt instead of 0, which removes the share beta of the density
+  // error in one step (the density constraint of Kugelstadt, Longva, Thuerey & Bender 2019,
+  // "Implicit density projection for volume conserving liquids", IEEE TVCG 27(4), folded into
+  // the one pressure solve as a divergence source). The error is clamped to [-0.5, 0.5]. In
+  // surface cells (an air neighbour; under-filled by construction) only over-density counts,
+  // and wall faces (closed, particles on one side only) are left out of the mean.
+  const T ppc = std::pow(grid_.dx, T(Dim)) / particle_volume_;
+  // Dead band: |rho_c - 1| up to 0.3 is left alone. The estimate is noisy (jittered seeding,
+  // few particles per face), and correcting that noise stirs a pool at rest (0.28 m/s after 2 s
+  // in the hydrostatic test without the band, 0.0175 m/s with 0.1, at rest from 0.2 on).
+  constexpr T kSlack = T(0.3);
+  target_flux_.resize(std::size_t(grid_.num_cells()));
+  const double flux_per_error = beta * double(grid_.dx) / double(dt);  // dx div u per unit density error
+  parallel::parallel_for(0, grid_.num_cells(), [&](std::int64_t c) {
+    double target = 0;
+    if (grid_.label[std::size_t(c)] == Grid::Fluid) {
+      const IVec i = grid_.cell_coord(c);
+      T w = 0;
+      int open = 0;
+      bool interior = true;
+      for (int d = 0; d < Dim; ++d)
+        for (int side = 0; side < 2; ++side) {
+          IVec j = i;
+          j[d] += side ? 1 : -1;
+          if (j[d] >= 0 && j[d] < grid_.res[d] && grid_.label[std::size_t(grid_.cell(j))] == Grid::Air) interior = false;
+          IVec f = i;
+          f[d] += side;
+          if (grid_.open_weight(d, f) <= T(0)) continue;  // a wall face sees particles on one side only
+          w += weight_sum_[d][std::size_t(grid_.face(d, f))];
+          ++open;
+        }
+      if (open > 0) {
+        const T e = w / (T(open) * ppc) - T(1);
+        const T shrunk = e > kSlack ? e - kSlack : e < -kSlack ? e + kSlack : T(0);
+        const T err = std::clamp(shrunk, interior ? T(-0.5) : T(0), T(0.5));
+        target = flux_per_error * double(err);
+      }
+    }
+    target_flux_[std::size_t(c)] = target;
+  });
+  last_projection_ = pressure_.project(grid_, dt, projection_options_, target_flux_.data());
 }
 
 template <class T, int Dim>
@@ -291,6 +343,7 @@ void FlipSimulation<T, Dim>::advect(T dt) {
 template <class T, int Dim>
 void FlipSimulation<T, Dim>::reseed() {
   const auto& r = scene_.solver.reseed;
+  if (r.min_per_cell <= 0 && r.max_per_cell <= 0) return;  // both off
   const Grid& g = grid_;
   const int order = order_;
   auto init = [&g, order](const Vec& x, Vec& v, Vec* c) {

@@ -67,8 +67,10 @@ struct PressureParams {
 /// neighbour fluid or solid) with fewer than min_per_cell particles get new ones, and every cell
 /// with more than max_per_cell loses the surplus.
 struct ReseedParams {
-  int min_per_cell = 0;   ///< 0 turns adding off (holes are liquid by their labels anyway)
-  int max_per_cell = 16;  ///< > min_per_cell
+  int min_per_cell = 0;  ///< 0 turns adding off (holes are liquid by their labels anyway)
+  /// 0 turns removal off (the default: a removed particle is liquid volume lost for good, and
+  /// solver.volume_correction spreads bunched particles out instead); else > min_per_cell.
+  int max_per_cell = 0;
 };
 
 struct SolverParams {
@@ -85,6 +87,10 @@ struct SolverParams {
   AdvectionScheme advection = AdvectionScheme::Midpoint;  ///< FLIP only
   PressureParams pressure;                                ///< FLIP only
   ReseedParams reseed;                                    ///< FLIP only
+  /// FLIP only: share in [0, 1] of the particle over- or under-density of interior fluid cells
+  /// that each pressure projection corrects (a target divergence), so that particles bunched by
+  /// large steps spread out again instead of the liquid losing volume; 0 = off.
+  double volume_correction = 0.5;
   Integrator integrator = Integrator::Explicit;  ///< "explicit" or "implicit" (MPM solids)
   double cg_tolerance = 1e-6;  ///< implicit: CG relative residual, (0, 1)
   int cg_max_iterations = 500;  ///< implicit: CG iteration cap, >= 1

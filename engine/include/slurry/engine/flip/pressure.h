@@ -246,7 +246,10 @@ class PressureSolver {
   /// Projects g's face velocities: assembles A, solves for p (warm start from g.pressure),
   /// subtracts dt/rho grad p on open faces next to fluid, sets u = u_solid on closed faces and
   /// valid = 1 exactly on the updated faces. Writes g.pressure (0 outside the fluid).
-  ProjectionReport project(Grid& g, T dt, const ProjectionOptions& opt) {
+  /// `target_flux`, if given (one value per cell), asks for D_c = target_flux[c] instead of 0
+  /// (dx times a target divergence, for the FLIP volume correction); max_divergence then
+  /// measures |D_c - target_flux[c]| / dx.
+  ProjectionReport project(Grid& g, T dt, const ProjectionOptions& opt, const double* target_flux = nullptr) {
     opt.validate();
     prepare_for(opt.preconditioner, opt.mic_blocks);
     assemble(g, opt.ghost_fluid);
@@ -257,7 +260,8 @@ class PressureSolver {
     p.resize(std::size_t(num_cells_));
     for_each_index(g.res, [&](std::int64_t c, const IVec& i) {
       const bool unknown = is_unknown(c);
-      b[std::size_t(c)] = unknown ? -scale * double(open_flux_sum(g, i)) : 0.0;
+      const double target = target_flux ? target_flux[c] : 0.0;
+      b[std::size_t(c)] = unknown ? -scale * (double(open_flux_sum(g, i)) - target) : 0.0;
       p[std::size_t(c)] = unknown ? double(g.pressure[std::size_t(c)]) : 0.0;
     });
     ProjectionReport rep = solve(b, p, opt);
@@ -298,7 +302,9 @@ class PressureSolver {
         IVec i = row_coord(g.res, row);
         for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
           i[Dim - 1] = k;
-          if (is_unknown(row * nz_ + k)) m = std::max(m, std::abs(double(open_flux_sum(g, i))) / double(g.dx));
+          const std::int64_t c = row * nz_ + k;
+          if (is_unknown(c))
+            m = std::max(m, std::abs(double(open_flux_sum(g, i)) - (target_flux ? target_flux[c] : 0.0)) / double(g.dx));
         }
       }
       return m;

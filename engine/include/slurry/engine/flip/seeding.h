@@ -217,7 +217,7 @@ struct Reseeder {
     const auto& start = sort.start;
     // Remove the surplus of over-full cells (serial and stable: the highest indices go).
     bool crowded = false;
-    for (std::int64_t k = 0; k < cells && !crowded; ++k) crowded = start[k + 1] - start[k] > max_per_cell;
+    for (std::int64_t k = 0; k < cells && !crowded && max_per_cell > 0; ++k) crowded = start[k + 1] - start[k] > max_per_cell;
     if (crowded) {
       seen.assign(std::size_t(cells), 0);
       std::size_t w = 0;
