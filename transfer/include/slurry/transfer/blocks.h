@@ -251,6 +251,10 @@ namespace slurry::transfer {
 template <class T, int Dim, int Order>
 struct Patch {
   static constexpr int extent = BlockShape<Dim>::size + Order;
+  // Race freedom of the colour phases: two blocks of one colour are at least two blocks apart
+  // along some axis, so their patches (nodes [size b, size b + extent)) are disjoint exactly when
+  // extent <= 2 size. Checked here, at compile time, for every kernel order that is instantiated.
+  static_assert(extent <= 2 * BlockShape<Dim>::size, "a patch must not reach a same-colour block's patch");
   static constexpr int count = Dim == 3 ? extent * extent * extent : extent * extent;
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using IVec = Eigen::Matrix<int, Dim, 1>;

@@ -5,6 +5,7 @@
 /// over independent indices, so its result does not depend on the thread count; reductions
 /// through `parallel_max` use an order-independent operation.
 #include <algorithm>
+#include <array>
 #include <cstdint>
 #include <vector>
 
@@ -159,7 +160,16 @@ T parallel_sum(std::int64_t begin, std::int64_t end, std::int64_t grain, Fn&& ch
   if (end <= begin) return T(0);
   grain = std::max<std::int64_t>(grain, 1);
   const std::int64_t chunks = (end - begin + grain - 1) / grain;
-  std::vector<T> partial(static_cast<std::size_t>(chunks), T(0));
+  // The partial sums live on the stack up to 512 chunks (no allocation in a solver's inner
+  // loop); beyond that on the heap.
+  constexpr std::int64_t kStackChunks = 512;
+  std::array<T, std::size_t(kStackChunks)> stack_partial;
+  std::vector<T> heap_partial;
+  T* partial = stack_partial.data();
+  if (chunks > kStackChunks) {
+    heap_partial.assign(static_cast<std::size_t>(chunks), T(0));
+    partial = heap_partial.data();
+  }
   const auto run = [&](std::int64_t c) {
     partial[static_cast<std::size_t>(c)] = chunk_sum(begin + c * grain, std::min(end, begin + (c + 1) * grain));
   };
@@ -175,7 +185,7 @@ T parallel_sum(std::int64_t begin, std::int64_t end, std::int64_t grain, Fn&& ch
   for (std::int64_t c = 0; c < chunks; ++c) run(c);
 #endif
   T sum = T(0);
-  for (const T& v : partial) sum += v;
+  for (std::int64_t c = 0; c < chunks; ++c) sum += partial[c];
   return sum;
 }
 

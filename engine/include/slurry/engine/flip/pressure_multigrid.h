@@ -401,7 +401,13 @@ class MultigridPreconditioner {
       L.lo[std::size_t(row)] = lo < hi ? lo : 0;
       L.hi[std::size_t(row)] = lo < hi ? hi : 0;
     });
-    // Serial, in row-major order: the band lists do not depend on the thread count.
+    // Serial, in row-major order: the band lists do not depend on the thread count. The band is
+    // a subset of the unknowns, so the lists are reserved for the last build's unknowns plus a
+    // quarter: a moving liquid of about constant volume then never grows them inside a step.
+    const std::size_t need = std::size_t(L.unknowns), bound = need + need / 4;
+    if (L.band.capacity() < need) L.band.reserve(bound);
+    for (auto& bc : L.band_colour)
+      if (bc.capacity() < need) bc.reserve(bound);
     L.unknowns = 0;
     L.dirichlet = 0;
     L.band.clear();
