@@ -35,16 +35,31 @@
 /// v0 the result, the solve is S A S x = S (M v0 - A v0), v^{n+1} = v0 + x; the boundary rule
 /// is then applied once more, so that a node left free that ends up approaching is stopped.
 ///
-/// Preconditioner: Jacobi with the exact diagonal of M + dt^2 H. CG stops when the residual is
-/// below solver.cg_tolerance times the initial one, ||S (M v0 - A v0)|| (the elastic impulse to
-/// correct), or below the round-off of A v0's terms (64 eps ||diag(A) v0||), whichever is
-/// larger. A tolerance relative to M v0 instead would let a fast rigid motion hide the elastic
-/// error, which the explicit impulse in v0 amplifies step after step at large dt.
+/// The operator is assembled once per substep (after the per-particle K_p) as Dim x Dim node
+/// blocks: H_ij = sum_p sum_{b,e} g_ip[b] K_p[(., b), (., e)] g_jp[e] for every pair of nodes
+/// in one particle's stencil, stored by block rows over the nodes with mass (row i holds the
+/// unknowns within the kernel order of node i along every axis: up to 5^3 blocks for the
+/// quadratic kernel in 3D). The sums run in particle order on one thread, so the matrix, and
+/// the run, do not depend on the thread count. The filtered system is stored as
+/// A = S (M + dt^2 H) S + (I - S), positive definite on the whole space; a CG iteration is one
+/// block product A p (rows in parallel) instead of a gather and scatter over every particle's
+/// stencil: fewer operations once a node row has fewer blocks than its particles have stencil
+/// pairs (in 3D at 8 particles per cell, 27^2/2 pairs per particle against about 80 blocks per
+/// node on a small body).
 ///
-/// Cost per CG iteration: one gather (G_p, then Q_p = K_p G_p; parallel over particles) and one
-/// scatter (serial for now; fused with the gather in one pass on one thread), both over each
-/// particle's stencil cached once per substep (unknown index and g_ip per node), so no kernel or
-/// SVD is evaluated inside CG.
+/// Preconditioner (solver.implicit_preconditioner): "ic0" (default), block incomplete Cholesky
+/// with zero fill-in on A's block pattern, A ~ F^T F with F block upper triangular (Saad 2003,
+/// "Iterative Methods for Sparse Linear Systems", sec. 10.3 and 10.7), factored once per substep
+/// on one thread; a diagonal block that is not positive definite during the factorization
+/// (possible, A is not an M-matrix) falls back to block Jacobi for that substep. "block_jacobi":
+/// the inverses of A's diagonal blocks. "jacobi": the inverse of A's diagonal. CG stops when the
+/// residual is below solver.cg_tolerance times the initial one, ||S (M v0 - A v0)|| (the elastic
+/// impulse to correct), or below the round-off of A v0's terms (64 eps ||diag(A) v0||),
+/// whichever is larger. A tolerance relative to M v0 instead would let a fast rigid motion hide
+/// the elastic error, which the explicit impulse in v0 amplifies step after step at large dt.
+///
+/// apply_stiffness() keeps the matrix-free form of H (gather G_p, Q_p = K_p G_p, scatter over
+/// the cached stencils) as the reference the tests compare the assembled blocks with.
 ///
 /// Every transfer scheme and kernel of the explicit path is supported (MLS needs quadratic or
 /// cubic, as there). Fluid materials are rejected at validation: fluid particles carry J, not F,
@@ -361,21 +376,42 @@ class ImplicitUpdate {
     slot_.assign(std::size_t(n * Wd), -1);
     row_start_.assign(std::size_t(n + 1), 0);
     // Pass 1: the neighbours of each row, window order (= increasing grid index = increasing unknown).
+    // Window offset w -> its axis offsets and its grid index offset; and the window offset of
+    // the difference of two window offsets (-1 when it leaves the window), for build_ic0.
+    if (int(window_off_.size()) != Wd) {
+      window_off_.resize(std::size_t(Wd));
+      window_step_.resize(std::size_t(Wd));
+      for (int w = 0; w < Wd; ++w) {
+        int rem = w;
+        for (int d = Dim - 1; d >= 0; --d) {
+          window_off_[std::size_t(w)][d] = rem % W - order_;
+          rem /= W;
+        }
+      }
+      window_diff_.assign(std::size_t(Wd * Wd), -1);
+      for (int a = 0; a < Wd; ++a)
+        for (int b = 0; b < Wd; ++b) {
+          const IVec off = window_off_[std::size_t(b)] - window_off_[std::size_t(a)];
+          if ((off.array().abs() > order_).any()) continue;
+          int w = 0;
+          for (int d = 0; d < Dim; ++d) w = w * W + off[d] + order_;
+          window_diff_[std::size_t(a * Wd + b)] = w;
+        }
+    }
+    for (int w = 0; w < Wd; ++w) {
+      window_step_[std::size_t(w)] = 0;
+      for (int d = 0; d < Dim; ++d) window_step_[std::size_t(w)] += window_off_[std::size_t(w)][d] * stride_[d];
+    }
     auto neighbours = [&](std::int64_t i, auto&& fn) {
       const IVec& c = coords_[std::size_t(i)];
       const std::int64_t k = nodes_[std::size_t(i)];
+      const bool interior = (c.array() >= order_).all() && (c.array() < res_.array() - order_).all();
       for (int w = 0; w < Wd; ++w) {
-        int rem = w;
-        std::int64_t kj = k;
-        bool inside = true;
-        for (int d = Dim - 1; d >= 0; --d) {
-          const int off = rem % W - order_;
-          rem /= W;
-          if (c[d] + off < 0 || c[d] + off >= res_[d]) inside = false;
-          kj += off * stride_[d];
+        if (!interior) {
+          const IVec cj = c + window_off_[std::size_t(w)];
+          if ((cj.array() < 0).any() || (cj.array() >= res_.array()).any()) continue;
         }
-        if (!inside) continue;
-        const std::int32_t j = dof_of_[std::size_t(kj)];
+        const std::int32_t j = dof_of_[std::size_t(k + window_step_[std::size_t(w)])];
         if (j >= 0) fn(w, j);
       }
     };
@@ -567,7 +603,6 @@ class ImplicitUpdate {
     const std::int64_t n = unknowns();
     U_ = A_;
     linv_.resize(std::size_t(n));
-    const int W = 2 * order_ + 1;
     for (std::int64_t k = 0; k < n; ++k) {
       const std::int64_t d = diag_block_[std::size_t(k)], end = row_start_[std::size_t(k + 1)];
       Eigen::LLT<Mat> llt(U_[std::size_t(d)]);
@@ -578,20 +613,13 @@ class ImplicitUpdate {
       for (std::int64_t b = d + 1; b < end; ++b) U_[std::size_t(b)] = Linv * U_[std::size_t(b)];
       for (std::int64_t b1 = d + 1; b1 < end; ++b1) {
         const std::int64_t j = col_[std::size_t(b1)];
-        const IVec& cj = coords_[std::size_t(j)];
         const Mat Fjt = U_[std::size_t(b1)].transpose();
+        const int* diff = window_diff_.data() + std::size_t(block_window_[std::size_t(b1)]) * std::size_t(window_);
+        const std::int32_t* row_j = slot_.data() + std::size_t(j * window_);
         for (std::int64_t b2 = b1; b2 < end; ++b2) {
-          const std::int64_t l = col_[std::size_t(b2)];
-          int w = 0;
-          bool inside = true;
-          for (int e = 0; e < Dim; ++e) {
-            const int off = coords_[std::size_t(l)][e] - cj[e];
-            if (off < -order_ || off > order_) inside = false;
-            w = w * W + off + order_;
-          }
-          if (!inside) continue;
-          const std::int32_t s = slot_[std::size_t(j * window_ + w)];
-          U_[std::size_t(s)].noalias() -= Fjt * U_[std::size_t(b2)];
+          const int w = diff[block_window_[std::size_t(b2)]];  // window offset of l - j
+          if (w < 0) continue;
+          U_[std::size_t(row_j[w])].noalias() -= Fjt * U_[std::size_t(b2)];
         }
       }
     }
@@ -734,6 +762,9 @@ class ImplicitUpdate {
   std::vector<std::int64_t> row_start_;  // unknown -> first block of its row
   std::vector<std::int32_t> col_;        // block -> column unknown
   std::vector<int> block_window_;        // block -> its window offset in its row
+  std::vector<IVec> window_off_;         // window offset -> axis offsets
+  std::vector<std::int64_t> window_step_;  // window offset -> grid index offset
+  std::vector<int> window_diff_;         // (window a, window b) -> window of b - a, or -1
   std::vector<std::int64_t> diag_block_; // unknown -> its diagonal block
   std::vector<Mat> H_, A_, block_inverse_;
   std::vector<Mat> U_, linv_;  // block IC(0): F_kj (j > k) and L_k^-1
