@@ -58,8 +58,14 @@
 /// whichever is larger. A tolerance relative to M v0 instead would let a fast rigid motion hide
 /// the elastic error, which the explicit impulse in v0 amplifies step after step at large dt.
 ///
-/// apply_stiffness() keeps the matrix-free form of H (gather G_p, Q_p = K_p G_p, scatter over
-/// the cached stencils) as the reference the tests compare the assembled blocks with.
+/// Precision: the assembled path runs for double only. Float simulations keep the matrix-free
+/// form with Jacobi (apply_stiffness(): gather G_p, Q_p = K_p G_p, scatter over the cached
+/// stencils; solver.implicit_preconditioner is ignored): assembled in float, each block carries a
+/// round-off of about eps |H_ij|, which breaks the positive semidefiniteness of H (exact in the
+/// per-particle form, sum_p G_p^T K_p G_p) by more than the mass of light nodes at
+/// dt^2 |H| / m ~ 1e5 (the 3D float example scene broke CG down at its first collider contact
+/// with each of the three preconditioners). apply_stiffness() is also the reference the tests
+/// compare the assembled blocks with.
 ///
 /// Every transfer scheme and kernel of the explicit path is supported (MLS needs quadratic or
 /// cubic, as there). Fluid materials are rejected at validation: fluid particles carry J, not F,
@@ -194,63 +200,16 @@ class ImplicitUpdate {
       v0_.template segment<Dim>(Dim * i) = v;
     }
     linearize(P, materials, ranges);
-    build_pattern();
-    assemble_stiffness();
-
-    // rhs = S (M v0 - (M + dt^2 H) v0) = -dt^2 S H v0
-    multiply_stiffness(v0_, tmp_);
-    VectorX rhs = (-dt * dt) * tmp_;
-    filter(rhs);
-    // The diagonal of M + dt^2 H.
-    diag_.resize(Dim * n);
-    for (std::int64_t i = 0; i < n; ++i)
-      diag_.template segment<Dim>(Dim * i) = (dt * dt) * H_[std::size_t(diag_block_[std::size_t(i)])].diagonal().array() + mass_[i];
-
-    // The tolerance is relative to the correction's right-hand side (the elastic impulse). It
-    // must not be relative to M v0: a fast rigid motion would then hide errors in the elastic
-    // part, which the explicit impulse in v0 amplifies at large dt. A residual at the round-off
-    // level of the terms of A v0 counts as converged, so that a rigid motion (H v0 = round-off)
-    // needs no iteration.
-    tmp_ = diag_.cwiseProduct(v0_);
-    filter(tmp_);
-    const T floor = T(64) * std::numeric_limits<T>::epsilon() * tmp_.norm(), rhs_norm = rhs.norm();
-    form_system(dt);
-
+    // Float simulations keep the matrix-free form: assembled in float, the blocks' round-off
+    // (about eps |H| per entry, with dt^2 |H| / m up to 1e5 at light nodes) makes A indefinite
+    // (the 3D float example broke CG down at its first collider contact).
+    VectorX x;
     bool ic0_failed = false;
-    Preconditioner pre = options_.preconditioner;
-    if (pre == Preconditioner::IC0) {
-      try {
-        build_ic0();
-      } catch (const std::domain_error&) {
-        ic0_failed = true;
-        pre = Preconditioner::BlockJacobi;
-      }
-    }
-    if (pre == Preconditioner::Jacobi) {
-      diag_ = diag_.cwiseInverse();
-    } else if (pre == Preconditioner::BlockJacobi) {
-      block_inverse_.resize(std::size_t(n));
-      for (std::int64_t i = 0; i < n; ++i) block_inverse_[std::size_t(i)] = A_[std::size_t(diag_block_[std::size_t(i)])].inverse();
-    }
-
-    const auto apply_a = [&](const VectorX& x, VectorX& out) { multiply(A_, x, out); };
-    const auto precondition = [&](const VectorX& r, VectorX& z) {
-      if (pre == Preconditioner::IC0) {
-        apply_ic0(r, z);
-      } else if (pre == Preconditioner::BlockJacobi) {
-        z.resize(r.size());
-        for (std::int64_t i = 0; i < n; ++i)
-          z.template segment<Dim>(Dim * i).noalias() = block_inverse_[std::size_t(i)] * r.template segment<Dim>(Dim * i);
-      } else {
-        z = diag_.cwiseProduct(r);
-      }
-      filter(z);
-    };
-    numerics::PcgOptions<T> cg;
-    cg.tolerance = rhs_norm > T(0) ? std::max(options_.tolerance, floor / rhs_norm) : options_.tolerance;
-    cg.max_iterations = options_.max_iterations;
-    VectorX x = VectorX::Zero(Dim * n);
-    const auto r = numerics::pcg(apply_a, rhs, x, precondition, cg);
+    numerics::PcgResult<T> r;
+    if constexpr (std::is_same_v<T, double>)
+      r = solve_assembled(dt, x, ic0_failed);
+    else
+      r = solve_matrix_free(dt, x);
 
     filter(x);
     for (std::int64_t i = 0; i < n; ++i) {
@@ -510,7 +469,7 @@ class ImplicitUpdate {
            std::size_t(mass_.size() + v0_.size() + diag_.size() + tmp_.size()) * sizeof(T) +
            K_.capacity() * sizeof(Stiffness) + Q_.capacity() * sizeof(Mat) +
            stencil_dof_.capacity() * sizeof(std::int32_t) + stencil_grad_.capacity() * sizeof(Vec) +
-           (H_.capacity() + A_.capacity() + block_inverse_.capacity()) * sizeof(Mat) +
+           (H_.capacity() + block_inverse_.capacity()) * sizeof(Mat) +
            (slot_.capacity() + col_.capacity() + block_window_.capacity()) * sizeof(std::int32_t) +
            (row_start_.capacity() + diag_block_.capacity()) * sizeof(std::int64_t) +
            (U_.capacity() + linv_.capacity()) * sizeof(Mat);
@@ -560,6 +519,98 @@ class ImplicitUpdate {
   }
 
 
+  /// The assembled solve (double): pattern, blocks, preconditioner, CG; x = the correction.
+  numerics::PcgResult<T> solve_assembled(T dt, VectorX& x, bool& ic0_failed) {
+    const std::int64_t n = unknowns();
+    build_pattern();
+    assemble_stiffness();
+
+    // rhs = S (M v0 - (M + dt^2 H) v0) = -dt^2 S H v0
+    multiply_stiffness(v0_, tmp_);
+    VectorX rhs = (-dt * dt) * tmp_;
+    filter(rhs);
+    // The diagonal of M + dt^2 H.
+    diag_.resize(Dim * n);
+    for (std::int64_t i = 0; i < n; ++i)
+      diag_.template segment<Dim>(Dim * i) = (dt * dt) * H_[std::size_t(diag_block_[std::size_t(i)])].diagonal().array() + mass_[i];
+
+    // The tolerance is relative to the correction's right-hand side (the elastic impulse). It
+    // must not be relative to M v0: a fast rigid motion would then hide errors in the elastic
+    // part, which the explicit impulse in v0 amplifies at large dt. A residual at the round-off
+    // level of the terms of A v0 counts as converged, so that a rigid motion (H v0 = round-off)
+    // needs no iteration.
+    tmp_ = diag_.cwiseProduct(v0_);
+    filter(tmp_);
+    const T floor = T(64) * std::numeric_limits<T>::epsilon() * tmp_.norm(), rhs_norm = rhs.norm();
+    form_system(dt);  // H_ now holds A
+
+    Preconditioner pre = options_.preconditioner;
+    if (pre == Preconditioner::IC0) {
+      try {
+        build_ic0();
+      } catch (const std::domain_error&) {
+        ic0_failed = true;
+        pre = Preconditioner::BlockJacobi;
+      }
+    }
+    if (pre == Preconditioner::Jacobi) {
+      diag_ = diag_.cwiseInverse();
+    } else if (pre == Preconditioner::BlockJacobi) {
+      block_inverse_.resize(std::size_t(n));
+      for (std::int64_t i = 0; i < n; ++i) block_inverse_[std::size_t(i)] = H_[std::size_t(diag_block_[std::size_t(i)])].inverse();
+    }
+
+    const auto apply_a = [&](const VectorX& u, VectorX& out) { multiply(H_, u, out); };
+    const auto precondition = [&](const VectorX& r, VectorX& z) {
+      if (pre == Preconditioner::IC0) {
+        apply_ic0(r, z);
+      } else if (pre == Preconditioner::BlockJacobi) {
+        z.resize(r.size());
+        for (std::int64_t i = 0; i < n; ++i)
+          z.template segment<Dim>(Dim * i).noalias() = block_inverse_[std::size_t(i)] * r.template segment<Dim>(Dim * i);
+      } else {
+        z = diag_.cwiseProduct(r);
+      }
+      filter(z);
+    };
+    numerics::PcgOptions<T> cg;
+    cg.tolerance = rhs_norm > T(0) ? std::max(options_.tolerance, floor / rhs_norm) : options_.tolerance;
+    cg.max_iterations = options_.max_iterations;
+    x = VectorX::Zero(Dim * n);
+    return numerics::pcg(apply_a, rhs, x, precondition, cg);
+  }
+
+  /// The matrix-free solve (float): Jacobi with the exact diagonal of M + dt^2 H, each product
+  /// a gather and scatter over the particles' cached stencils.
+  numerics::PcgResult<T> solve_matrix_free(T dt, VectorX& x) {
+    const std::int64_t n = unknowns();
+    apply_stiffness(v0_, tmp_);
+    VectorX rhs = (-dt * dt) * tmp_;
+    filter(rhs);
+    stiffness_diagonal(diag_);
+    diag_ *= dt * dt;
+    for (std::int64_t i = 0; i < n; ++i) diag_.template segment<Dim>(Dim * i).array() += mass_[i];
+    tmp_ = diag_.cwiseProduct(v0_);
+    filter(tmp_);
+    const T floor = T(64) * std::numeric_limits<T>::epsilon() * tmp_.norm(), rhs_norm = rhs.norm();
+    diag_ = diag_.cwiseInverse();
+    const auto apply_a = [&](const VectorX& u, VectorX& out) {
+      apply_stiffness(u, out);  // u = S u already: CG's iterates stay in the range of S
+      out *= dt * dt;
+      for (std::int64_t i = 0; i < n; ++i) out.template segment<Dim>(Dim * i) += mass_[i] * u.template segment<Dim>(Dim * i);
+      filter(out);
+    };
+    const auto precondition = [&](const VectorX& r, VectorX& z) {
+      z = diag_.cwiseProduct(r);
+      filter(z);
+    };
+    numerics::PcgOptions<T> cg;
+    cg.tolerance = rhs_norm > T(0) ? std::max(options_.tolerance, floor / rhs_norm) : options_.tolerance;
+    cg.max_iterations = options_.max_iterations;
+    x = VectorX::Zero(Dim * n);
+    return numerics::pcg(apply_a, rhs, x, precondition, cg);
+  }
+
   /// out = sum over the blocks of each row, rows in parallel (fixed order within a row).
   void multiply(const std::vector<Mat>& blocks, const VectorX& u, VectorX& out) const {
     const std::int64_t n = unknowns();
@@ -577,7 +628,6 @@ class ImplicitUpdate {
   /// (for the preconditioners) and CG iterates in the range of S need no filtering.
   void form_system(T dt) {
     const std::int64_t n = unknowns();
-    A_.resize(H_.size());
     parallel::parallel_for(0, n, [&](std::int64_t i) {
       const std::int32_t pi = projection_of_[std::size_t(i)];
       for (std::int64_t b = row_start_[std::size_t(i)]; b < row_start_[std::size_t(i + 1)]; ++b) {
@@ -588,7 +638,7 @@ class ImplicitUpdate {
         if (pi >= 0) a = projections_[std::size_t(pi)] * a;
         if (pj >= 0) a = a * projections_[std::size_t(pj)];
         if (j == i && pi >= 0) a += Mat::Identity() - projections_[std::size_t(pi)];
-        A_[std::size_t(b)] = a;
+        H_[std::size_t(b)] = a;
       }
     });
   }
@@ -601,7 +651,7 @@ class ImplicitUpdate {
   /// std::domain_error when a diagonal block is not positive definite.
   void build_ic0() {
     const std::int64_t n = unknowns();
-    U_ = A_;
+    U_ = H_;
     linv_.resize(std::size_t(n));
     for (std::int64_t k = 0; k < n; ++k) {
       const std::int64_t d = diag_block_[std::size_t(k)], end = row_start_[std::size_t(k + 1)];
@@ -766,7 +816,7 @@ class ImplicitUpdate {
   std::vector<std::int64_t> window_step_;  // window offset -> grid index offset
   std::vector<int> window_diff_;         // (window a, window b) -> window of b - a, or -1
   std::vector<std::int64_t> diag_block_; // unknown -> its diagonal block
-  std::vector<Mat> H_, A_, block_inverse_;
+  std::vector<Mat> H_, block_inverse_;  // H_: H, then A after form_system
   std::vector<Mat> U_, linv_;  // block IC(0): F_kj (j > k) and L_k^-1
   VectorX mass_, v0_, diag_, tmp_;
   std::vector<std::int64_t> boundary_;      // unknowns covered by a wall or collider
