@@ -6,7 +6,8 @@
 //
 //   build/release/bin/bench_implicit --benchmark_counters_tabular=true
 // Arguments: dimension, integrator (0 explicit, 1 implicit), max_dt in units of 1e-4 s,
-// CG tolerance exponent (tolerance 10^-k), threads.
+// CG tolerance exponent (tolerance 10^-k), threads, preconditioner (0 Jacobi, 1 block Jacobi,
+// 2 IC(0)).
 #include <benchmark/benchmark.h>
 
 #include <cmath>
@@ -16,7 +17,8 @@
 
 namespace {
 
-slurry::Scene stiff_body(int dim, bool implicit, double max_dt, double tolerance) {
+slurry::Scene stiff_body(int dim, bool implicit, double max_dt, double tolerance,
+                         slurry::ImplicitPreconditioner pre = slurry::ImplicitPreconditioner::IC0) {
   slurry::Scene s;
   s.source = "bench_implicit";
   s.solver.dimension = dim;
@@ -26,6 +28,7 @@ slurry::Scene stiff_body(int dim, bool implicit, double max_dt, double tolerance
   s.solver.integrator = implicit ? slurry::Integrator::Implicit : slurry::Integrator::Explicit;
   s.solver.max_dt = max_dt;
   s.solver.cg_tolerance = tolerance;
+  s.solver.implicit_preconditioner = pre;
   s.domain.min = {0, 0, 0};
   s.domain.max = {1, 0.5, 0.5};
   s.domain.dx = dim == 2 ? 1.0 / 64 : 1.0 / 32;
@@ -53,7 +56,8 @@ void BM_StiffBodyOneSecond(benchmark::State& state) {
   const double max_dt = 1e-4 * double(state.range(2));
   const double tolerance = std::pow(10.0, -double(state.range(3)));
   slurry::parallel::ThreadLimit threads(int(state.range(4)));
-  const slurry::Scene scene = stiff_body(dim, implicit, max_dt, tolerance);
+  const auto pre = slurry::ImplicitPreconditioner(state.range(5));
+  const slurry::Scene scene = stiff_body(dim, implicit, max_dt, tolerance, pre);
   std::int64_t substeps = 0, cg = 0, unconverged = 0;
   double particles = 0;
   for (auto _ : state) {
@@ -78,11 +82,12 @@ void BM_StiffBodyOneSecond(benchmark::State& state) {
 }
 
 void Args(benchmark::internal::Benchmark* b) {
-  // {dimension, implicit, max_dt / 1e-4 s, -log10 tolerance, threads}
+  // {dimension, implicit, max_dt / 1e-4 s, -log10 tolerance, threads, preconditioner}
   for (int dim : {2, 3}) {
-    b->Args({dim, 0, 10, 6, 1});
-    for (int dt : {10, 20, 40, 80}) b->Args({dim, 1, dt, 6, 1});
-    b->Args({dim, 1, 40, 4, 1});
+    b->Args({dim, 0, 10, 6, 1, 2});
+    for (int pre : {0, 1, 2})
+      for (int dt : {20, 40, 80, 160}) b->Args({dim, 1, dt, 6, 1, pre});
+    b->Args({dim, 1, 40, 4, 1, 2});
   }
   b->Unit(benchmark::kSecond)->UseRealTime()->Iterations(1);
 }

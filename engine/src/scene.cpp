@@ -24,6 +24,9 @@ const NameTable<TransferKind> kTransfer{{"pic", TransferKind::PIC},
 const NameTable<KernelKind> kKernel{
     {"linear", KernelKind::Linear}, {"quadratic", KernelKind::Quadratic}, {"cubic", KernelKind::Cubic}};
 const NameTable<Integrator> kIntegrator{{"explicit", Integrator::Explicit}, {"implicit", Integrator::Implicit}};
+const NameTable<ImplicitPreconditioner> kImplicitPreconditioner{{"jacobi", ImplicitPreconditioner::Jacobi},
+                                                                {"block_jacobi", ImplicitPreconditioner::BlockJacobi},
+                                                                {"ic0", ImplicitPreconditioner::IC0}};
 const NameTable<SolverType> kSolverType{{"mpm", SolverType::MPM}, {"flip", SolverType::FLIP}, {"fem", SolverType::FEM}};
 const NameTable<ElasticModel> kElastic{{"corotated_linear", ElasticModel::CorotatedLinear},
                                        {"fixed_corotated", ElasticModel::FixedCorotated},
@@ -250,6 +253,7 @@ std::string_view to_string(TransferKind m) { return name_of(kTransfer, m); }
 std::string_view to_string(KernelKind m) { return name_of(kKernel, m); }
 std::string_view to_string(SolverType m) { return name_of(kSolverType, m); }
 std::string_view to_string(Integrator m) { return name_of(kIntegrator, m); }
+std::string_view to_string(ImplicitPreconditioner m) { return name_of(kImplicitPreconditioner, m); }
 std::string_view to_string(AdvectionScheme m) { return name_of(kAdvection, m); }
 std::string_view to_string(PressurePreconditioner m) { return name_of(kPreconditioner, m); }
 
@@ -585,6 +589,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     }
     r.number("cg_tolerance", s.solver.cg_tolerance);
     r.integer("cg_max_iterations", s.solver.cg_max_iterations);
+    r.choice("implicit_preconditioner", kImplicitPreconditioner, s.solver.implicit_preconditioner);
   });
   if (!top.has("materials")) fail(source, "materials", "missing (expected an array of materials)");
   top.objects("materials", [&](ObjectReader& r, std::size_t) {

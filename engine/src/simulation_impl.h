@@ -77,6 +77,10 @@ Simulation<T, Dim>::Simulation(const Scene& scene) : scene_(scene) {
     typename ImplicitUpdate<T, Dim>::Options o;
     o.tolerance = T(scene_.solver.cg_tolerance);
     o.max_iterations = scene_.solver.cg_max_iterations;
+    using Pre = typename ImplicitUpdate<T, Dim>::Preconditioner;
+    o.preconditioner = scene_.solver.implicit_preconditioner == ImplicitPreconditioner::Jacobi        ? Pre::Jacobi
+                       : scene_.solver.implicit_preconditioner == ImplicitPreconditioner::BlockJacobi ? Pre::BlockJacobi
+                                                                                                      : Pre::IC0;
     implicit_ = std::make_unique<ImplicitUpdate<T, Dim>>(scene_.solver.kernel, scene_.solver.transfer, o);
   }
 }

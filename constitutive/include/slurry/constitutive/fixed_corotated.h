@@ -59,15 +59,29 @@ struct FixedCorotated {
 
   /// Differential of P at F in direction dF:
   /// dP = 2 mu (dF - dR) + lambda (cof(F) : dF) cof(F) + lambda (J - 1) dcof(F)[dF].
-  Mat dP(const Mat& F, const Mat& dF) const {
-    Mat U, V;
+  Mat dP(const Mat& F, const Mat& dF) const { return differential(F)(dF); }
+
+  /// dP(F, .) with its F-dependent factors (SVD, cofactor, J) computed once, for evaluating many
+  /// directions (the implicit MPM solve builds its per-particle stiffness from Dim^2 of them).
+  struct Differential {
+    Mat F, U, V, C;
     Vec sigma;
-    svd(F, U, sigma, V);
-    const Mat dR = rotation_differential<T, Dim>(U, sigma, V, dF);
-    const Mat C = cofactor(F);
-    const T J = determinant(F);
-    return T(2) * mu * (dF - dR) + lambda * C.cwiseProduct(dF).sum() * C +
-           lambda * (J - T(1)) * cofactor_differential(F, dF);
+    T J, mu, lambda;
+    Mat operator()(const Mat& dF) const {
+      const Mat dR = rotation_differential<T, Dim>(U, sigma, V, dF);
+      return T(2) * mu * (dF - dR) + lambda * C.cwiseProduct(dF).sum() * C +
+             lambda * (J - T(1)) * cofactor_differential(F, dF);
+    }
+  };
+  Differential differential(const Mat& F) const {
+    Differential d;
+    d.F = F;
+    svd(F, d.U, d.sigma, d.V);
+    d.C = cofactor(F);
+    d.J = determinant(F);
+    d.mu = mu;
+    d.lambda = lambda;
+    return d;
   }
 
   /// Copy with mu and lambda multiplied by factor (e.g. snow hardening).

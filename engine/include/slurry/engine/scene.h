@@ -26,6 +26,9 @@ enum class KernelKind { Linear, Quadratic, Cubic };
 enum class SolverType { MPM, FLIP, FEM };
 /// Grid (MPM) or node (FEM) update: symplectic Euler, or linearly implicit backward Euler.
 enum class Integrator { Explicit, Implicit };
+/// Preconditioner of the implicit MPM grid solve's CG: inverse diagonal, inverse node blocks, or
+/// zero fill-in incomplete Cholesky of the assembled matrix.
+enum class ImplicitPreconditioner { Jacobi, BlockJacobi, IC0 };
 enum class ElasticModel { CorotatedLinear, FixedCorotated, NeoHookean, StVK, HenckyStVK, Fluid };
 enum class PlasticModel { None, Snow, DruckerPrager, VonMises };
 enum class Shape { Box, Sphere, Cylinder };
@@ -94,6 +97,8 @@ struct SolverParams {
   Integrator integrator = Integrator::Explicit;  ///< "explicit" or "implicit" (MPM solids)
   double cg_tolerance = 1e-6;  ///< implicit: CG relative residual, (0, 1)
   int cg_max_iterations = 500;  ///< implicit: CG iteration cap, >= 1
+  /// implicit MPM: "ic0" (block Jacobi where IC(0) breaks down), "block_jacobi" or "jacobi"
+  ImplicitPreconditioner implicit_preconditioner = ImplicitPreconditioner::IC0;
 };
 
 struct MaterialParams {
@@ -206,6 +211,7 @@ std::string_view to_string(TransferKind);
 std::string_view to_string(KernelKind);
 std::string_view to_string(SolverType);
 std::string_view to_string(Integrator);
+std::string_view to_string(ImplicitPreconditioner);
 std::string_view to_string(AdvectionScheme);
 std::string_view to_string(PressurePreconditioner);
 
