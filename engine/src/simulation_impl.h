@@ -219,9 +219,7 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
   lap(phase_times_.binning);
   if (implicit_ || steps_ % kReorderInterval == 0) reorder_particles();
   lap(phase_times_.reorder);
-  compute_stress(dt);
-  lap(phase_times_.stress);
-  particles_to_grid(grid);
+  particles_to_grid(grid, dt);
   lap(phase_times_.p2g);
   if constexpr (std::is_same_v<G, DenseGrid>) {
     if (implicit_)
@@ -239,38 +237,34 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
 }
 
 template <class T, int Dim>
-void Simulation<T, Dim>::compute_stress(T dt) {
+void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt) {
+  // One bin is one material: the model is dispatched once per bin, not per particle.
   auto& P = particles_;
   Mat* K = stress_.data();
-  const auto& bins = bins_.bins();
   const std::uint32_t* order = bins_.order();
-  // One bin is one material: the model is dispatched once per bin, not per particle.
-  parallel::parallel_tasks(0, std::int64_t(bins.size()), [&](std::int64_t bi) {
-    const auto& bin = bins[std::size_t(bi)];
-    const auto& mat = materials_[bin.material];
-    if (mat.fluid) {
-      // tau = -J p(J) I, so K = -dt V0 tau = dt V0 J p I.
-      const auto& fluid = mat.fluid_model();
-      for (auto i = bin.begin; i < bin.end; ++i) {
-        const auto p = order[i];
-        K[p] = Mat::Identity() * (dt * P.vol0[p] * fluid.kirchhoff_pressure(P.J[p]));
-      }
-      return;
+  const auto& mat = materials_[std::size_t(material)];
+  if (mat.fluid) {
+    // tau = -J p(J) I, so K = -dt V0 tau = dt V0 J p I.
+    const auto& fluid = mat.fluid_model();
+    for (auto i = begin; i < end; ++i) {
+      const auto p = order[i];
+      K[p] = Mat::Identity() * (dt * P.vol0[p] * fluid.kirchhoff_pressure(P.J[p]));
     }
-    mat.visit_elastic([&](const auto& model) {
-      if (mat.plastic_kind == PlasticModel::Snow) {
-        for (auto i = bin.begin; i < bin.end; ++i) {
-          const auto p = order[i];
-          const auto scaled = model.scaled(mat.hardening_factor(P.plastic[p]));
-          K[p] = (-dt * P.vol0[p]) * scaled.kirchhoff(P.F[p]);
-        }
-      } else {
-        for (auto i = bin.begin; i < bin.end; ++i) {
-          const auto p = order[i];
-          K[p] = (-dt * P.vol0[p]) * model.kirchhoff(P.F[p]);
-        }
+    return;
+  }
+  mat.visit_elastic([&](const auto& model) {
+    if (mat.plastic_kind == PlasticModel::Snow) {
+      for (auto i = begin; i < end; ++i) {
+        const auto p = order[i];
+        const auto scaled = model.scaled(mat.hardening_factor(P.plastic[p]));
+        K[p] = (-dt * P.vol0[p]) * scaled.kirchhoff(P.F[p]);
       }
-    });
+    } else {
+      for (auto i = begin; i < end; ++i) {
+        const auto p = order[i];
+        K[p] = (-dt * P.vol0[p]) * model.kirchhoff(P.F[p]);
+      }
+    }
   });
 }
 
@@ -360,18 +354,18 @@ void Simulation<T, Dim>::reorder_particles() {
 
 template <class T, int Dim>
 template <class G>
-void Simulation<T, Dim>::particles_to_grid(G& grid) {
+void Simulation<T, Dim>::particles_to_grid(G& grid, T dt) {
   grid.activate(bins_.bins());
   switch (scene_.solver.kernel) {
-    case KernelKind::Linear: particles_to_grid_order<1>(grid); break;
-    case KernelKind::Quadratic: particles_to_grid_order<2>(grid); break;
-    case KernelKind::Cubic: particles_to_grid_order<3>(grid); break;
+    case KernelKind::Linear: particles_to_grid_order<1>(grid, dt); break;
+    case KernelKind::Quadratic: particles_to_grid_order<2>(grid, dt); break;
+    case KernelKind::Cubic: particles_to_grid_order<3>(grid, dt); break;
   }
 }
 
 template <class T, int Dim>
 template <int Order, class G>
-void Simulation<T, Dim>::particles_to_grid_order(G& grid) {
+void Simulation<T, Dim>::particles_to_grid_order(G& grid, T dt) {
   using transfer::Scheme;
   auto& P = particles_;
   const Mat* C = P.C.empty() ? nullptr : P.C.data();
@@ -391,9 +385,14 @@ void Simulation<T, Dim>::particles_to_grid_order(G& grid) {
           const auto first = bins_.group_begin(g), last = bins_.group_begin(g + 1);
           transfer::Patch<T, Dim, Order> patch(bins[first].block, origin_, dx_, inv_dx);
           patch.zero();
-          for (auto b = first; b < last; ++b)
+          for (auto b = first; b < last; ++b) {
+            // The stress of a bin's particles is computed just before they are scattered: K_p is
+            // still in cache when the scatter reads it, and the step makes one parallel pass
+            // over the particles before the grid update instead of two.
+            compute_stress(int(bins[b].material), bins[b].begin, bins[b].end, dt);
             transfer::scatter_particles<Order, S>(patch, P.x.data(), P.v.data(), P.m.data(), C, stress_.data(),
                                                   order, bins[b].begin, bins[b].end);
+          }
           grid.add_patch(patch);
         });
       }

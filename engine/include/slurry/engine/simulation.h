@@ -2,10 +2,11 @@
 /// \file simulation.h
 /// The explicit Material Point Method solver: one substep is
 ///
-///   compute_stress  K_p = -dt V_p^0 tau(F_p)           (per material; snow hardening here)
 ///   bin_particles   particle indices sorted by grid block (blocks.h)
-///   particles_to_grid  mass, momentum, affine momentum, stress impulse -> nodes, block by
-///                   block in 2^Dim colour phases (race-free, same sums on any thread count)
+///   particles_to_grid  per bin: compute_stress K_p = -dt V_p^0 tau(F_p) (per material; snow
+///                   hardening here), then mass, momentum, affine momentum, stress impulse ->
+///                   nodes, block by block in 2^Dim colour phases (race-free, same sums on any
+///                   thread count)
 ///   update_grid     v_i = p_i / m_i + dt g; walls and colliders
 ///   grid_to_particles  v_p, C_p, F_p <- (I + dt grad v) F_p (or J_p), x_p += dt v_p
 ///   return_mapping  plastic projection of F_p (per plastic material)
@@ -87,10 +88,9 @@ std::int64_t substep_to(double& time, double t_end, StableDt&& stable_dt, Step&&
 
 /// Wall-clock seconds spent in each phase of the MPM substep since the simulation started.
 struct PhaseTimes {
-  double stress = 0;      ///< compute_stress
   double binning = 0;     ///< bin_particles
   double reorder = 0;     ///< the periodic re-sort of particle storage into bin order
-  double p2g = 0;         ///< particles_to_grid (including grid block allocation)
+  double p2g = 0;         ///< particles_to_grid (grid block allocation and the stress update included)
   double grid = 0;        ///< update_grid
   double g2p = 0;         ///< grid_to_particles
   double plasticity = 0;  ///< return_mapping
@@ -161,11 +161,12 @@ class Simulation final : public SimulationBase {
   void seed_bodies();
   template <class G>
   void step_on(G& grid, T dt);
-  void compute_stress(T dt);
+  /// K_p = -dt V_p^0 tau(F_p) for the particles order()[begin, end) of one material.
+  void compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt);
   void bin_particles();
   void reorder_particles();
   template <class G>
-  void particles_to_grid(G& grid);
+  void particles_to_grid(G& grid, T dt);
   template <class G>
   void update_grid(G& grid, T dt);
   template <class G>
@@ -179,7 +180,7 @@ class Simulation final : public SimulationBase {
   template <int Order>
   void bin_particles_order();
   template <int Order, class G>
-  void particles_to_grid_order(G& grid);
+  void particles_to_grid_order(G& grid, T dt);
   template <int Order, class G>
   void grid_to_particles_order(G& grid, T dt);
 
