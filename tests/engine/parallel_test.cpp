@@ -109,6 +109,27 @@ TEST(Determinism, OpenMPAndTBBBackendsWriteTheSameFrame) {
     EXPECT_EQ(read(out), reference) << "TBB with " << threads << " threads vs OpenMP with 2";
   }
   EXPECT_GT(reference.size(), 10000u);
+  // The FLIP path (face transfers, MIC(0) level scheduling, extrapolation, emitter, collider).
+  std::string flip_reference;
+  {
+    slurry::parallel::ThreadLimit limit(2);
+    flip_reference = slurry::test::flip_determinism_frame(30, dir / "openmp_flip.ply", read);
+  }
+  {
+    slurry::parallel::ThreadLimit limit(1);
+    EXPECT_EQ(slurry::test::flip_determinism_frame(30, dir / "openmp_flip1.ply", read), flip_reference)
+        << "FLIP, OpenMP with 1 vs 2 threads";
+  }
+  for (int threads : {1, 2}) {
+    const auto out = dir / ("tbb_flip" + std::to_string(threads) + ".ply");
+    const std::string cmd =
+        std::string(SLURRY_DETERMINISM_TBB) + " " + out.string() + " " + std::to_string(threads) + " flip";
+    ASSERT_EQ(std::system(cmd.c_str()), 0) << cmd;
+    EXPECT_EQ(read(out), flip_reference) << "FLIP: TBB with " << threads << " threads vs OpenMP with 2";
+  }
+  EXPECT_GT(flip_reference.size(), 100000u);
+  std::printf("[ figure ] backends: MPM frame %zu bytes, FLIP frame %zu bytes, identical across OpenMP/TBB and 1/2 threads\n",
+              reference.size(), flip_reference.size());
   std::filesystem::remove_all(dir);
 #else
   GTEST_SKIP() << "built without the TBB determinism program (oneTBB not found or backend not OpenMP)";
