@@ -12,6 +12,7 @@
 #include <sstream>
 #include <type_traits>
 
+#include "frame_builder.h"
 #include "implicit_update.h"
 #include "slurry/engine/simulation.h"
 #include "slurry/transfer/parallel.h"
@@ -28,12 +29,6 @@ constexpr int kPad = 3;
 /// not specified bit-for-bit across standard libraries; frames must be reproducible).
 inline double uniform01(std::mt19937_64& rng) { return double(rng() >> 11) * 0x1.0p-53; }
 
-inline std::string fmt(double x) {
-  std::ostringstream o;
-  o.precision(6);
-  o << x;
-  return o.str();
-}
 }  // namespace detail
 
 template <class T, int Dim>
@@ -595,40 +590,26 @@ T Simulation<T, Dim>::elastic_energy() const {
 template <class T, int Dim>
 io::PlyData Simulation<T, Dim>::frame(const std::vector<std::string>& attributes) const {
   const auto& P = particles_;
-  const std::size_t n = P.size();
-  io::PlyData data;
-  data.comments.push_back("slurry frame t=" + detail::fmt(time_) + " source=" + scene_.source);
-  auto& el = data.elements.emplace_back();
-  el.name = "vertex";
-  el.count = n;
-  static const char* axes[3] = {"x", "y", "z"};
-  static const char* vaxes[3] = {"vx", "vy", "vz"};
   // Particles are stored in bin order; frames list them in seeding order (P.id).
-  auto column = [&](auto&& value) {
-    using V = std::decay_t<decltype(value(std::size_t(0)))>;
-    std::vector<V> c(n);
-    for (std::size_t p = 0; p < n; ++p) c[P.id[p]] = value(p);
-    return c;
-  };
+  detail::VertexFrame out("", time_, scene_.source, P.size(), P.id.data());
   for (const auto& a : attributes) {
     if (a == "position") {
-      for (int d = 0; d < Dim; ++d) el.properties.push_back({axes[d], column([&](std::size_t p) { return P.x[p][d]; })});
+      out.add_positions<Dim>(P.x);
     } else if (a == "velocity") {
-      for (int d = 0; d < Dim; ++d) el.properties.push_back({vaxes[d], column([&](std::size_t p) { return P.v[p][d]; })});
+      out.add_velocities<Dim>(P.v);
     } else if (a == "material") {
-      el.properties.push_back(
-          {"material", column([&](std::size_t p) { return P.material.empty() ? std::uint16_t(0) : P.material[p]; })});
+      out.add("material", [&](std::size_t p) { return P.material.empty() ? std::uint16_t(0) : P.material[p]; });
     } else if (a == "J") {
-      el.properties.push_back({"J", column([&](std::size_t p) {
-                                 return !P.J.empty() && (P.F.empty() || materials_[P.material.empty() ? 0 : P.material[p]].fluid)
-                                            ? P.J[p]
-                                            : T(P.F[p].determinant());
-                               })});
+      out.add("J", [&](std::size_t p) {
+        return !P.J.empty() && (P.F.empty() || materials_[P.material.empty() ? 0 : P.material[p]].fluid)
+                   ? P.J[p]
+                   : T(P.F[p].determinant());
+      });
     } else if (a == "plastic") {
-      el.properties.push_back({"plastic", column([&](std::size_t p) { return P.plastic.empty() ? T(0) : P.plastic[p]; })});
+      out.add("plastic", [&](std::size_t p) { return P.plastic.empty() ? T(0) : P.plastic[p]; });
     }
   }
-  return data;
+  return std::move(out.data());
 }
 
 }  // namespace slurry

@@ -8,18 +8,12 @@
 #include <sstream>
 #include <string>
 
+#include "../frame_builder.h"
 #include "slurry/engine/fem/fem_simulation.h"
 #include "slurry/engine/fem/tetgen.h"
 
 namespace slurry {
 namespace fem_detail {
-
-inline std::string fmt(double x) {
-  std::ostringstream o;
-  o.precision(6);
-  o << x;
-  return o.str();
-}
 
 /// A body's mesh path, relative to the directory of the scene file.
 inline std::filesystem::path mesh_path(const Scene& scene, const std::string& mesh) {
@@ -102,7 +96,7 @@ FemSimulation<T, Dim>::FemSimulation(const Scene& scene) : scene_(scene) {
       for (const auto& x : m.x)
         if ((x.array() < lo.array()).any() || (x.array() > hi.array()).any()) {
           std::string p;
-          for (int d = 0; d < Dim; ++d) p += (d ? ", " : "") + fem_detail::fmt(x[d]);
+          for (int d = 0; d < Dim; ++d) p += (d ? ", " : "") + detail::fmt(x[d]);
           throw SceneError(where + ".mesh: the mesh has a vertex at [" + p + "], expected every vertex inside the domain");
         }
     }
@@ -145,8 +139,8 @@ void FemSimulation<T, Dim>::step(T dt) {
     last_iterations_ = r.iterations;
     if (!r.converged) {
       std::ostringstream msg;
-      msg << scene_.source << ": implicit FEM step " << steps_ + 1 << " at t = " << fem_detail::fmt(time_ + double(dt))
-          << ": the linear solve did not converge (relative residual " << fem_detail::fmt(double(r.relative_residual))
+      msg << scene_.source << ": implicit FEM step " << steps_ + 1 << " at t = " << detail::fmt(time_ + double(dt))
+          << ": the linear solve did not converge (relative residual " << detail::fmt(double(r.relative_residual))
           << " after " << r.iterations << " PCG iterations); try a smaller solver.max_dt";
       throw SimulationError(msg.str());
     }
@@ -168,10 +162,10 @@ void FemSimulation<T, Dim>::diagnose(T dt) const {
   std::size_t i = 0;
   while (i < fem_->x.size() && fem_->x[i].allFinite() && fem_->v[i].allFinite()) ++i;
   std::ostringstream msg;
-  msg << scene_.source << ": FEM simulation unstable at step " << steps_ + 1 << ", t = " << fem_detail::fmt(time_ + double(dt))
+  msg << scene_.source << ": FEM simulation unstable at step " << steps_ + 1 << ", t = " << detail::fmt(time_ + double(dt))
       << ": vertex " << i << " (material \"" << scene_.materials[vertex_material_[i]].name
-      << "\") has a non-finite position or velocity (dt " << fem_detail::fmt(double(dt)) << " s, explicit limit "
-      << fem_detail::fmt(double(explicit_dt_)) << " s); reduce solver.max_dt or solver.elastic_cfl, or use solver.integrator \"implicit\"";
+      << "\") has a non-finite position or velocity (dt " << detail::fmt(double(dt)) << " s, explicit limit "
+      << detail::fmt(double(explicit_dt_)) << " s); reduce solver.max_dt or solver.elastic_cfl, or use solver.integrator \"implicit\"";
   throw SimulationError(msg.str());
 }
 
@@ -190,25 +184,14 @@ template <class T, int Dim>
 io::PlyData FemSimulation<T, Dim>::frame(const std::vector<std::string>& attributes) const {
   const Fem& f = *fem_;
   const std::size_t n = f.vertex_count();
-  io::PlyData data;
-  data.comments.push_back("slurry fem frame t=" + fem_detail::fmt(time_) + " source=" + scene_.source);
-  auto& el = data.elements.emplace_back();
-  el.name = "vertex";
-  el.count = n;
-  static const char* axes[3] = {"x", "y", "z"};
-  static const char* vaxes[3] = {"vx", "vy", "vz"};
-  auto column = [&](auto&& value) {
-    std::vector<T> c(n);
-    for (std::size_t i = 0; i < n; ++i) c[i] = value(i);
-    return c;
-  };
+  detail::VertexFrame out("fem ", time_, scene_.source, n);
   for (const auto& a : attributes) {
     if (a == "position") {
-      for (int d = 0; d < Dim; ++d) el.properties.push_back({axes[d], column([&](std::size_t i) { return f.x[i][d]; })});
+      out.add_positions<Dim>(f.x);
     } else if (a == "velocity") {
-      for (int d = 0; d < Dim; ++d) el.properties.push_back({vaxes[d], column([&](std::size_t i) { return f.v[i][d]; })});
+      out.add_velocities<Dim>(f.v);
     } else if (a == "material") {
-      el.properties.push_back({"material", vertex_material_});
+      out.add_column("material", vertex_material_);
     } else if (a == "J") {
       std::vector<T> J(n, T(0)), w(n, T(0));
       for (std::size_t e = 0; e < f.element_count(); ++e) {
@@ -216,9 +199,10 @@ io::PlyData FemSimulation<T, Dim>::frame(const std::vector<std::string>& attribu
         for (int k : f.elements()[e]) J[std::size_t(k)] += f.volume(e) * det, w[std::size_t(k)] += f.volume(e);
       }
       for (std::size_t i = 0; i < n; ++i) J[i] = w[i] > T(0) ? J[i] / w[i] : T(1);
-      el.properties.push_back({"J", std::move(J)});
+      out.add_column("J", std::move(J));
     }
   }
+  io::PlyData data = std::move(out.data());
   auto& faces = data.elements.emplace_back();
   faces.name = "face";
   faces.count = faces_.size();

@@ -8,6 +8,7 @@
 #include <sstream>
 #include <string>
 
+#include "../frame_builder.h"
 #include "slurry/engine/flip/advection.h"
 #include "slurry/engine/flip/extrapolate.h"
 #include "slurry/engine/flip/face_transfer.h"
@@ -18,12 +19,6 @@
 namespace slurry::flip {
 
 namespace detail {
-inline std::string fmt(double x) {
-  std::ostringstream o;
-  o.precision(6);
-  o << x;
-  return o.str();
-}
 /// Seed of the reseeding generator (with the step number and the cell index).
 constexpr std::uint64_t kReseedSeed = 0x5EEDF11Bull;
 }  // namespace detail
@@ -312,9 +307,9 @@ void FlipSimulation<T, Dim>::transfer_to_particles() {
                            : faces_to_particles<2>(grid_, old, particles_, scheme_, ratio);
   if (!std::isfinite(double(max_speed_))) {
     std::ostringstream msg;
-    msg << scene_.source << ": simulation unstable at step " << steps_ + 1 << ", t = " << detail::fmt(time_)
+    msg << scene_.source << ": simulation unstable at step " << steps_ + 1 << ", t = " << slurry::detail::fmt(time_)
         << " s: a particle velocity became non-finite (last projection: " << last_projection_.iterations
-        << " iterations, relative residual " << detail::fmt(last_projection_.relative_residual)
+        << " iterations, relative residual " << slurry::detail::fmt(last_projection_.relative_residual)
         << "). No further frames are written. Try a smaller solver.cfl or solver.max_dt.";
     throw SimulationError(msg.str());
   }
@@ -374,32 +369,19 @@ T FlipSimulation<T, Dim>::fluid_cell_volume() const {
 template <class T, int Dim>
 io::PlyData FlipSimulation<T, Dim>::frame(const std::vector<std::string>& attributes) const {
   const auto& P = particles_;
-  const std::size_t n = P.size();
-  io::PlyData data;
-  data.comments.push_back("slurry flip frame t=" + detail::fmt(time_) + " source=" + scene_.source);
-  auto& el = data.elements.emplace_back();
-  el.name = "vertex";
-  el.count = n;
-  static const char* axes[3] = {"x", "y", "z"};
-  static const char* vaxes[3] = {"vx", "vy", "vz"};
-  auto column = [&](auto&& value) {
-    std::vector<T> c(n);
-    for (std::size_t p = 0; p < n; ++p) c[p] = value(p);
-    return c;
-  };
+  slurry::detail::VertexFrame out("flip ", time_, scene_.source, P.size());
   for (const auto& a : attributes) {
     if (a == "position") {
-      for (int d = 0; d < Dim; ++d) el.properties.push_back({axes[d], column([&](std::size_t p) { return P.x[p][d]; })});
+      out.add_positions<Dim>(P.x);
     } else if (a == "velocity") {
-      for (int d = 0; d < Dim; ++d) el.properties.push_back({vaxes[d], column([&](std::size_t p) { return P.v[p][d]; })});
+      out.add_velocities<Dim>(P.v);
     } else if (a == "material") {
-      std::vector<std::uint16_t> m = P.has_material ? P.material : std::vector<std::uint16_t>(n, 0);
-      el.properties.push_back({"material", std::move(m)});
+      out.add_column("material", P.has_material ? P.material : std::vector<std::uint16_t>(P.size(), 0));
     } else if (a == "id") {
-      el.properties.push_back({"id", P.id});
+      out.add_column("id", P.id);
     }
   }
-  return data;
+  return std::move(out.data());
 }
 
 }  // namespace slurry::flip

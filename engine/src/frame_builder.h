@@ -1,0 +1,71 @@
+#pragma once
+// What the three solvers' frame() functions share (private to the engine): the number format of
+// messages and frame comments, and a builder for the PLY "vertex" element of a frame.
+#include <cstdint>
+#include <sstream>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "slurry/engine/ply.h"
+
+namespace slurry::detail {
+
+/// x with 6 significant digits, for messages and frame comments.
+inline std::string fmt(double x) {
+  std::ostringstream o;
+  o.precision(6);
+  o << x;
+  return o.str();
+}
+
+/// Builds a frame: the comment "slurry <kind>frame t=<t> source=<source>" and a "vertex" element
+/// of n rows. Values of data index i land in row `rows[i]` (the MPM solver stores particles in
+/// bin order and writes them in seeding order), or in row i when `rows` is null.
+class VertexFrame {
+ public:
+  VertexFrame(const std::string& kind, double t, const std::string& source, std::size_t n,
+              const std::uint32_t* rows = nullptr)
+      : n_(n), rows_(rows) {
+    data_.comments.push_back("slurry " + kind + "frame t=" + fmt(t) + " source=" + source);
+    auto& el = data_.elements.emplace_back();
+    el.name = "vertex";
+    el.count = n;
+  }
+
+  /// A column called `name` whose value for data index i is value(i).
+  template <class Value>
+  void add(const char* name, Value&& value) {
+    using V = std::decay_t<decltype(value(std::size_t(0)))>;
+    std::vector<V> c(n_);
+    for (std::size_t i = 0; i < n_; ++i) c[rows_ ? rows_[i] : i] = value(i);
+    vertex().properties.push_back({name, std::move(c)});
+  }
+  /// An already ordered column (moved in as is).
+  template <class V>
+  void add_column(const char* name, std::vector<V> column) {
+    vertex().properties.push_back({name, std::move(column)});
+  }
+  /// Dim columns x, y(, z) from positions or vx, vy(, vz) from velocities.
+  template <int Dim, class Vecs>
+  void add_positions(const Vecs& x) {
+    static const char* names[3] = {"x", "y", "z"};
+    for (int d = 0; d < Dim; ++d) add(names[d], [&](std::size_t i) { return x[i][d]; });
+  }
+  template <int Dim, class Vecs>
+  void add_velocities(const Vecs& v) {
+    static const char* names[3] = {"vx", "vy", "vz"};
+    for (int d = 0; d < Dim; ++d) add(names[d], [&](std::size_t i) { return v[i][d]; });
+  }
+
+  io::PlyData& data() { return data_; }
+
+ private:
+  io::PlyElement& vertex() { return data_.elements.front(); }
+
+  io::PlyData data_;
+  std::size_t n_;
+  const std::uint32_t* rows_;
+};
+
+}  // namespace slurry::detail
