@@ -141,7 +141,13 @@ inline void sym_eigen3(T a00, T a11, T a22, T a01, T a02, T a12, Eigen::Matrix<T
   using std::sqrt;
   constexpr T kEps = std::numeric_limits<T>::epsilon();
   const T q = (a00 + a11 + a22) / T(3);
-  const T b00 = a00 - q, b11 = a11 - q, b22 = a22 - q;
+  // The rounded q can leave tr(A - qI) at a few ulps of q. That is harmless when the spread p
+  // below is large, but when A is the identity to a few ulps (a deformation gradient at rest)
+  // the leftover trace is as large as p itself, and the trigonometric formula, which assumes
+  // tr C = 0, then returns an eigenvalue with no eigenvector (C - lambda I of full rank, all
+  // row cross products zero): NaN. Removing the leftover mean keeps C traceless to round-off.
+  const T t = ((a00 - q) + (a11 - q) + (a22 - q)) / T(3);
+  const T b00 = (a00 - q) - t, b11 = (a11 - q) - t, b22 = (a22 - q) - t;
   const T p2 =
       (b00 * b00 + b11 * b11 + b22 * b22 + T(2) * (a01 * a01 + a02 * a02 + a12 * a12)) / T(6);
   const T p = sqrt(p2);
@@ -167,6 +173,12 @@ inline void sym_eigen3(T a00, T a11, T a22, T a01, T a02, T a12, Eigen::Matrix<T
   const bool pick01 = n01 >= n02 && n01 >= n12;
   const bool pick02 = !pick01 && n02 >= n12;
   const T nv = pick01 ? n01 : (pick02 ? n02 : n12);
+  // C - lambda I has rank 2, so some cross product is O(1); a zero one means C was round-off
+  // noise after all (A a multiple of the identity), where any basis is an eigenbasis.
+  if (!(nv > kEps * kEps)) {
+    V.setIdentity();
+    return;
+  }
   const T inv_len = T(1) / sqrt(nv);
   Vec v;
   for (int i = 0; i < 3; ++i) v(i) = (pick01 ? x01(i) : (pick02 ? x02(i) : x12(i))) * inv_len;
