@@ -7,6 +7,7 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <limits>
 #include <random>
 
 #include "slurry/constitutive/hencky_stvk.h"
@@ -200,6 +201,55 @@ TEST(DruckerPrager, InvertedFeIsUninverted) {
   EXPECT_TRUE(Fe.allFinite());
   EXPECT_GT(Fe.determinant(), 0);
   EXPECT_LE(dp.yield_function(principal_tau<3>(Fe)), kTol * kMu);
+}
+
+// The projection never creates elastic energy: psi(Fe) after <= psi(Fe) before, for tension
+// (to the tip, psi = 0), compression with shear (onto the cone at the same tr(eps), only the
+// deviatoric part shrinks) and states inside (unchanged). Energy created at the return mapping
+// is what an exploding granular scene would show.
+TYPED_TEST(PlasticityTest, DruckerPragerNeverCreatesElasticEnergy) {
+  constexpr int D = TypeParam::value;
+  const sc::DruckerPrager<double> dp;
+  const sc::HenckyStVK<double, D> model{kMu, kLambda};
+  std::mt19937 rng(26);
+  std::uniform_real_distribution<double> u(-0.3, 0.3);
+  int yielded = 0;
+  for (int k = 0; k < 2000; ++k) {
+    Eigen::Matrix<double, D, 1> eps;
+    for (int i = 0; i < D; ++i) eps(i) = u(rng);
+    Eigen::Matrix<double, D, D> Fe = with_singular_values<D>(eps.array().exp().matrix(), rng);
+    const double before = model.energy(Fe);
+    double state = 0;
+    yielded += dp.project(Fe, state, kMu, kLambda);
+    EXPECT_LE(model.energy(Fe), before * (1 + kTol) + kTol) << "eps = " << eps.transpose();
+    EXPECT_GE(state, 0);
+  }
+  EXPECT_GT(yielded, 500);
+}
+
+// Sand at rest in float: Fe is the identity to a few ulps. The projection must leave it there
+// (finite, within float round-off of F, no plastic strain beyond round-off). Before the 3x3 SVD
+// fix (svd.h, the leftover trace of F^T F - qI) some of these came back NaN, and the 3D sand
+// example exploded at step 92.
+TEST(DruckerPrager, FloatFeAtRestStaysAtRest3D) {
+  const sc::DruckerPrager<float> dp;
+  std::mt19937 rng(27);
+  std::uniform_int_distribution<int> k(-4, 4), pick(0, 3);
+  const float ulp = std::numeric_limits<float>::epsilon();
+  int bad = 0;
+  for (int n = 0; n < 200000; ++n) {
+    const float shared = float(k(rng)) * ulp * 0.5f;
+    const bool same = pick(rng) < 2;
+    Eigen::Matrix3f Fe;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j)
+        Fe(i, j) = i == j ? 1.0f + (same ? shared : float(k(rng)) * ulp * 0.5f) : float(k(rng)) * ulp * 0.125f;
+    const Eigen::Matrix3f before = Fe;
+    float state = 0;
+    dp.project(Fe, state, float(kMu), float(kLambda));
+    if (!Fe.allFinite() || (Fe - before).norm() > 1e-5f || !(state < 1e-5f)) ++bad;
+  }
+  EXPECT_EQ(bad, 0);
 }
 
 // --- von Mises -------------------------------------------------------------------------------
