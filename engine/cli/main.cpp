@@ -6,6 +6,7 @@
 // Exit codes: 0 success, 1 the simulation became unstable, 2 invalid scene or usage, 3 I/O error.
 #include <CLI/CLI.hpp>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <iostream>
 #include <string>
@@ -33,6 +34,8 @@ class Progress {
  public:
   explicit Progress(bool quiet) : quiet_(quiet), tty_(isatty(fileno(stderr)) != 0) {}
   void operator()(const slurry::FrameReport& r) {
+    // Drift warnings are printed even with --quiet: they say the result is not to be trusted.
+    for (const auto& w : r.warnings) std::fprintf(stderr, "%sslurry: warning: %s\n", tty_ ? "\n" : "", w.c_str());
     if (quiet_) return;
     const int done = r.frame, total = r.frames;
     const double per_frame = done > 0 ? (r.elapsed - first_) / done : 0;
@@ -114,6 +117,12 @@ int main(int argc, char** argv) {
         s.frames_written, s.directory.string().c_str(), human_seconds(s.wall_seconds).c_str(),
         static_cast<long long>(s.substeps), s.particles, s.particle_steps_per_second,
         s.particles ? double(s.bytes) / double(s.particles) : 0.0);
+    const auto rel = [](double now, double first) { return first != 0 ? 100 * (now - first) / std::abs(first) : 0.0; };
+    std::printf(
+        "stats: mass %+.3g%%, volume %+.3g%%, energy %.4g -> %.4g J, |momentum| %.4g kg m/s, largest CFL %.3g, "
+        "%d frames with drift warnings (per frame: %s)\n",
+        rel(s.last.mass, s.first.mass), rel(s.last.volume, s.first.volume), s.first.energy(), s.last.energy(),
+        s.last.momentum.norm(), s.largest_cfl, s.drift_warnings, (s.directory / "stats.csv").string().c_str());
     return 0;
   } catch (const slurry::SimulationError& e) {
     std::fprintf(stderr, "\nslurry: error: %s\n", e.what());

@@ -1,7 +1,10 @@
 #include "slurry/engine/run.h"
 
 #include <chrono>
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
+#include <fstream>
 
 #include "slurry/engine/ply.h"
 #include "slurry/engine/simulation.h"
@@ -35,6 +38,16 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   parallel::ThreadLimit limit(options.threads);
   const auto start = Clock::now();
   auto sim = make_simulation(scene);
+  std::ofstream csv(dir / "stats.csv");
+  if (!csv) throw IoError((dir / "stats.csv").string() + ": cannot write the run statistics");
+  csv << stats_csv_header() << '\n';
+  DriftTolerances tol;
+  tol.mass = scene.output.mass_drift;
+  tol.volume = scene.output.volume_drift;
+  tol.energy = scene.output.energy_growth;
+  tol.check_energy = scene.emitters.empty();
+  for (const auto& c : scene.colliders) tol.check_energy = tol.check_energy && c.velocity.isZero();
+  double energy_scale = 0;
   RunSummary summary;
   summary.directory = dir;
   summary.particles = sim->particle_count();
@@ -50,6 +63,28 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     }
     const auto file = frame_file(dir, f);
     io::write_ply(file, sim->frame(scene.output.attributes), format);
+    RunStats stats = sim->take_stats();
+    stats.frame = f;
+    stats.substeps = substeps;
+    std::vector<std::string> warnings;
+    if (f == 0) {
+      summary.first = stats;
+      // The energy the scene can release: its kinetic energy plus its mass falling the
+      // domain's extent along gravity.
+      const Eigen::Vector3d g = scene.solver.gravity;
+      double H = 0;
+      const int dim = scene.solver.dimension;
+      if (g.head(dim).norm() > 0)
+        for (int d = 0; d < dim; ++d) H += std::abs(scene.domain.max[d] - scene.domain.min[d]) * std::abs(g[d]) / g.head(dim).norm();
+      energy_scale = stats.kinetic + stats.mass * g.head(dim).norm() * H;
+    } else {
+      warnings = drift_warnings(summary.first, stats, tol, energy_scale);
+      summary.drift_warnings += !warnings.empty();
+    }
+    summary.last = stats;
+    summary.largest_cfl = std::max(summary.largest_cfl, stats.cfl);
+    csv << stats_csv_row(stats) << '\n';
+    csv.flush();
     summary.frames_written = f + 1;
     summary.substeps += substeps;
     if (on_frame) {
@@ -62,6 +97,8 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
       r.particles = sim->particle_count();
       r.file = file;
       r.solver = sim->solver_status();
+      r.stats = stats;
+      r.warnings = std::move(warnings);
       on_frame(r);
     }
   }

@@ -517,6 +517,10 @@ void Scene::validate() const {
   c.positive("output.fps", output.fps);
   if (output.frames < 0) fail(source, "output.frames", "expected an integer >= 0, got " + std::to_string(output.frames));
   if (output.directory.empty()) fail(source, "output.directory", "expected a non-empty path");
+  for (const auto& [key, value] : {std::pair<const char*, double>{"output.mass_drift", output.mass_drift},
+                                   {"output.volume_drift", output.volume_drift},
+                                   {"output.energy_growth", output.energy_growth}})
+    if (!(value >= 0 && value <= 1e300)) fail(source, key, "expected a number >= 0, got " + fmt_num(value));
   for (std::size_t i = 0; i < output.attributes.size(); ++i) {
     const auto& a = output.attributes[i];
     const std::string p = "output.attributes[" + std::to_string(i) + "]";
@@ -699,6 +703,9 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.integer("frames", s.output.frames);
     r.strings("attributes", s.output.attributes);
     r.choice("format", kEncoding, s.output.format);
+    r.number("mass_drift", s.output.mass_drift);
+    r.number("volume_drift", s.output.volume_drift);
+    r.number("energy_growth", s.output.energy_growth);
   });
   top.raw("description");  // free text for people, ignored
   top.finish();

@@ -493,6 +493,7 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
     case TransferKind::MLS: vmax2 = gather(std::integral_constant<Scheme, Scheme::MLS>{}); break;
   }
   max_speed_ = std::sqrt(vmax2);
+  cfl_reached_ = std::max(cfl_reached_, max_speed_ * dt / dx_);
   // A particle moving more than a cell in one substep (or non-finite, or outside the domain)
   // means the step was unstable: stop with a diagnosis rather than write garbage.
   const T limit = std::max(T(1), T(2 * scene_.solver.cfl)) * dx_;
@@ -510,18 +511,22 @@ void Simulation<T, Dim>::return_mapping() {
   // material and so shortens its elastic time-step limit.
   std::vector<T>& hmax = hardening_scratch_;
   hmax.assign(snow ? bins.size() : 0, T(1));
+  projected_scratch_.assign(bins.size(), 0);
   parallel::parallel_tasks(0, std::int64_t(bins.size()), [&](std::int64_t bi) {
     const auto& bin = bins[std::size_t(bi)];
     const auto& mat = materials_[bin.material];
     if (mat.plastic_kind == PlasticModel::None) return;
     T h = T(1);
+    std::int64_t yielded = 0;
     for (auto i = bin.begin; i < bin.end; ++i) {
       const auto p = order[i];
-      mat.project(P.F[p], P.plastic[p]);
+      yielded += mat.project(P.F[p], P.plastic[p]);
       if (mat.plastic_kind == PlasticModel::Snow) h = std::max(h, mat.hardening_factor(P.plastic[p]));
     }
+    projected_scratch_[std::size_t(bi)] = yielded;
     if (snow) hmax[std::size_t(bi)] = h;
   });
+  for (const auto n : projected_scratch_) projected_ += n;
   if (snow) {
     for (auto& m : materials_)
       if (m.plastic_kind == PlasticModel::Snow) m.wave_speed = m.base_wave_speed;
@@ -585,6 +590,27 @@ T Simulation<T, Dim>::elastic_energy() const {
     mat.visit_elastic([&](const auto& model) { e += P.vol0[p] * model.energy(P.F[p]); });
   }
   return e;
+}
+
+template <class T, int Dim>
+RunStats Simulation<T, Dim>::take_stats() {
+  const auto& P = particles_;
+  RunStats s;
+  s.time = time_;
+  s.particles = P.size();
+  add_particle_sums(s, P.x, P.v, P.m.data(), 0.0, scene_.solver.gravity);
+  s.elastic = double(elastic_energy());
+  for (std::size_t p = 0; p < P.size(); ++p) {
+    const bool fluid = !P.J.empty() && (P.F.empty() || materials_[P.material.empty() ? 0 : P.material[p]].fluid);
+    const double J = fluid ? double(P.J[p]) : double(P.F[p].determinant());
+    s.volume += double(P.vol0[p]) * J;
+    if (fluid) s.max_fluid_J_error = std::max(s.max_fluid_J_error, std::abs(J - 1));
+  }
+  s.projected = projected_;
+  s.cfl = double(cfl_reached_);
+  projected_ = 0;
+  cfl_reached_ = 0;
+  return s;
 }
 
 template <class T, int Dim>

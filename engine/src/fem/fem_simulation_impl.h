@@ -151,8 +151,13 @@ void FemSimulation<T, Dim>::step(T dt) {
   const auto& x = fem_->x;
   const auto& v = fem_->v;
   bool bad = false;
-  for (std::size_t i = 0; i < x.size() && !bad; ++i) bad = !x[i].allFinite() || !v[i].allFinite();
+  T vmax2 = 0;
+  for (std::size_t i = 0; i < x.size() && !bad; ++i) {
+    bad = !x[i].allFinite() || !v[i].allFinite();
+    vmax2 = std::max(vmax2, v[i].squaredNorm());
+  }
   if (bad) diagnose(dt);
+  cfl_reached_ = std::max(cfl_reached_, std::sqrt(vmax2) * dt / T(scene_.domain.dx));
   time_ += double(dt);
   ++steps_;
 }
@@ -167,6 +172,21 @@ void FemSimulation<T, Dim>::diagnose(T dt) const {
       << "\") has a non-finite position or velocity (dt " << detail::fmt(double(dt)) << " s, explicit limit "
       << detail::fmt(double(explicit_dt_)) << " s); reduce solver.max_dt or solver.elastic_cfl, or use solver.integrator \"implicit\"";
   throw SimulationError(msg.str());
+}
+
+template <class T, int Dim>
+RunStats FemSimulation<T, Dim>::take_stats() {
+  const Fem& f = *fem_;
+  RunStats s;
+  s.time = time_;
+  s.particles = f.vertex_count();
+  add_particle_sums(s, f.x, f.v, f.mass().data(), 0.0, scene_.solver.gravity);
+  s.elastic = double(f.energy(f.x));
+  for (std::size_t e = 0; e < f.element_count(); ++e)
+    s.volume += double(f.volume(e)) * double(f.deformation_gradient(e, f.x).determinant());
+  s.cfl = double(cfl_reached_);
+  cfl_reached_ = 0;
+  return s;
 }
 
 template <class T, int Dim>

@@ -148,6 +148,7 @@ void FlipSimulation<T, Dim>::step(T dt) {
   lap(kToParticles);
   advect(dt);
   lap(kAdvect);
+  cfl_reached_ = std::max(cfl_reached_, max_speed_ * dt / grid_.dx);
   reseed();
   lap(kReseed);
   time_ += double(dt);
@@ -357,6 +358,33 @@ T FlipSimulation<T, Dim>::kinetic_energy() const {
   T e = 0;
   for (const auto& v : particles_.v) e += v.squaredNorm();
   return T(0.5) * density() * particle_volume_ * e;
+}
+
+template <class T, int Dim>
+RunStats FlipSimulation<T, Dim>::take_stats() {
+  RunStats s;
+  s.time = time_;
+  s.particles = particles_.size();
+  const double m = double(density()) * double(particle_volume_);
+  add_particle_sums(s, particles_.x, particles_.v, static_cast<const T*>(nullptr), m, scene_.solver.gravity);
+  // Liquid volume: the cells that hold a particle (the solver's fluid cells, counted from the
+  // particles so that frame 0 has a figure too). Particle count x particle volume cannot drift
+  // while no particle is added or removed, but particles that bunch up leave the liquid
+  // smaller, which this measure shows.
+  std::vector<std::uint8_t> filled(std::size_t(grid_.num_cells()), 0);
+  std::int64_t n = 0;
+  for (const auto& x : particles_.x) {
+    typename Grid::IVec c;
+    for (int d = 0; d < Dim; ++d)
+      c[d] = std::clamp(int(std::floor((x[d] - grid_.origin[d]) / grid_.dx)), 0, grid_.res[d] - 1);
+    auto& cell = filled[std::size_t(grid_.cell(c))];
+    n += cell == 0;
+    cell = 1;
+  }
+  s.volume = double(n) * std::pow(double(grid_.dx), Dim);
+  s.cfl = double(cfl_reached_);
+  cfl_reached_ = 0;
+  return s;
 }
 
 template <class T, int Dim>

@@ -54,14 +54,16 @@ struct Material {
   /// Starting value of the plastic channel: Jp = 1 for snow, 0 accumulated strain otherwise.
   T initial_plastic_state() const { return plastic_kind == PlasticModel::Snow ? T(1) : T(0); }
 
-  /// Projects the elastic deformation gradient back to the yield surface.
-  void project(Mat& F, T& state) const {
+  /// Projects the elastic deformation gradient back to the yield surface; returns whether it
+  /// changed F.
+  bool project(Mat& F, T& state) const {
     switch (plastic_kind) {
-      case PlasticModel::Snow: snow.project(F, state); break;
-      case PlasticModel::DruckerPrager: drucker_prager.project(F, state, mu, lambda); break;
-      case PlasticModel::VonMises: von_mises.project(F, state, mu); break;
+      case PlasticModel::Snow: return snow.project(F, state);
+      case PlasticModel::DruckerPrager: return drucker_prager.project(F, state, mu, lambda);
+      case PlasticModel::VonMises: return von_mises.project(F, state, mu);
       case PlasticModel::None: break;
     }
+    return false;
   }
 };
 

@@ -14,6 +14,7 @@
 #include <string>
 
 #include "slurry/engine/scene.h"
+#include "slurry/engine/stats.h"
 
 namespace slurry {
 
@@ -35,6 +36,9 @@ struct FrameReport {
   std::size_t particles = 0;
   std::filesystem::path file;  ///< the frame written
   std::string solver;          ///< SimulationBase::solver_status() after the frame's last substep
+  RunStats stats;              ///< conservation figures after the frame (also a row of stats.csv)
+  /// Drift beyond the scene's tolerances at this frame (stats.h), one line each; empty if none.
+  std::vector<std::string> warnings;
 };
 
 struct RunSummary {
@@ -45,9 +49,14 @@ struct RunSummary {
   std::size_t particles = 0;
   std::size_t bytes = 0;  ///< particles and grid
   std::filesystem::path directory;
+  RunStats first, last;   ///< figures of frame 0 and of the last frame written
+  int drift_warnings = 0;  ///< frames with at least one drift warning
+  double largest_cfl = 0;  ///< largest RunStats::cfl over the run
 };
 
-/// Runs `scene` to its last frame. Throws SceneError, IoError or SimulationError.
+/// Runs `scene` to its last frame. Besides the frames it writes `<directory>/stats.csv`, one row
+/// of RunStats per frame (stats.h), and reports drift beyond output.mass_drift, volume_drift and
+/// energy_growth in FrameReport::warnings. Throws SceneError, IoError or SimulationError.
 RunSummary run_scene(const Scene& scene, const RunOptions& options = {},
                      const std::function<void(const FrameReport&)>& on_frame = {});
 

@@ -176,6 +176,11 @@ struct OutputParams {
   int frames = 24;  ///< frames written after the initial one (frame 0)
   std::vector<std::string> attributes{"position"};  ///< position, velocity, material, J, plastic
   PlyEncoding format = PlyEncoding::Binary;
+  /// Drift warnings (stats.h): relative change of the total mass, of the volume, and growth of
+  /// the total energy relative to the energy available, beyond which a frame is reported.
+  double mass_drift = 1e-4;
+  double volume_drift = 0.1;
+  double energy_growth = 0.05;
 };
 
 struct Scene {

@@ -34,6 +34,7 @@
 #include "slurry/engine/particles.h"
 #include "slurry/engine/ply.h"
 #include "slurry/engine/scene.h"
+#include "slurry/engine/stats.h"
 #include "slurry/transfer/blocks.h"
 #include "slurry/transfer/grid.h"
 #include "slurry/transfer/sparse_grid.h"
@@ -59,6 +60,9 @@ class SimulationBase {
   /// One line on the last substep's linear solve (iterations, relative residual), for the CLI's
   /// per-frame log; empty for solvers without one (explicit MPM and FEM).
   virtual std::string solver_status() const { return {}; }
+  /// Conservation and sanity figures of the current state (stats.h). The per-frame figures
+  /// (projected, cfl) cover the substeps since the previous call, which resets them.
+  virtual RunStats take_stats() = 0;
 };
 
 /// The substep loop every solver's advance_to shares: takes substeps of stable_dt() from `time`
@@ -152,6 +156,7 @@ class Simulation final : public SimulationBase {
   int last_cg_iterations() const { return cg_.last_iterations; }
   const CgStats& cg_stats() const { return cg_; }
   std::string solver_status() const override;
+  RunStats take_stats() override;
 
  private:
   /// Particles are re-stored in bin order every this many substeps (between, they are reached
@@ -191,6 +196,9 @@ class Simulation final : public SimulationBase {
   std::vector<Mat> stress_;  // K_p = -dt V_p^0 tau_p, scratch of the current substep
   std::vector<std::uint8_t> fluid_;  // per material: advances J instead of F
   std::vector<T> hardening_scratch_;  // per bin, snow only
+  std::vector<std::int64_t> projected_scratch_;  // per bin: return mappings that yielded
+  std::int64_t projected_ = 0;  // since the last take_stats()
+  T cfl_reached_ = 0;           // largest max_speed dt / dx since the last take_stats()
   transfer::ParticleBins<Dim> bins_;
   DenseGrid dense_;    // domain.grid "dense"
   SparseGrid sparse_;  // domain.grid "sparse" (the unused one stays empty)

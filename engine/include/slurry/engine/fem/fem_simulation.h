@@ -63,6 +63,8 @@ class FemSimulation final : public SimulationBase {
   int last_solver_iterations() const { return last_iterations_; }
   /// "implicit PCG <iterations> iterations" of the last substep; empty for explicit steps.
   std::string solver_status() const override;
+  /// Mass from the lumped vertex masses; volume of the deformed elements.
+  RunStats take_stats() override;
 
  private:
   struct Boundary;
@@ -75,6 +77,7 @@ class FemSimulation final : public SimulationBase {
   std::vector<std::array<int, 3>> faces_;
   Vec gravity_, lo_, hi_;
   T explicit_dt_ = 0;
+  T cfl_reached_ = 0;  // largest vertex speed dt / dx since the last take_stats()
   double time_ = 0;
   std::int64_t steps_ = 0;
   int last_iterations_ = 0;

@@ -81,6 +81,9 @@ class FlipSimulation final : public SimulationBase {
   const ProjectionReport& last_projection() const { return last_projection_; }
   /// "pressure PCG <iterations> iterations, residual <r>, max |div u| <d> 1/s" of the last substep.
   std::string solver_status() const override;
+  /// Mass from the nominal particle volume (every particle carries dx^Dim / ppc); volume: the
+  /// cells that hold a particle.
+  RunStats take_stats() override;
   /// Largest particle speed after the last substep (m/s).
   T max_speed() const { return max_speed_; }
   /// Particle volume dx^Dim / particles_per_cell (the nominal seeding density).
@@ -133,6 +136,7 @@ class FlipSimulation final : public SimulationBase {
   ProjectionReport last_projection_;
   Vec gravity_, x_lo_, x_hi_;
   T particle_volume_ = 0, particle_radius_ = 0, max_speed_ = 0;
+  T cfl_reached_ = 0;  // largest max_speed dt / dx since the last take_stats()
   double time_ = 0;
   std::int64_t steps_ = 0, reseed_added_ = 0, reseed_removed_ = 0;
   std::array<double, kPhaseCount> phase_seconds_{}, phase_cpu_seconds_{};
