@@ -1,15 +1,21 @@
 // slurry: run or check a scene file.
 //
-//   slurry run SCENE.json [--out DIR] [--frames N] [--threads N] [--ascii] [--quiet]
-//   slurry validate SCENE.json
+//   slurry run SCENE.json [--out DIR] [--frames N] [--threads N] [--memory-limit GB] [--overwrite] [--ascii] [--quiet]
+//   slurry validate SCENE.json [--memory-limit GB]
 //
-// Exit codes: 0 success, 1 the simulation became unstable, 2 invalid scene or usage, 3 I/O error.
+// Exit codes: 0 success, 1 the simulation became unstable, 2 invalid scene or usage, 3 file or
+// resource error, 130 / 143 stopped by SIGINT / SIGTERM after the last complete frame.
 #include <CLI/CLI.hpp>
+#include <charconv>
 #include <chrono>
+#include <climits>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <iostream>
+#include <new>
 #include <string>
+#include <thread>
 #include <unistd.h>
 
 #include "slurry/engine/run.h"
@@ -63,32 +69,107 @@ class Progress {
   double first_ = 0;
 };
 
+volatile std::sig_atomic_t g_stop = 0;
+
+/// The first SIGINT or SIGTERM asks the run to stop after the frame it is on; the handler is
+/// reset, so a second one ends the process at once (its temporary file is removed by the next run).
+void on_signal(int sig) { g_stop = sig; }
+
+void install_signal_handlers() {
+  struct sigaction sa {};
+  sa.sa_handler = on_signal;
+  sa.sa_flags = SA_RESETHAND;
+  sigemptyset(&sa.sa_mask);
+  sigaction(SIGINT, &sa, nullptr);
+  sigaction(SIGTERM, &sa, nullptr);
+}
+
+struct UsageError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+/// A command-line integer in [lo, hi], or a UsageError naming the option and the range.
+long long parse_integer(const std::string& option, const std::string& text, long long lo, long long hi) {
+  long long v = 0;
+  const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+  if (ec != std::errc() || end != text.data() + text.size() || v < lo || v > hi)
+    throw UsageError(option + ": expected an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "], got \"" +
+                     text + "\"");
+  return v;
+}
+
+double parse_positive(const std::string& option, const std::string& text) {
+  std::size_t end = 0;
+  double v = 0;
+  try {
+    v = std::stod(text, &end);
+  } catch (const std::exception&) {
+    end = 0;
+  }
+  if (end == 0 || end != text.size() || !(v > 0) || !std::isfinite(v))
+    throw UsageError(option + ": expected a number > 0, got \"" + text + "\"");
+  return v;
+}
+
+void print_summary(const slurry::RunSummary& s) {
+  std::printf(
+      "done: %d frames in %s (%s), %lld substeps, %zu particles, %.3g particle-steps/s, "
+      "%.0f bytes/particle\n",
+      s.frames_written, s.directory.string().c_str(), human_seconds(s.wall_seconds).c_str(),
+      static_cast<long long>(s.substeps), s.particles, s.particle_steps_per_second,
+      s.particles ? double(s.bytes) / double(s.particles) : 0.0);
+  const auto rel = [](double now, double first) { return first != 0 ? 100 * (now - first) / std::abs(first) : 0.0; };
+  std::printf(
+      "stats: mass %+.3g%%, volume %+.3g%%, energy %.4g -> %.4g J, |momentum| %.4g kg m/s, largest CFL %.3g, "
+      "%d frames with drift warnings (per frame: %s)\n",
+      rel(s.last.mass, s.first.mass), rel(s.last.volume, s.first.volume), s.first.energy(), s.last.energy(),
+      s.last.momentum.norm(), s.largest_cfl, s.drift_warnings, (s.directory / "stats.csv").string().c_str());
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   CLI::App app{"slurry: hybrid particle-grid simulation (MPM solids and liquids)"};
   app.require_subcommand(1);
 
-  std::string scene_path, out_dir;
-  int frames = -1, threads = 0;
-  bool ascii = false, quiet = false;
+  std::string scene_path, out_dir, frames_text, threads_text, memory_text;
+  bool ascii = false, quiet = false, overwrite = false;
   auto* run = app.add_subcommand("run", "Run a scene and write its PLY frames");
   run->add_option("scene", scene_path, "Scene file (JSON)")->required();
-  run->add_option("--out,-o", out_dir, "Output directory (replaces output.directory)");
-  run->add_option("--frames,-f", frames, "Frames to simulate after frame 0 (replaces output.frames)")
-      ->check(CLI::NonNegativeNumber);
-  run->add_option("--threads,-t", threads, "Worker threads (0 = all cores)")->check(CLI::NonNegativeNumber);
+  auto* out_option = run->add_option("--out,-o", out_dir, "Output directory (replaces output.directory)");
+  run->add_option("--frames,-f", frames_text, "Frames to simulate after frame 0 (replaces output.frames)");
+  run->add_option("--threads,-t", threads_text, "Worker threads (0 = all cores; at most 4 x the hardware threads)");
+  run->add_option("--memory-limit", memory_text, "Memory limit in GiB (replaces limits.memory_gb; default: the machine's memory)");
+  run->add_flag("--overwrite", overwrite, "Remove another scene's frames from the output directory");
   run->add_flag("--ascii", ascii, "Write ASCII PLY instead of binary");
   run->add_flag("--quiet,-q", quiet, "No progress output");
 
-  auto* validate = app.add_subcommand("validate", "Check a scene file and exit");
+  auto* validate = app.add_subcommand("validate", "Check a scene file, its meshes and its resources, and exit");
   validate->add_option("scene", scene_path, "Scene file (JSON)")->required();
+  validate->add_option("--memory-limit", memory_text, "Memory limit in GiB (replaces limits.memory_gb)");
 
-  CLI11_PARSE(app, argc, argv);
+  int frames = -1, threads = 0;
+  double memory_gb = 0;
+  try {
+    app.parse(argc, argv);
+    const int hardware = int(std::max(1u, std::thread::hardware_concurrency()));
+    if (!frames_text.empty() || run->count("--frames")) frames = int(parse_integer("--frames", frames_text, 0, INT_MAX));
+    if (run->count("--threads")) threads = int(parse_integer("--threads", threads_text, 0, 4 * hardware));
+    if (run->count("--memory-limit") || validate->count("--memory-limit")) memory_gb = parse_positive("--memory-limit", memory_text);
+    if (out_option->count() && out_dir.empty()) throw UsageError("--out: expected a non-empty directory path, got \"\"");
+  } catch (const CLI::ParseError& e) {
+    if (e.get_exit_code() == 0) return app.exit(e);  // --help
+    std::fprintf(stderr, "slurry: error: %s (usage: slurry --help)\n", e.what());
+    return 2;
+  } catch (const UsageError& e) {
+    std::fprintf(stderr, "slurry: error: %s\n", e.what());
+    return 2;
+  }
 
   try {
     const slurry::Scene scene = slurry::load_scene(scene_path);
     if (validate->parsed()) {
+      slurry::check_scene(scene, memory_gb);
       std::printf("%s: valid (%dD, %zu materials, %zu bodies)\n", scene_path.c_str(), scene.solver.dimension,
                   scene.materials.size(), scene.bodies.size());
       return 0;
@@ -98,6 +179,9 @@ int main(int argc, char** argv) {
     if (frames >= 0) opt.frames = frames;
     if (ascii) opt.format = slurry::PlyEncoding::Ascii;
     opt.threads = threads;
+    opt.memory_gb = memory_gb;
+    opt.overwrite = overwrite;
+    opt.stop = &g_stop;
     if (!quiet && scene.solver.type == slurry::SolverType::FEM)
       std::fprintf(stderr, "slurry: %s (%dD %s, fem, %s), %s backend, %d threads\n", scene_path.c_str(),
                    scene.solver.dimension, scene.solver.precision == slurry::Precision::Float ? "float" : "double",
@@ -109,20 +193,22 @@ int main(int argc, char** argv) {
                    std::string(slurry::to_string(scene.solver.transfer)).c_str(),
                    std::string(slurry::to_string(scene.solver.kernel)).c_str(), slurry::parallel::backend(),
                    threads > 0 ? threads : slurry::parallel::max_threads());
+    install_signal_handlers();
     Progress progress(quiet);
     const auto s = slurry::run_scene(scene, opt, std::ref(progress));
-    std::printf(
-        "done: %d frames in %s (%s), %lld substeps, %zu particles, %.3g particle-steps/s, "
-        "%.0f bytes/particle\n",
-        s.frames_written, s.directory.string().c_str(), human_seconds(s.wall_seconds).c_str(),
-        static_cast<long long>(s.substeps), s.particles, s.particle_steps_per_second,
-        s.particles ? double(s.bytes) / double(s.particles) : 0.0);
-    const auto rel = [](double now, double first) { return first != 0 ? 100 * (now - first) / std::abs(first) : 0.0; };
-    std::printf(
-        "stats: mass %+.3g%%, volume %+.3g%%, energy %.4g -> %.4g J, |momentum| %.4g kg m/s, largest CFL %.3g, "
-        "%d frames with drift warnings (per frame: %s)\n",
-        rel(s.last.mass, s.first.mass), rel(s.last.volume, s.first.volume), s.first.energy(), s.last.energy(),
-        s.last.momentum.norm(), s.largest_cfl, s.drift_warnings, (s.directory / "stats.csv").string().c_str());
+    if (s.removed_temporaries > 0)
+      std::fprintf(stderr, "slurry: removed %d temporary frame files of a killed run from %s\n", s.removed_temporaries,
+                   s.directory.string().c_str());
+    if (s.removed_frames > 0)
+      std::fprintf(stderr, "slurry: removed %d frames of an earlier run%s from %s before writing\n", s.removed_frames,
+                   overwrite ? " (--overwrite)" : " of this scene", s.directory.string().c_str());
+    if (s.interrupted) {
+      std::fprintf(stderr, "\nslurry: stopped by %s after frame %d (frames 0-%d are complete)\n",
+                   s.interrupted == SIGINT ? "SIGINT" : "SIGTERM", s.frames_written - 1, s.frames_written - 1);
+      print_summary(s);
+      return 128 + s.interrupted;
+    }
+    print_summary(s);
     return 0;
   } catch (const slurry::SimulationError& e) {
     std::fprintf(stderr, "\nslurry: error: %s\n", e.what());
@@ -132,6 +218,10 @@ int main(int argc, char** argv) {
     return 2;
   } catch (const slurry::IoError& e) {
     std::fprintf(stderr, "slurry: error: %s\n", e.what());
+    return 3;
+  } catch (const std::bad_alloc&) {
+    std::fprintf(stderr, "slurry: error: %s: out of memory (the estimate before the run was too low; lower the scene's "
+                 "resolution or limits.memory_gb)\n", scene_path.c_str());
     return 3;
   }
 }

@@ -6,6 +6,7 @@ namespace slurry {
 
 std::unique_ptr<SimulationBase> make_simulation(const Scene& scene) {
   scene.validate();
+  check_resources(scene);  // before any allocation
   const bool dbl = scene.solver.precision == Precision::Double;
   if (scene.solver.type == SolverType::FLIP) {
     if (scene.solver.dimension == 2) {

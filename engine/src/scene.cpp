@@ -1,12 +1,16 @@
 // Scene files: JSON -> Scene structs, with every key type-checked and range-checked.
 #include "slurry/engine/scene.h"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <fstream>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <set>
 #include <sstream>
 #include <utility>
+#include <unistd.h>
 
 namespace slurry {
 namespace {
@@ -78,6 +82,13 @@ std::string fmt_num(double x) {
   return o.str();
 }
 
+std::string int_str(long double x) {
+  std::ostringstream o;
+  o.precision(20);
+  o << x;
+  return o.str();
+}
+
 std::string dump_short(const json& j) {
   std::string s = j.dump();
   return s.size() > 60 ? s.substr(0, 57) + "..." : s;
@@ -110,15 +121,21 @@ class ObjectReader {
       if (!std::isfinite(out)) fail(source_, at(key), "expected a finite number");
     }
   }
+  /// An integer in [lo, hi] (by default the range of I): JSON integers are 64-bit, and one that
+  /// does not fit is an error rather than wrapping.
   template <class I>
-  void integer(const std::string& key, I& out) {
-    if (const json* v = raw(key)) {
-      if (!v->is_number_integer()) fail(source_, at(key), "expected an integer, got " + dump_short(*v));
-      if (v->is_number_unsigned())
-        out = static_cast<I>(v->get<std::uint64_t>());
-      else
-        out = static_cast<I>(v->get<std::int64_t>());
-    }
+  void integer(const std::string& key, I& out, I lo = std::numeric_limits<I>::min(), I hi = std::numeric_limits<I>::max()) {
+    if (const json* v = raw(key)) out = static_cast<I>(integer_in(source_, at(key), *v, lo, hi));
+  }
+  /// `v` as an integer in [lo, hi]; long double holds every 64-bit integer exactly.
+  static long double integer_in(const std::string& source, const std::string& path, const json& v, long double lo,
+                                long double hi) {
+    if (!v.is_number_integer()) fail(source, path, "expected an integer, got " + dump_short(v));
+    const long double x = v.is_number_unsigned() ? static_cast<long double>(v.get<std::uint64_t>())
+                                                 : static_cast<long double>(v.get<std::int64_t>());
+    if (x < lo || x > hi)
+      fail(source, path, "expected an integer in [" + int_str(lo) + ", " + int_str(hi) + "], got " + dump_short(v));
+    return x;
   }
   void string(const std::string& key, std::string& out) {
     if (const json* v = raw(key)) {
@@ -243,6 +260,111 @@ void validate_fem(const Scene& s) {
     if (s.bodies[i].mesh.empty() && s.bodies[i].shape == Shape::Cylinder)
       fail(s.source, "bodies[" + std::to_string(i) + "].shape",
            "solver.type \"fem\" meshes \"box\" and \"sphere\" bodies; give a cylinder as a TetGen \"mesh\"");
+}
+
+/// json::parse with the limits a scene file needs, checked while parsing (before a deep or huge
+/// value is built): nesting at most kMaxSceneDepth, no duplicate keys in an object, numbers in
+/// the range of double. Each error names the JSON path where it happened.
+json parse_json(std::string_view text, const std::string& source) {
+  struct Level {
+    bool array = false;
+    std::string key;  // the current key of an object
+    std::size_t index = 0;  // the current element of an array
+    std::set<std::string> keys;
+  };
+  std::vector<Level> stack;
+  const auto path = [&] {
+    std::string p;
+    for (const Level& l : stack) {
+      if (l.array)
+        p += "[" + std::to_string(l.index) + "]";
+      else if (!l.key.empty())
+        p += (p.empty() ? "" : ".") + l.key;
+      if (p.size() > 80) return p.substr(0, 77) + "...";
+    }
+    return p.empty() ? std::string("(top level)") : p;
+  };
+  const json::parser_callback_t check = [&](int, json::parse_event_t event, json& parsed) {
+    switch (event) {
+      case json::parse_event_t::object_start:
+      case json::parse_event_t::array_start:
+        if (int(stack.size()) >= kMaxSceneDepth)
+          fail(source, path(), "nested deeper than " + std::to_string(kMaxSceneDepth) +
+                                   " levels (expected a scene: objects and arrays a few levels deep)");
+        stack.push_back({event == json::parse_event_t::array_start, {}, 0, {}});
+        break;
+      case json::parse_event_t::key:
+        stack.back().key = parsed.get<std::string>();
+        if (!stack.back().keys.insert(stack.back().key).second)
+          fail(source, path(), "duplicate key (expected each key once in an object)");
+        break;
+      case json::parse_event_t::object_end:
+      case json::parse_event_t::array_end:
+        stack.pop_back();
+        [[fallthrough]];
+      case json::parse_event_t::value:
+        if (!stack.empty() && stack.back().array) ++stack.back().index;
+        break;
+    }
+    return true;
+  };
+  try {
+    return json::parse(text.begin(), text.end(), check);
+  } catch (const json::out_of_range& e) {
+    // The parser's only out_of_range: a number beyond the range of double (406).
+    std::string what = e.what();
+    const auto q = what.find('\'');
+    const std::string number = q == std::string::npos ? what : what.substr(q);
+    fail(source, path(), "number " + number + " is out of the range of double (expected a finite number, |x| < 1.8e308)");
+  } catch (const json::exception& e) {
+    throw SceneError(source + ": not valid JSON: " + e.what());
+  }
+}
+
+double wave_speed(const MaterialParams& m) {
+  if (m.model == ElasticModel::Fluid) return std::sqrt(m.bulk_modulus / m.density);
+  const double mu = m.E / (2 * (1 + m.nu)), lambda = m.E * m.nu / ((1 + m.nu) * (1 - 2 * m.nu));
+  return std::sqrt((lambda + 2 * mu) / m.density);
+}
+
+/// A body's bounding box and the share of it the shape fills.
+void body_extent(const BodyParams& b, int dim, Eigen::Vector3d& lo, Eigen::Vector3d& hi, double& fill) {
+  lo = b.min;
+  hi = b.max;
+  fill = 1;
+  if (b.shape == Shape::Box) return;
+  lo = b.center.array() - b.radius;
+  hi = b.center.array() + b.radius;
+  const double pi = 3.14159265358979323846;
+  fill = dim == 3 && b.shape == Shape::Sphere ? pi / 6 : pi / 4;
+  if (b.shape == Shape::Cylinder) {
+    lo[b.axis] = b.center[b.axis] - 0.5 * b.height;
+    hi[b.axis] = b.center[b.axis] + 0.5 * b.height;
+  }
+}
+
+/// Whether two bodies share volume: boxes by their intervals, spheres by their centres'
+/// distance, anything with a cylinder by bounding boxes.
+bool overlap(const BodyParams& a, const BodyParams& b, int dim) {
+  Eigen::Vector3d alo, ahi, blo, bhi;
+  double fill;
+  body_extent(a, dim, alo, ahi, fill);
+  body_extent(b, dim, blo, bhi, fill);
+  for (int d = 0; d < dim; ++d)
+    if (!(alo[d] < bhi[d] && blo[d] < ahi[d])) return false;
+  const auto distance_to_box = [dim](const Eigen::Vector3d& c, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+    double d2 = 0;
+    for (int d = 0; d < dim; ++d) {
+      const double e = std::max({lo[d] - c[d], 0.0, c[d] - hi[d]});
+      d2 += e * e;
+    }
+    return std::sqrt(d2);
+  };
+  if (a.shape == Shape::Sphere && b.shape == Shape::Sphere)
+    return (a.center - b.center).head(dim).norm() < a.radius + b.radius;
+  if (a.shape == Shape::Sphere && b.shape == Shape::Box) return distance_to_box(a.center, b.min, b.max) < a.radius;
+  if (b.shape == Shape::Sphere && a.shape == Shape::Box) return distance_to_box(b.center, a.min, a.max) < b.radius;
+  return true;
 }
 
 }  // namespace
@@ -456,6 +578,9 @@ void Scene::validate() const {
     c.positive(p + ".particles_per_cell", b.particles_per_cell);
     if (b.particles_per_cell > 512) fail(source, p + ".particles_per_cell", "expected at most 512, got " + fmt_num(b.particles_per_cell));
     Eigen::Vector3d lo = b.min, hi = b.max;
+    for (std::size_t j = 0; j < i; ++j)
+      if (bodies[j].mesh.empty() && overlap(b, bodies[j], dim))
+        fail(source, p, "overlaps bodies[" + std::to_string(j) + "] (expected bodies that share no volume: the overlap would hold two sets of particles)");
     switch (b.shape) {
       case Shape::Box:
         for (int d = 0; d < dim; ++d)
@@ -484,6 +609,14 @@ void Scene::validate() const {
         fail(source, p, "the body spans " + vec_str(lo, dim) + " to " + vec_str(hi, dim) +
                             ", expected it inside the domain " + vec_str(domain.min, dim) + " to " +
                             vec_str(domain.max, dim));
+    // A body narrower than one particle spacing (FEM: one cell) seeds a single row of particles
+    // or one particle: almost surely a unit slip, never what the scene means.
+    const double spacing = fem ? domain.dx : domain.dx / std::pow(b.particles_per_cell, 1.0 / dim);
+    for (int d = 0; d < dim; ++d)
+      if (hi[d] - lo[d] < spacing)
+        fail(source, p, "the body is " + fmt_num(hi[d] - lo[d]) + " m across along axis " + std::to_string(d) +
+                            ", expected at least one " + (fem ? "cell (domain.dx = " : "particle spacing (dx / particles_per_cell^(1/dimension) = ") +
+                            fmt_num(spacing) + " m)");
   }
 
   // Boundaries and colliders.
@@ -515,12 +648,33 @@ void Scene::validate() const {
 
   // Output.
   c.positive("output.fps", output.fps);
+  c.in_range("output.fps", output.fps, 1e-6, 1e6, false, false);
   if (output.frames < 0) fail(source, "output.frames", "expected an integer >= 0, got " + std::to_string(output.frames));
   if (output.directory.empty()) fail(source, "output.directory", "expected a non-empty path");
   for (const auto& [key, value] : {std::pair<const char*, double>{"output.mass_drift", output.mass_drift},
                                    {"output.volume_drift", output.volume_drift},
                                    {"output.energy_growth", output.energy_growth}})
     if (!(value >= 0 && value <= 1e300)) fail(source, key, "expected a number >= 0, got " + fmt_num(value));
+  bool position = false;
+  for (const auto& a : output.attributes) position = position || a == "position";
+  if (!position)
+    fail(source, "output.attributes", "expected a list that includes \"position\" (a frame without positions is no frame), got " +
+                                          std::to_string(output.attributes.size()) + " attributes without it");
+  // Limits and the time-step floor: what can be known before the run.
+  c.non_negative("limits.memory_gb", limits.memory_gb);
+  if (limits.substeps_per_frame < 1)
+    fail(source, "limits.substeps_per_frame", "expected an integer >= 1, got " + std::to_string(limits.substeps_per_frame));
+  const double per_frame = double(limits.substeps_per_frame);
+  if (frame_dt() / solver.max_dt > per_frame)
+    fail(source, "solver.max_dt",
+         fmt_num(solver.max_dt) + " s would take " + fmt_num(frame_dt() / solver.max_dt) + " substeps per frame of " +
+             fmt_num(frame_dt()) + " s, more than limits.substeps_per_frame = " + std::to_string(limits.substeps_per_frame) +
+             " (expected a larger solver.max_dt)");
+  if (frame_dt() / elastic_dt() > per_frame)
+    fail(source, "solver.elastic_cfl",
+         "the elastic limit elastic_cfl dx / c = " + fmt_num(elastic_dt()) + " s would take " + fmt_num(frame_dt() / elastic_dt()) +
+             " substeps per frame, more than limits.substeps_per_frame = " + std::to_string(limits.substeps_per_frame) +
+             " (expected a larger solver.elastic_cfl or domain.dx, or a softer material)");
   for (std::size_t i = 0; i < output.attributes.size(); ++i) {
     const auto& a = output.attributes[i];
     const std::string p = "output.attributes[" + std::to_string(i) + "]";
@@ -541,19 +695,13 @@ void Scene::validate() const {
 }
 
 Scene parse_scene(std::string_view text, const std::string& source) {
-  json j;
-  try {
-    j = json::parse(text.begin(), text.end());
-  } catch (const json::parse_error& e) {
-    throw SceneError(source + ": not valid JSON: " + e.what());
-  }
+  const json j = parse_json(text, source);
   Scene s;
   s.source = source;
   // The dimension decides the length of every vector, so it is read first.
   if (j.is_object() && j.contains("solver") && j["solver"].is_object() && j["solver"].contains("dimension")) {
     const json& d = j["solver"]["dimension"];
-    if (!d.is_number_integer() || (d.get<int>() != 2 && d.get<int>() != 3))
-      fail(source, "solver.dimension", "expected 2 or 3, got " + dump_short(d));
+    if (!d.is_number_integer() || (d != 2 && d != 3)) fail(source, "solver.dimension", "expected 2 or 3, got " + dump_short(d));
     s.solver.dimension = d.get<int>();
   }
   const int dim = s.solver.dimension;
@@ -700,26 +848,118 @@ Scene parse_scene(std::string_view text, const std::string& source) {
   top.object("output", [&](ObjectReader& r) {
     r.string("directory", s.output.directory);
     r.number("fps", s.output.fps);
-    r.integer("frames", s.output.frames);
+    r.integer("frames", s.output.frames, 0, std::numeric_limits<int>::max());
     r.strings("attributes", s.output.attributes);
     r.choice("format", kEncoding, s.output.format);
     r.number("mass_drift", s.output.mass_drift);
     r.number("volume_drift", s.output.volume_drift);
     r.number("energy_growth", s.output.energy_growth);
   });
-  top.raw("description");  // free text for people, ignored
+  top.object("limits", [&](ObjectReader& r) {
+    r.number("memory_gb", s.limits.memory_gb);
+    r.integer("substeps_per_frame", s.limits.substeps_per_frame);
+  });
+  std::string description;
+  top.string("description", description);  // free text for people, ignored
   top.finish();
   s.validate();
   return s;
 }
 
 Scene load_scene(const std::filesystem::path& path) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec))
+    throw IoError(path.string() + ": is a directory (expected a scene file, JSON)");
   std::ifstream in(path, std::ios::binary);
   if (!in) throw IoError(path.string() + ": cannot open the scene file (does it exist and is it readable?)");
-  std::ostringstream text;
-  text << in.rdbuf();
+  // Read in chunks up to kMaxSceneBytes: a device such as /dev/zero or a huge file is refused
+  // before it fills the memory.
+  std::string text;
+  char chunk[1 << 16];
+  while (in.read(chunk, sizeof chunk) || in.gcount() > 0) {
+    text.append(chunk, std::size_t(in.gcount()));
+    if (text.size() > kMaxSceneBytes)
+      throw IoError(path.string() + ": larger than " + std::to_string(kMaxSceneBytes >> 20) +
+                    " MiB (expected a scene file, JSON of a few kilobytes)");
+  }
   if (in.bad()) throw IoError(path.string() + ": read error");
-  return parse_scene(text.str(), path.string());
+  return parse_scene(text, path.string());
+}
+
+double Scene::elastic_dt() const {
+  if (solver.type != SolverType::MPM || solver.integrator == Integrator::Implicit) return std::numeric_limits<double>::infinity();
+  double c = 0;
+  for (const auto& m : materials) c = std::max(c, wave_speed(m));
+  const double kernel_factor = solver.kernel == KernelKind::Linear ? 0.25 : 1.0;  // as Simulation::stable_dt
+  return c > 0 ? kernel_factor * solver.elastic_cfl * domain.dx / c : std::numeric_limits<double>::infinity();
+}
+
+ResourceEstimate Scene::estimate() const {
+  const int dim = solver.dimension;
+  const bool fem = solver.type == SolverType::FEM, flip = solver.type == SolverType::FLIP;
+  const double real = solver.precision == Precision::Double ? 8 : 4;
+  ResourceEstimate e;
+  for (const auto& b : bodies) {
+    if (!b.mesh.empty()) continue;  // a mesh file's size bounds what reading it allocates
+    Eigen::Vector3d lo, hi;
+    double fill, lattice = 1;
+    body_extent(b, dim, lo, hi, fill);
+    const double h = fem ? domain.dx : domain.dx / std::pow(b.particles_per_cell, 1.0 / dim);
+    for (int d = 0; d < dim; ++d) lattice *= std::max(1.0, std::round((hi[d] - lo[d]) / h));
+    if (fem)
+      e.elements += lattice * (dim == 3 ? 6 : 2);  // box_mesh: 6 tetrahedra per cube, 2 triangles per square
+    else
+      e.particles += lattice * fill;
+  }
+  double cells = 1, nodes = 1;
+  for (int d = 0; d < dim; ++d) {
+    const double n = std::ceil((domain.max[d] - domain.min[d]) / domain.dx - 1e-9);
+    cells *= n;
+    nodes *= n + 7;
+  }
+  const bool dense = domain.grid == GridKind::Dense || (domain.grid == GridKind::Auto && solver.integrator == Integrator::Implicit);
+  // Bytes per item: rough upper bounds of the solvers' channels (position, velocity, mass,
+  // volume, F, C and the stress, bins; FLIP face velocities, weights, pressure, PCG and
+  // multigrid vectors; FEM element matrices and, implicit, the assembled stiffness).
+  const double particle_bytes = real * (2 * dim + 2 + (flip ? dim * dim : 3 * dim * dim)) + 16;
+  if (flip) e.grid_nodes = cells;
+  else if (!fem && dense) e.grid_nodes = nodes;
+  const double node_bytes = flip ? real * (3 * dim + 8) + 4 : real * (2 + 2 * dim) * (solver.integrator == Integrator::Implicit ? 4 : 1);
+  const double element_bytes = 200 + (solver.integrator == Integrator::Implicit ? 12.0 * (dim + 1) * dim * (dim + 1) * dim : 0);
+  e.bytes = e.particles * particle_bytes + e.grid_nodes * node_bytes + e.elements * element_bytes;
+  return e;
+}
+
+double physical_memory_bytes() {
+  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
+  return pages > 0 && page > 0 ? double(pages) * double(page) : 0;
+}
+
+void check_resources(const Scene& scene, double memory_gb) {
+  const ResourceEstimate e = scene.estimate();
+  const auto error = [&](const std::string& path, const std::string& what) {
+    throw ResourceError(scene.source + ": " + path + ": " + what);
+  };
+  // Particle, vertex and element indices are 32-bit.
+  if (e.particles > 2e9) error("bodies", "the bodies would seed " + fmt_num(e.particles) + " particles (limit 2e9); expected fewer or larger particles (particles_per_cell, domain.dx)");
+  if (e.elements > 2e9) error("bodies", "the bodies would mesh " + fmt_num(e.elements) + " elements (limit 2e9); expected a larger domain.dx");
+  std::string limit_name = "limits.memory_gb";
+  double gb = memory_gb > 0 ? memory_gb : scene.limits.memory_gb;
+  if (memory_gb > 0) limit_name = "--memory-limit";
+  if (gb <= 0) {
+    gb = physical_memory_bytes() / double(1 << 30);
+    limit_name = "the machine's memory";
+  }
+  if (gb <= 0 || e.bytes <= gb * double(1 << 30)) return;
+  const double p = e.particles, g = e.grid_nodes, m = e.elements;
+  const std::string what = p >= g && p >= m ? fmt_num(p) + " particles seeded by the bodies"
+                           : g >= m         ? fmt_num(g) + (scene.solver.type == SolverType::FLIP ? " grid cells" : " dense grid nodes")
+                                            : fmt_num(m) + " mesh elements";
+  char size[64];
+  std::snprintf(size, sizeof size, "%.3g GiB, more than %.3g GiB (", e.bytes / double(1 << 30), gb);
+  error(p >= g && p >= m ? "bodies" : g >= m ? "domain.dx" : "bodies",
+        "the run would need about " + std::string(size) + limit_name + ") for " + what +
+            "; expected a smaller scene, or raise the limit with limits.memory_gb or --memory-limit");
 }
 
 }  // namespace slurry

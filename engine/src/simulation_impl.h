@@ -178,7 +178,7 @@ T Simulation<T, Dim>::stable_dt() const {
 
 template <class T, int Dim>
 std::int64_t Simulation<T, Dim>::advance_to(double t_end) {
-  return substep_to(time_, t_end, [&] { return stable_dt(); }, [&](double dt) { step(T(dt)); });
+  return substep_to(time_, t_end, [&] { return stable_dt(); }, [&](double dt) { step(T(dt)); }, scene_);
 }
 
 template <class T, int Dim>

@@ -128,7 +128,7 @@ T FemSimulation<T, Dim>::stable_dt() const {
 
 template <class T, int Dim>
 std::int64_t FemSimulation<T, Dim>::advance_to(double t_end) {
-  return substep_to(time_, t_end, [&] { return stable_dt(); }, [&](double dt) { step(T(dt)); });
+  return substep_to(time_, t_end, [&] { return stable_dt(); }, [&](double dt) { step(T(dt)); }, scene_);
 }
 
 template <class T, int Dim>

@@ -1,6 +1,7 @@
 // TetGen .node/.ele reader and writer; see tetgen.h for the format and the error messages.
 #include "slurry/engine/fem/tetgen.h"
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
@@ -82,6 +83,9 @@ class TokenFile {
   std::size_t pos_ = 0;
 };
 
+/// Items reserved up front at most; beyond that, storage grows with what the file holds.
+constexpr long long kReserve = 1 << 16;
+
 long long in_range(TokenFile& f, const std::string& field, long long v, long long lo, long long hi) {
   if (v < lo || v > hi)
     f.fail(field, "expected an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "], got " + std::to_string(v));
@@ -123,7 +127,9 @@ Mesh<Dim> read_tetgen(const std::filesystem::path& path) {
     long long markers = 0;
     if (f.tokens_left() > 0) markers = in_range(f, "boundary markers", f.integer("boundary markers"), 0, 1);
     f.finish_line("header");
-    mesh.x.resize(std::size_t(n));
+    // The header's count is not trusted for allocation: storage grows with the points actually
+    // read, so a header announcing 2^30 points in a short file fails at its end, not in malloc.
+    mesh.x.reserve(std::size_t(std::min(n, kReserve)));
     for (long long i = 0; i < n; ++i) {
       f.expect_line("point " + std::to_string(i + 1) + " of " + std::to_string(n));
       const std::string p = "point " + std::to_string(i);
@@ -135,7 +141,8 @@ Mesh<Dim> read_tetgen(const std::filesystem::path& path) {
         f.fail(p + ", index", "expected " + std::to_string(base + i) + " (points numbered consecutively), got " + std::to_string(index));
       }
       static const char* axis[3] = {"x", "y", "z"};
-      for (int d = 0; d < Dim; ++d) mesh.x[std::size_t(i)][d] = f.number(p + ", " + axis[d]);
+      auto& x = mesh.x.emplace_back();
+      for (int d = 0; d < Dim; ++d) x[d] = f.number(p + ", " + axis[d]);
       for (long long a = 0; a < attributes; ++a) f.number(p + ", attribute " + std::to_string(a));
       if (markers) f.integer(p + ", boundary marker");
       f.finish_line(p);
@@ -153,13 +160,14 @@ Mesh<Dim> read_tetgen(const std::filesystem::path& path) {
     long long attributes = 0;
     if (f.tokens_left() > 0) attributes = in_range(f, "number of attributes", f.integer("number of attributes"), 0, 1 << 20);
     f.finish_line("header");
-    mesh.elements.resize(std::size_t(n));
-    lines.resize(std::size_t(n));
+    mesh.elements.reserve(std::size_t(std::min(n, kReserve)));
+    lines.reserve(std::size_t(std::min(n, kReserve)));
     const long long lo = base, hi = base + (long long)mesh.x.size() - 1;
     for (long long e = 0; e < n; ++e) {
       f.expect_line("element " + std::to_string(e + 1) + " of " + std::to_string(n));
       const std::string p = "element " + std::to_string(e);
-      lines[std::size_t(e)] = f.line();
+      lines.push_back(f.line());
+      auto& el = mesh.elements.emplace_back();
       const long long index = f.integer(p + ", index");
       if (index != base + e)
         f.fail(p + ", index", "expected " + std::to_string(base + e) + " (elements numbered like the points, consecutively), got " +
@@ -169,7 +177,7 @@ Mesh<Dim> read_tetgen(const std::filesystem::path& path) {
         const long long v = f.integer(field);
         if (v < lo || v > hi)
           f.fail(field, "expected a point index in [" + std::to_string(lo) + ", " + std::to_string(hi) + "], got " + std::to_string(v));
-        mesh.elements[std::size_t(e)][std::size_t(k)] = int(v - base);
+        el[std::size_t(k)] = int(v - base);
       }
       for (long long a = 0; a < attributes; ++a) f.number(p + ", attribute " + std::to_string(a));
       f.finish_line(p);

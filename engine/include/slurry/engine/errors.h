@@ -23,6 +23,13 @@ struct IoError : Error {
   using Error::Error;
 };
 
+/// A scene asks for more than the machine or the configured limits give (memory, particles, grid
+/// cells, mesh elements, threads); checked before anything is allocated. An IoError, so that it
+/// exits like a file error (CLI exit code 3).
+struct ResourceError : IoError {
+  using IoError::IoError;
+};
+
 /// The simulation became unhealthy (non-finite state, CFL violation, particle left the domain):
 /// names the step, the time, the particle index and its material.
 struct SimulationError : Error {

@@ -7,6 +7,7 @@
 /// or failed run leaves every frame it finished intact and no partial one. If the simulation
 /// becomes unstable, SimulationError is thrown after the last good frame: a frame with
 /// non-finite values is never written.
+#include <csignal>
 #include <cstdint>
 #include <filesystem>
 #include <functional>
@@ -24,6 +25,13 @@ struct RunOptions {
   std::optional<int> frames;                       ///< replaces output.frames
   std::optional<PlyEncoding> format;               ///< replaces output.format
   int threads = 0;                                 ///< worker threads; 0 = all cores
+  /// Replaces limits.memory_gb (GiB; 0 keeps the scene's limit).
+  double memory_gb = 0;
+  /// The output directory holds another scene's frames: remove them (else IoError).
+  bool overwrite = false;
+  /// Polled between substep loops and frames: when non-zero, the run stops after the frame it
+  /// is writing (no partial frame) and returns with `interrupted` set to its value (a signal number).
+  const volatile std::sig_atomic_t* stop = nullptr;
 };
 
 /// Progress after each written frame.
@@ -52,13 +60,25 @@ struct RunSummary {
   RunStats first, last;   ///< figures of frame 0 and of the last frame written
   int drift_warnings = 0;  ///< frames with at least one drift warning
   double largest_cfl = 0;  ///< largest RunStats::cfl over the run
+  int interrupted = 0;          ///< RunOptions::stop's value if the run was stopped early, else 0
+  int removed_frames = 0;       ///< frames of an earlier run removed from the directory before the run
+  int removed_temporaries = 0;  ///< temporary frame files of a killed run removed before the run
 };
 
-/// Runs `scene` to its last frame. Besides the frames it writes `<directory>/stats.csv`, one row
-/// of RunStats per frame (stats.h), and reports drift beyond output.mass_drift, volume_drift and
-/// energy_growth in FrameReport::warnings. Throws SceneError, IoError or SimulationError.
+/// Runs `scene` to its last frame. Throws SceneError, IoError (ResourceError) or SimulationError.
+/// Checks the scene and its resources (check_scene) before creating anything; the output
+/// directory is created just before frame 0 is written. Frames of an earlier run of the same
+/// scene (their comment names the same source) are removed first, so a sequence is never mixed;
+/// another scene's frames are an IoError unless options.overwrite. Temporary files of a killed
+/// run (frame_NNNN.ply.tmp-PID-N whose process is gone) are removed. Besides the frames it
+/// writes `<directory>/stats.csv`, one row of RunStats per frame (stats.h), and reports drift
+/// beyond output.mass_drift, volume_drift and energy_growth in FrameReport::warnings.
 RunSummary run_scene(const Scene& scene, const RunOptions& options = {},
                      const std::function<void(const FrameReport&)>& on_frame = {});
+
+/// Everything `run_scene` checks before it allocates: validate(), meshes read (FEM), resource
+/// estimates against the memory limit (memory_gb as in check_resources). Throws like run_scene.
+void check_scene(const Scene& scene, double memory_gb = 0);
 
 /// The file name of frame f: frame_NNNN.ply.
 std::filesystem::path frame_file(const std::filesystem::path& directory, int frame);

@@ -183,6 +183,24 @@ struct OutputParams {
   double energy_growth = 0.05;
 };
 
+/// Limits checked before a run allocates or steps (README, "Limits"): the estimated memory of
+/// particles, grid and mesh, and the substeps a frame may take.
+struct LimitsParams {
+  /// Largest estimated memory use (GiB); 0 = the machine's physical memory.
+  double memory_gb = 0;
+  /// A frame needing more substeps than this is an error naming the limit (solver.max_dt,
+  /// solver.cfl or solver.elastic_cfl) that makes the substep so small; >= 1.
+  std::int64_t substeps_per_frame = 1000000;
+};
+
+/// What a scene will allocate, estimated from its parameters before anything is allocated.
+struct ResourceEstimate {
+  double particles = 0;  ///< particles its bodies seed (bounding lattice times the shape's volume fraction)
+  double grid_nodes = 0; ///< nodes (MPM dense grid) or cells (FLIP) allocated up front
+  double elements = 0;   ///< FEM elements meshed from box and sphere bodies
+  double bytes = 0;      ///< all of it together
+};
+
 struct Scene {
   std::string source = "<scene>";  ///< the file it came from, for messages
   DomainParams domain;
@@ -193,6 +211,7 @@ struct Scene {
   std::vector<ColliderParams> colliders;
   std::vector<EmitterParams> emitters;  ///< FLIP only
   OutputParams output;
+  LimitsParams limits;
 
   /// Throws SceneError for the first invalid field.
   void validate() const;
@@ -202,12 +221,26 @@ struct Scene {
   int material_index(std::string_view name) const;
   /// The frame duration 1 / output.fps.
   double frame_dt() const { return 1.0 / output.fps; }
+  /// The allocation the scene will make (see ResourceEstimate).
+  ResourceEstimate estimate() const;
+  /// The smallest explicit elastic substep elastic_cfl dx / c over the materials (c the wave
+  /// speed), or +infinity where no elastic limit applies (implicit, FLIP, FEM).
+  double elastic_dt() const;
 };
+
+/// The machine's physical memory in bytes (0 if unknown).
+double physical_memory_bytes();
+/// Throws ResourceError if the scene's estimate exceeds `memory_gb` GiB (0: limits.memory_gb,
+/// and if that is 0 too, the machine's physical memory). Names the largest consumer.
+void check_resources(const Scene& scene, double memory_gb = 0);
 
 /// Reads, parses and validates a scene file. Throws SceneError (invalid content) or IoError.
 Scene load_scene(const std::filesystem::path& path);
 /// Parses and validates scene JSON text; `source` names it in messages.
 Scene parse_scene(std::string_view json_text, const std::string& source);
+/// Largest nesting depth of a scene file's JSON, and largest scene file (bytes).
+inline constexpr int kMaxSceneDepth = 64;
+inline constexpr std::size_t kMaxSceneBytes = std::size_t(64) << 20;
 
 /// Names used in scene files, for messages and the README.
 std::string_view to_string(ElasticModel);

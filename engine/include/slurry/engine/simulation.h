@@ -70,12 +70,20 @@ class SimulationBase {
 /// set to t_end, so frame times do not drift by summing substeps); one longer than half the
 /// remainder is halved, giving two even substeps rather than a long and a tiny one. `step(dt)`
 /// advances `time` itself. Returns the number of substeps.
+///
+/// Time-step floor: a stable substep below kMinSubstepRatio of the interval, or more than
+/// scene.limits.substeps_per_frame substeps, throws SceneError naming the limit that caused it.
+inline constexpr double kMinSubstepRatio = 1e-9;
+[[noreturn]] void substep_limit_error(const Scene& scene, double dt, double interval, std::int64_t substeps, double time);
 template <class StableDt, class Step>
-std::int64_t substep_to(double& time, double t_end, StableDt&& stable_dt, Step&& step) {
+std::int64_t substep_to(double& time, double t_end, StableDt&& stable_dt, Step&& step, const Scene& scene) {
   std::int64_t n = 0;
+  const double interval = t_end - time;
   while (time < t_end) {
     const double remaining = t_end - time;
     double dt = double(stable_dt());
+    if (!(dt >= kMinSubstepRatio * interval) || n >= scene.limits.substeps_per_frame)
+      substep_limit_error(scene, dt, interval, n, time);
     bool last = false;
     if (dt >= remaining * (1 - 1e-9)) {
       dt = remaining;
