@@ -80,7 +80,9 @@ void add_particle_sums(RunStats& s, const std::vector<Vec>& x, const std::vector
     for (int d = 0; d < Dim; ++d) xp[d] = double(x[p][d]), vp[d] = double(v[p][d]);
     s.mass += mp;
     s.momentum += mp * vp;
-    s.angular_momentum += mp * xp.cross(vp);
+    // x x v written out: Eigen's cross() lives in <Eigen/Geometry>, which this header avoids.
+    s.angular_momentum += mp * Eigen::Vector3d(xp[1] * vp[2] - xp[2] * vp[1], xp[2] * vp[0] - xp[0] * vp[2],
+                                               xp[0] * vp[1] - xp[1] * vp[0]);
     s.kinetic += 0.5 * mp * vp.squaredNorm();
     s.potential -= mp * gravity.head<Dim>().dot(xp.head<Dim>());
   }
