@@ -190,6 +190,7 @@ TEST_P(BadInput, ExitCodeAndMessageAndNothingWritten) {
     std::ofstream(dir / "m.node") << "4 3 0 0\n1 0 0 0\n2 0.5 0 0\n3 0 0.5 0\n4 0 0 0.5\n";
   }
   const Result r = cli(dir, c.args);
+  RecordProperty("message", r.err);  // for the table of cases (--gtest_output=xml)
   EXPECT_EQ(r.code, c.code) << r.err;
   EXPECT_NE(r.err.find(c.message), std::string::npos) << "stderr: " << r.err << "\nexpected: " << c.message;
   EXPECT_EQ(r.err.find("1.79"), std::string::npos) << r.err;  // no DBL_MAX printed in full
