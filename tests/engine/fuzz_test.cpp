@@ -103,7 +103,7 @@ TEST(Fuzz, SceneParser) {
   ASSERT_GE(seeds.size(), 8u);
   std::mt19937_64 rng(11);
   int accepted = 0;
-  const int n = iterations(6000);
+  const int n = iterations(20000);
   for (int i = 0; i < n; ++i) {
     const std::string input = mutate(seeds[std::size_t(i) % seeds.size()], rng);
     expect_clean(input, [&] {
