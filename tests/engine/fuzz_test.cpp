@@ -7,6 +7,7 @@
 // fixed (SLURRY_FUZZ_ITERATIONS multiplies it for longer runs), so a finding is reproducible.
 #include <gtest/gtest.h>
 
+#include <unistd.h>
 #include <algorithm>
 #include <cstdlib>
 #include <filesystem>
@@ -15,7 +16,6 @@
 #include <random>
 #include <string>
 #include <typeinfo>
-#include <unistd.h>
 #include <vector>
 
 #include "slurry/engine/fem/tetgen.h"
@@ -31,11 +31,35 @@ int iterations(int base) {
   return scale ? base * std::max(1, std::atoi(scale)) : base;
 }
 
-const char* const kTokens[] = {"1e400", "-1e400", "-1", "4294967297", "18446744073709551616", "-9223372036854775809",
-                               "1e-300", "0", "nan", "null", "true", "[", "]", "{", "}", "\"", ",", ":", "\"dx\": 1,",
-                               "[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[", "1073741824",
-                               "element vertex 4294967295\n", "property list uint int vertex_indices\n", "\xff\xfe",
-                               "end_header\n", "#", "\n", "\0"};
+const char* const kTokens[] = {
+    "1e400",
+    "-1e400",
+    "-1",
+    "4294967297",
+    "18446744073709551616",
+    "-9223372036854775809",
+    "1e-300",
+    "0",
+    "nan",
+    "null",
+    "true",
+    "[",
+    "]",
+    "{",
+    "}",
+    "\"",
+    ",",
+    ":",
+    "\"dx\": 1,",
+    "[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[",
+    "1073741824",
+    "element vertex 4294967295\n",
+    "property list uint int vertex_indices\n",
+    "\xff\xfe",
+    "end_header\n",
+    "#",
+    "\n",
+    "\0"};
 
 /// One mutated copy of `seed`.
 std::string mutate(const std::string& seed, std::mt19937_64& rng) {
@@ -75,7 +99,9 @@ std::string read_file(const fs::path& p) {
   return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
 }
 
-void write_file(const fs::path& p, const std::string& text) { std::ofstream(p, std::ios::binary) << text; }
+void write_file(const fs::path& p, const std::string& text) {
+  std::ofstream(p, std::ios::binary) << text;
+}
 
 /// Runs fn(input); anything but success or slurry::Error is a finding, reported with the input.
 template <class Fn>
@@ -84,13 +110,14 @@ void expect_clean(const std::string& input, Fn&& fn) {
     fn();
   } catch (const slurry::Error&) {
   } catch (const std::exception& e) {
-    ADD_FAILURE() << "unexpected " << typeid(e).name() << ": " << e.what() << "\ninput (" << input.size()
-                  << " bytes): " << input.substr(0, 400);
+    ADD_FAILURE() << "unexpected " << typeid(e).name() << ": " << e.what() << "\ninput ("
+                  << input.size() << " bytes): " << input.substr(0, 400);
   }
 }
 
 fs::path scratch(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("slurry_fuzz_" + std::to_string(::getpid())) / name;
+  const fs::path dir =
+      fs::temp_directory_path() / ("slurry_fuzz_" + std::to_string(::getpid())) / name;
   fs::create_directories(dir);
   return dir;
 }
@@ -103,7 +130,7 @@ TEST(Fuzz, SceneParser) {
   ASSERT_GE(seeds.size(), 8u);
   std::mt19937_64 rng(11);
   int accepted = 0;
-  const int n = iterations(6000);
+  const int n = iterations(20000);
   for (int i = 0; i < n; ++i) {
     const std::string input = mutate(seeds[std::size_t(i) % seeds.size()], rng);
     expect_clean(input, [&] {
@@ -148,7 +175,8 @@ TEST(Fuzz, PlyReader) {
 
 TEST(Fuzz, TetgenReader) {
   const fs::path dir = scratch("tetgen");
-  const auto cube = slurry::fem::box_mesh<3>(Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(1, 1, 1), Eigen::Vector3i(2, 1, 1));
+  const auto cube = slurry::fem::box_mesh<3>(Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(1, 1, 1),
+                                             Eigen::Vector3i(2, 1, 1));
   slurry::fem::write_tetgen<3>(dir / "seed", cube);
   const std::string node = read_file(dir / "seed.node"), ele = read_file(dir / "seed.ele");
   std::mt19937_64 rng(13);

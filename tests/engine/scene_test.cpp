@@ -74,6 +74,16 @@ const BadCase kBad[] = {
     {"zero_normal", R"({"colliders": [{"shape": "half_space", "point": [0, 0.1], "normal": [0, 0]}]})",
      "colliders[0].normal: expected a non-zero vector"},
     {"negative_fps", R"({"output": {"fps": -24}})", "output.fps: expected a number > 0, got -24"},
+    // Issue 11: integers range-checked instead of wrapped, the limits block, what a frame must hold.
+    {"dimension_wraps", R"({"solver": {"dimension": 4294967298}})", "solver.dimension: expected 2 or 3, got 4294967298"},
+    {"frames_wrap", R"({"output": {"frames": 4294967297}})", "output.frames: expected an integer in [0, 2147483647], got 4294967297"},
+    {"thickness_wraps", R"({"boundaries": {"thickness": 4294967298}})",
+     "boundaries.thickness: expected an integer in [-2147483648, 2147483647], got 4294967298"},
+    {"no_position", R"({"output": {"attributes": ["velocity"]}})", "output.attributes: expected a list that includes \"position\""},
+    {"description_not_a_string", R"({"description": 42})", "description: expected a string, got 42"},
+    {"tiny_fps", R"({"output": {"fps": 1e-300}})", "output.fps: expected a number in [1e-06, 1000000], got 1e-300"},
+    {"substeps_limit", R"({"limits": {"substeps_per_frame": 0}})", "limits.substeps_per_frame: expected an integer >= 1, got 0"},
+    {"negative_memory", R"({"limits": {"memory_gb": -1}})", "limits.memory_gb: expected a number >= 0, got -1"},
 };
 
 class BadScenes : public testing::TestWithParam<BadCase> {};
@@ -101,6 +111,23 @@ TEST(Scene, InvalidJsonNamesTheFile) {
     FAIL();
   } catch (const slurry::SceneError& e) {
     EXPECT_NE(std::string(e.what()).find("broken.json: not valid JSON"), std::string::npos) << e.what();
+  }
+}
+
+// Inputs nlohmann::json cannot build as a value: each error names the JSON path.
+TEST(Scene, JsonLimitsNameThePath) {
+  const std::pair<std::string, std::string> cases[] = {
+      {std::string(100000, '[') + std::string(100000, ']'), "deep.json: [0][0][0]"},
+      {R"({"domain": {"dx": 0.05, "dx": 0.1}})", "deep.json: domain.dx: duplicate key"},
+      {R"({"bodies": [{}, {"velocity": [0, 1e400]}]})", "deep.json: bodies[1].velocity[1]: number '1e400' is out of the range of double"},
+  };
+  for (const auto& [text, expected] : cases) {
+    try {
+      slurry::parse_scene(text, "deep.json");
+      FAIL() << "accepted " << text.substr(0, 80);
+    } catch (const slurry::SceneError& e) {
+      EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
+    }
   }
 }
 
