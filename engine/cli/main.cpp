@@ -182,6 +182,7 @@ int main(int argc, char** argv) {
     opt.memory_gb = memory_gb;
     opt.overwrite = overwrite;
     opt.stop = &g_stop;
+    opt.notice = [](const std::string& line) { std::fprintf(stderr, "slurry: %s\n", line.c_str()); };
     if (!quiet && scene.solver.type == slurry::SolverType::FEM)
       std::fprintf(stderr, "slurry: %s (%dD %s, fem, %s), %s backend, %d threads\n", scene_path.c_str(),
                    scene.solver.dimension, scene.solver.precision == slurry::Precision::Float ? "float" : "double",
@@ -196,12 +197,6 @@ int main(int argc, char** argv) {
     install_signal_handlers();
     Progress progress(quiet);
     const auto s = slurry::run_scene(scene, opt, std::ref(progress));
-    if (s.removed_temporaries > 0)
-      std::fprintf(stderr, "slurry: removed %d temporary frame files of a killed run from %s\n", s.removed_temporaries,
-                   s.directory.string().c_str());
-    if (s.removed_frames > 0)
-      std::fprintf(stderr, "slurry: removed %d frames of an earlier run%s from %s before writing\n", s.removed_frames,
-                   overwrite ? " (--overwrite)" : " of this scene", s.directory.string().c_str());
     if (s.interrupted) {
       std::fprintf(stderr, "\nslurry: stopped by %s after frame %d (frames 0-%d are complete)\n",
                    s.interrupted == SIGINT ? "SIGINT" : "SIGTERM", s.frames_written - 1, s.frames_written - 1);

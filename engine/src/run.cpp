@@ -96,7 +96,7 @@ void substep_limit_error(const Scene& scene, double dt, double interval, std::in
   if (dt >= scene.solver.max_dt * (1 - 1e-6)) {
     limit = "solver.max_dt";
     cause = "solver.max_dt";
-  } else if (std::abs(dt - scene.elastic_dt()) <= 1e-5 * dt) {
+  } else if (dt > 0 && std::abs(dt - scene.elastic_dt()) <= 1e-5 * dt) {
     limit = "solver.elastic_cfl";
     cause = "the elastic limit elastic_cfl dx / c";
   }
@@ -167,6 +167,13 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   summary.particles = sim->particle_count();
   summary.removed_temporaries = remove_all(before.stale);
   summary.removed_frames = remove_all(before.frames);  // a sequence is never mixed with an earlier run's
+  if (options.notice && summary.removed_temporaries > 0)
+    options.notice("removed " + std::to_string(summary.removed_temporaries) + " temporary frame files of a killed run from " +
+                   dir.string());
+  if (options.notice && summary.removed_frames > 0)
+    options.notice("removed " + std::to_string(summary.removed_frames) + " frames of an earlier run" +
+                   (same_file(before.source, scene.source) ? " of this scene" : " (--overwrite)") + " from " + dir.string() +
+                   " before writing");
   double sim_seconds = 0, particle_steps = 0;
 
   std::error_code ec;

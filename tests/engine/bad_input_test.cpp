@@ -90,6 +90,13 @@ Result cli(const fs::path& dir, const std::string& args) {
   return r;
 }
 
+/// The exit code and a fragment of stderr.
+void expect_exit(const Result& r, int code, const std::string& fragment) {
+  EXPECT_EQ(r.code, code) << r.err;
+  EXPECT_NE(r.err.find(fragment), std::string::npos)
+      << "stderr: " << r.err << "\nexpected: " << fragment;
+}
+
 struct Case {
   const char* name;
   std::string scene;  // written to scene.json ("" = none)
@@ -226,9 +233,7 @@ TEST_P(BadInput, ExitCodeAndMessageAndNothingWritten) {
   }
   const Result r = cli(dir, c.args);
   RecordProperty("message", r.err);  // for the table of cases (--gtest_output=xml)
-  EXPECT_EQ(r.code, c.code) << r.err;
-  EXPECT_NE(r.err.find(c.message), std::string::npos)
-      << "stderr: " << r.err << "\nexpected: " << c.message;
+  expect_exit(r, c.code, c.message);
   EXPECT_EQ(r.err.find("1.79"), std::string::npos) << r.err;  // no DBL_MAX printed in full
   const auto at = r.err.find("slurry: error: ");
   EXPECT_EQ(r.err.find('\n', at), r.err.size() - 1)
@@ -252,24 +257,18 @@ TEST(OutputDirectory, AnotherScenesFramesAreRefusedOrOverwritten) {
   std::ofstream(dir / "b.json") << patched(R"({"output": {"frames": 1}})");
   ASSERT_EQ(cli(dir, "run -q a.json").code, 0);
   Result r = cli(dir, "run -q b.json");
-  EXPECT_EQ(r.code, 3);
-  EXPECT_NE(r.err.find("frames: holds 3 frames of another scene (a.json); expected an empty "
-                       "directory or this scene's own frames "
-                       "(pass --overwrite to remove them)"),
-            std::string::npos)
-      << r.err;
+  expect_exit(r, 3,
+              "frames: holds 3 frames of another scene (a.json); expected an empty "
+              "directory or this scene's own frames "
+              "(pass --overwrite to remove them)");
   EXPECT_TRUE(fs::exists(dir / "frames" / "frame_0002.ply"));
   r = cli(dir, "run -q b.json --overwrite");
-  EXPECT_EQ(r.code, 0) << r.err;
-  EXPECT_NE(r.err.find("removed 3 frames of an earlier run (--overwrite)"), std::string::npos)
-      << r.err;
+  expect_exit(r, 0, "removed 3 frames of an earlier run (--overwrite)");
   EXPECT_TRUE(fs::exists(dir / "frames" / "frame_0001.ply"));
   EXPECT_FALSE(fs::exists(dir / "frames" / "frame_0002.ply")) << "a mixed sequence";
   // The same scene again with fewer frames: its old frames go, without --overwrite.
   r = cli(dir, "run -q b.json --frames 0");
-  EXPECT_EQ(r.code, 0) << r.err;
-  EXPECT_NE(r.err.find("removed 2 frames of an earlier run of this scene"), std::string::npos)
-      << r.err;
+  expect_exit(r, 0, "removed 2 frames of an earlier run of this scene");
   EXPECT_FALSE(fs::exists(dir / "frames" / "frame_0001.ply"));
 }
 
@@ -280,9 +279,7 @@ TEST(OutputDirectory, StaleTemporaryFilesAreRemoved) {
   std::ofstream(dir / "frames" / "frame_0003.ply.tmp-2147483646-0")
       << "partial";  // no such process
   const Result r = cli(dir, "run -q a.json");
-  EXPECT_EQ(r.code, 0) << r.err;
-  EXPECT_NE(r.err.find("removed 1 temporary frame files of a killed run"), std::string::npos)
-      << r.err;
+  expect_exit(r, 0, "removed 1 temporary frame files of a killed run");
   EXPECT_FALSE(fs::exists(dir / "frames" / "frame_0003.ply.tmp-2147483646-0"));
 }
 
@@ -318,8 +315,7 @@ TEST(Limits, MemoryLimitFromTheSceneOrTheCommandLine) {
   const fs::path dir = scratch("memory");
   std::ofstream(dir / "a.json") << patched(R"({"limits": {"memory_gb": 1e-6}})");
   Result r = cli(dir, "validate a.json");
-  EXPECT_EQ(r.code, 3);
-  EXPECT_NE(r.err.find("a.json: bodies: the run would need about"), std::string::npos) << r.err;
+  expect_exit(r, 3, "a.json: bodies: the run would need about");
   EXPECT_NE(r.err.find("(limits.memory_gb)"), std::string::npos) << r.err;
   r = cli(dir, "validate a.json --memory-limit 1");
   EXPECT_EQ(r.code, 0) << r.err;
@@ -329,12 +325,10 @@ TEST(Limits, SubstepsPerFrame) {
   const fs::path dir = scratch("substeps");
   std::ofstream(dir / "a.json") << patched(R"({"limits": {"substeps_per_frame": 10}})");
   const Result r = cli(dir, "validate a.json");
-  EXPECT_EQ(r.code, 2);
-  EXPECT_NE(r.err.find("a.json: solver.max_dt: 0.001 s would take 41.6666666667 substeps per frame "
-                       "of 0.0416666666667 s, "
-                       "more than limits.substeps_per_frame = 10"),
-            std::string::npos)
-      << r.err;
+  expect_exit(r, 2,
+              "a.json: solver.max_dt: 0.001 s would take 41.6666666667 substeps per frame "
+              "of 0.0416666666667 s, "
+              "more than limits.substeps_per_frame = 10");
 }
 
 }  // namespace

@@ -32,6 +32,8 @@ struct RunOptions {
   /// Polled between substep loops and frames: when non-zero, the run stops after the frame it
   /// is writing (no partial frame) and returns with `interrupted` set to its value (a signal number).
   const volatile std::sig_atomic_t* stop = nullptr;
+  /// Told, before frame 0, what the run removed from the output directory (one line each).
+  std::function<void(const std::string&)> notice;
 };
 
 /// Progress after each written frame.
