@@ -11,9 +11,10 @@
 //    from rest falls at most the domain's extent H along gravity, so sqrt(2 g H) bounds the
 //    speed gravity can give it; bodies and emitters start at |v0| at most, and a moving collider
 //    can reflect a particle at up to twice its own speed. Elastic bodies can briefly concentrate
-//    energy at an edge, so the bound is 1.5 (sqrt(v0^2 + 2 g H)) + 2 |v_collider|. An unstable
-//    run exceeds it by an order of magnitude (sand_column_3d before its SVD fix: 47 m/s against
-//    a bound of 4.7 m/s). Liquids throw droplets: where a jet or a drop hits, the pressure
+//    energy at an edge (the jelly cubes reach 1.45 sqrt(v0^2 + 2 g H) as they bounce apart), so
+//    the bound is 2 sqrt(v0^2 + 2 g H) + 2 |v_collider|, which leaves room for the round-off
+//    differences between instruction sets. An unstable run exceeds it by an order of magnitude
+//    (sand_column_3d before its SVD fix: 47 m/s against a bound of 6.3 m/s). Liquids throw droplets: where a jet or a drop hits, the pressure
 //    impulse flings a handful of particles (2 to 8 of 5 832 to 22 828 in the 2D FLIP examples)
 //    faster than the bulk, so for liquids the bound applies to the 99.9th percentile of the
 //    speeds of each frame, and the single fastest particle may reach three times it.
@@ -63,7 +64,7 @@ double speed_bound(const slurry::Scene& s, int dim) {
   for (const auto& b : s.bodies) v0 = std::max(v0, b.velocity.head(dim).norm());
   for (const auto& e : s.emitters) v0 = std::max(v0, e.velocity.head(dim).norm());
   for (const auto& c : s.colliders) vc = std::max(vc, c.velocity.head(dim).norm());
-  return 1.5 * std::sqrt(v0 * v0 + 2 * gn * H) + 2 * vc;
+  return 2 * std::sqrt(v0 * v0 + 2 * gn * H) + 2 * vc;
 }
 
 }  // namespace
