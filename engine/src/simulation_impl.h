@@ -29,6 +29,12 @@ constexpr int kPad = 3;
 /// not specified bit-for-bit across standard libraries; frames must be reproducible).
 inline double uniform01(std::mt19937_64& rng) { return double(rng() >> 11) * 0x1.0p-53; }
 
+/// Whether particle p's volume ratio is the tracked J (a fluid) rather than det F (a solid).
+template <class T, int Dim>
+bool tracks_J(const Particles<T, Dim>& P, const std::vector<Material<T, Dim>>& materials, std::size_t p) {
+  return !P.J.empty() && (P.F.empty() || materials[P.material.empty() ? 0 : P.material[p]].fluid);
+}
+
 }  // namespace detail
 
 template <class T, int Dim>
@@ -601,7 +607,7 @@ RunStats Simulation<T, Dim>::take_stats() {
   add_particle_sums(s, P.x, P.v, P.m.data(), 0.0, scene_.solver.gravity);
   s.elastic = double(elastic_energy());
   for (std::size_t p = 0; p < P.size(); ++p) {
-    const bool fluid = !P.J.empty() && (P.F.empty() || materials_[P.material.empty() ? 0 : P.material[p]].fluid);
+    const bool fluid = detail::tracks_J(P, materials_, p);
     const double J = fluid ? double(P.J[p]) : double(P.F[p].determinant());
     s.volume += double(P.vol0[p]) * J;
     if (fluid) s.max_fluid_J_error = std::max(s.max_fluid_J_error, std::abs(J - 1));
@@ -627,9 +633,7 @@ io::PlyData Simulation<T, Dim>::frame(const std::vector<std::string>& attributes
       out.add("material", [&](std::size_t p) { return P.material.empty() ? std::uint16_t(0) : P.material[p]; });
     } else if (a == "J") {
       out.add("J", [&](std::size_t p) {
-        return !P.J.empty() && (P.F.empty() || materials_[P.material.empty() ? 0 : P.material[p]].fluid)
-                   ? P.J[p]
-                   : T(P.F[p].determinant());
+        return detail::tracks_J(P, materials_, p) ? P.J[p] : T(P.F[p].determinant());
       });
     } else if (a == "plastic") {
       out.add("plastic", [&](std::size_t p) { return P.plastic.empty() ? T(0) : P.plastic[p]; });
