@@ -1,4 +1,10 @@
 include(CMakePackageConfigHelpers)
+# Installed under the names the build tree uses: slurry::slurry, slurry::engine, slurry::transfer,
+# slurry::constitutive (and slurry::parallel, the threading backend they link).
+set_target_properties(slurry_engine PROPERTIES EXPORT_NAME engine)
+set_target_properties(slurry_transfer PROPERTIES EXPORT_NAME transfer)
+set_target_properties(slurry_constitutive PROPERTIES EXPORT_NAME constitutive)
+set_target_properties(slurry_parallel PROPERTIES EXPORT_NAME parallel)
 install(TARGETS slurry slurry_constitutive slurry_transfer slurry_engine slurry_parallel
         EXPORT SlurryTargets
         ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}

@@ -1,8 +1,27 @@
+#include <algorithm>
 #include "slurry/engine/fem/fem_simulation.h"
 #include "slurry/engine/flip/flip_simulation.h"
 #include "slurry/engine/simulation.h"
 
 namespace slurry {
+
+std::vector<std::uint32_t> SimulationBase::id_order(const std::uint32_t* ids, std::size_t n) {
+  if (!ids || std::is_sorted(ids, ids + n)) return {};
+  std::vector<std::uint32_t> order(n);
+  // The MPM solver's ids are 0 .. n-1 (a permutation): invert it in O(n). Otherwise (FLIP:
+  // ids grow with emission and reseeding and have gaps) sort the storage indices by id.
+  bool dense = true;
+  std::vector<std::uint8_t> seen(n, 0);
+  for (std::size_t p = 0; p < n && dense; ++p) {
+    dense = ids[p] < n && !seen[ids[p]];
+    if (dense) seen[ids[p]] = 1, order[ids[p]] = std::uint32_t(p);
+  }
+  if (!dense) {
+    for (std::size_t p = 0; p < n; ++p) order[p] = std::uint32_t(p);
+    std::sort(order.begin(), order.end(), [ids](std::uint32_t a, std::uint32_t b) { return ids[a] < ids[b]; });
+  }
+  return order;
+}
 
 std::unique_ptr<SimulationBase> make_simulation(const Scene& scene) {
   scene.validate();

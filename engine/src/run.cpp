@@ -135,7 +135,8 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   if (options.memory_gb > 0) limited.limits.memory_gb = options.memory_gb;
   check_scene(limited);
   const std::filesystem::path dir = options.directory.value_or(scene.output.directory);
-  if (dir.empty()) throw SceneError(scene.source + ": output directory: expected a non-empty path");
+  const bool files = options.write_files;
+  if (files && dir.empty()) throw SceneError(scene.source + ": output directory: expected a non-empty path");
   const int frames = options.frames.value_or(scene.output.frames);
   if (frames < 0) throw SceneError(scene.source + ": frames: expected an integer >= 0, got " + std::to_string(frames));
   const int hardware = int(std::max(1u, std::thread::hardware_concurrency()));
@@ -146,7 +147,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
                                    ? io::PlyFormat::Ascii
                                    : io::PlyFormat::BinaryLittleEndian;
   // Another scene's frames are refused before anything is built or removed.
-  const DirectoryState before = scan_directory(dir);
+  const DirectoryState before = files ? scan_directory(dir) : DirectoryState{};
   if (!before.frames.empty() && !options.overwrite && !same_file(before.source, scene.source))
     throw IoError(dir.string() + ": holds " + std::to_string(before.frames.size()) + " frames of another scene (" +
                   (before.source.empty() ? std::string("not written by slurry") : before.source) +
@@ -186,8 +187,8 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   double sim_seconds = 0, particle_steps = 0;
 
   std::error_code ec;
-  const bool created = !fs::exists(dir, ec);
-  fs::create_directories(dir, ec);
+  const bool created = files && !fs::exists(dir, ec);
+  if (files) fs::create_directories(dir, ec);
   if (ec) throw IoError(dir.string() + ": cannot create the output directory: " + ec.message());
   for (int f = 0; f <= frames; ++f) {
     const auto t0 = Clock::now();
@@ -197,9 +198,9 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
       sim_seconds += seconds_since(t0);
       particle_steps += double(sim->particle_count()) * double(substeps);  // emitters add particles
     }
-    const auto file = frame_file(dir, f);
+    const auto file = files ? frame_file(dir, f) : fs::path();
     try {
-      io::write_ply(file, sim->frame(scene.output.attributes), format);
+      if (files) io::write_ply(file, sim->frame(scene.output.attributes), format);
     } catch (...) {
       if (f == 0 && created) fs::remove(dir, ec);  // nothing is left of a run without a frame
       throw;
@@ -219,8 +220,8 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
         for (int d = 0; d < dim; ++d)
           H += std::abs(scene.domain.max[d] - scene.domain.min[d]) * std::abs(g[d]) / g.head(dim).norm();
       energy_scale = stats.kinetic + stats.mass * g.head(dim).norm() * H;
-      csv.open(dir / "stats.csv");
-      if (!csv) throw IoError((dir / "stats.csv").string() + ": cannot write the run statistics");
+      if (files) csv.open(dir / "stats.csv");
+      if (files && !csv) throw IoError((dir / "stats.csv").string() + ": cannot write the run statistics");
       csv << stats_csv_header() << '\n';
     } else {
       warnings = drift_warnings(summary.first, stats, tol, energy_scale);
@@ -228,8 +229,10 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     }
     summary.last = stats;
     summary.largest_cfl = std::max(summary.largest_cfl, stats.cfl);
-    csv << stats_csv_row(stats) << '\n';
-    csv.flush();
+    if (files) {
+      csv << stats_csv_row(stats) << '\n';
+      csv.flush();
+    }
     summary.frames_written = f + 1;
     summary.substeps += substeps;
     if (on_frame) {
@@ -241,6 +244,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
       r.elapsed = seconds_since(start);
       r.particles = sim->particle_count();
       r.file = file;
+      r.simulation = sim.get();
       r.solver = sim->solver_status();
       r.stats = stats;
       r.warnings = std::move(warnings);

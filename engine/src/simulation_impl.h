@@ -642,4 +642,21 @@ io::PlyData Simulation<T, Dim>::frame(const std::vector<std::string>& attributes
   return std::move(out.data());
 }
 
+template <class T, int Dim>
+ParticleStorage Simulation<T, Dim>::particle_storage() const {
+  const auto& P = particles_;
+  ParticleStorage s;
+  s.precision = std::is_same_v<T, double> ? Precision::Double : Precision::Float;
+  s.dimension = Dim;
+  s.count = P.size();
+  s.x = P.x.data();
+  s.v = P.v.data();
+  s.id = P.id.data();
+  if (!P.material.empty()) s.material = P.material.data();
+  if (!P.F.empty()) s.F = P.F.data();
+  if (!P.J.empty()) s.J = P.J.data();
+  if (!P.plastic.empty()) s.plastic = P.plastic.data();
+  return s;
+}
+
 }  // namespace slurry

@@ -1,6 +1,7 @@
 // FemSimulation<T, Dim>: scene bodies -> one co-rotated FEM mesh, the substep loop, frames.
 // Included by fem_simulation_2.cpp and fem_simulation_3.cpp, one dimension each.
 #pragma once
+#include <type_traits>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -231,6 +232,18 @@ io::PlyData FemSimulation<T, Dim>::frame(const std::vector<std::string>& attribu
   for (const auto& t : faces_) list.data.push_back({t[0], t[1], t[2]});
   faces.lists.push_back(std::move(list));
   return data;
+}
+
+template <class T, int Dim>
+ParticleStorage FemSimulation<T, Dim>::particle_storage() const {
+  ParticleStorage s;
+  s.precision = std::is_same_v<T, double> ? Precision::Double : Precision::Float;
+  s.dimension = Dim;
+  s.count = fem_->vertex_count();
+  s.x = fem_->x.data();
+  s.v = fem_->v.data();
+  s.material = vertex_material_.data();  // vertices are never re-ordered: the vertex index is the id
+  return s;
 }
 
 }  // namespace slurry

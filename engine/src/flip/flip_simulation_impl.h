@@ -1,5 +1,6 @@
 // Definition of FlipSimulation<T, Dim>; included by one translation unit per (T, Dim).
 #pragma once
+#include <type_traits>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -410,6 +411,20 @@ io::PlyData FlipSimulation<T, Dim>::frame(const std::vector<std::string>& attrib
     }
   }
   return std::move(out.data());
+}
+
+template <class T, int Dim>
+ParticleStorage FlipSimulation<T, Dim>::particle_storage() const {
+  const auto& P = particles_;
+  ParticleStorage s;
+  s.precision = std::is_same_v<T, double> ? Precision::Double : Precision::Float;
+  s.dimension = Dim;
+  s.count = P.size();
+  s.x = P.x.data();
+  s.v = P.v.data();
+  s.id = P.id.data();
+  if (P.has_material) s.material = P.material.data();
+  return s;
 }
 
 }  // namespace slurry::flip

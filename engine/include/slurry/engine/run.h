@@ -15,6 +15,7 @@
 #include <string>
 
 #include "slurry/engine/scene.h"
+#include "slurry/engine/simulation_base.h"
 #include "slurry/engine/stats.h"
 
 namespace slurry {
@@ -29,6 +30,9 @@ struct RunOptions {
   double memory_gb = 0;
   /// The output directory holds another scene's frames: remove them (else IoError).
   bool overwrite = false;
+  /// false: write nothing (no directory, frames or stats.csv); the frame callback still runs
+  /// after every frame, for programs that read the particles from memory (FrameReport::simulation).
+  bool write_files = true;
   /// Polled between substep loops and frames: when non-zero, the run stops after the frame it
   /// is writing (no partial frame) and returns with `interrupted` set to its value (a signal number).
   const volatile std::sig_atomic_t* stop = nullptr;
@@ -44,7 +48,10 @@ struct FrameReport {
   double seconds = 0;          ///< wall time for this frame (simulation and writing)
   double elapsed = 0;          ///< wall time since the run started
   std::size_t particles = 0;
-  std::filesystem::path file;  ///< the frame written
+  std::filesystem::path file;  ///< the frame written (empty when RunOptions::write_files is false)
+  /// The simulation at this frame, for reading its particles in memory
+  /// (simulation->particles_view<float, 3>() for a 3D float scene); valid during the callback.
+  const SimulationBase* simulation = nullptr;
   std::string solver;          ///< SimulationBase::solver_status() after the frame's last substep
   RunStats stats;              ///< conservation figures after the frame (also a row of stats.csv)
   /// Drift beyond the scene's tolerances at this frame (stats.h), one line each; empty if none.

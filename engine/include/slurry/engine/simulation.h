@@ -34,36 +34,13 @@
 #include "slurry/engine/particles.h"
 #include "slurry/engine/ply.h"
 #include "slurry/engine/scene.h"
+#include "slurry/engine/simulation_base.h"
 #include "slurry/engine/stats.h"
 #include "slurry/transfer/blocks.h"
 #include "slurry/transfer/grid.h"
 #include "slurry/transfer/sparse_grid.h"
 
 namespace slurry {
-
-/// Dimension- and precision-independent face of a simulation, for the run loop and the CLI.
-class SimulationBase {
- public:
-  virtual ~SimulationBase() = default;
-  /// Simulated time (s).
-  virtual double time() const = 0;
-  /// Substeps taken so far.
-  virtual std::int64_t steps() const = 0;
-  virtual std::size_t particle_count() const = 0;
-  /// Bytes held by particles and grid.
-  virtual std::size_t bytes() const = 0;
-  /// Takes substeps until time() reaches t_end exactly; returns how many it took.
-  virtual std::int64_t advance_to(double t_end) = 0;
-  /// The particles' current state as a PLY "vertex" element with the named attributes
-  /// (position, velocity, material, J, plastic).
-  virtual io::PlyData frame(const std::vector<std::string>& attributes) const = 0;
-  /// One line on the last substep's linear solve (iterations, relative residual), for the CLI's
-  /// per-frame log; empty for solvers without one (explicit MPM and FEM).
-  virtual std::string solver_status() const { return {}; }
-  /// Conservation and sanity figures of the current state (stats.h). The per-frame figures
-  /// (projected, cfl) cover the substeps since the previous call, which resets them.
-  virtual RunStats take_stats() = 0;
-};
 
 /// The substep loop every solver's advance_to shares: takes substeps of stable_dt() from `time`
 /// until it reaches t_end exactly. A substep that would overshoot ends on t_end (and `time` is
@@ -107,9 +84,6 @@ struct PhaseTimes {
   double g2p = 0;         ///< grid_to_particles
   double plasticity = 0;  ///< return_mapping
 };
-
-/// Builds the simulation a scene asks for (its dimension and precision). Validates the scene.
-std::unique_ptr<SimulationBase> make_simulation(const Scene& scene);
 
 template <class T, int Dim>
 class ImplicitUpdate;
@@ -165,6 +139,7 @@ class Simulation final : public SimulationBase {
   const CgStats& cg_stats() const { return cg_; }
   std::string solver_status() const override;
   RunStats take_stats() override;
+  ParticleStorage particle_storage() const override;
 
  private:
   /// Particles are re-stored in bin order every this many substeps (between, they are reached

@@ -65,6 +65,8 @@ class FemSimulation final : public SimulationBase {
   std::string solver_status() const override;
   /// Mass from the lumped vertex masses; volume of the deformed elements.
   RunStats take_stats() override;
+  /// The mesh vertices: position, velocity, material; the vertex index is the id.
+  ParticleStorage particle_storage() const override;
 
  private:
   struct Boundary;
