@@ -41,12 +41,18 @@ TEST(Quality, PresetsSetTheirKnobsMpm) {
   const auto preview = slurry::parse_scene(mpm_scene(R"(, "quality": "preview")"), "p.json");
   const auto production = slurry::parse_scene(mpm_scene(R"(, "quality": "production")"), "p.json");
   const auto reference = slurry::parse_scene(mpm_scene(R"(, "quality": "reference")"), "r.json");
-  EXPECT_EQ(production.solver.precision, none.solver.precision);
-  EXPECT_EQ(production.solver.transfer, none.solver.transfer);
+  EXPECT_EQ(preview.bodies[0].particles_per_cell, 4);
+  EXPECT_EQ(production.bodies[0].particles_per_cell, none.bodies[0].particles_per_cell);
+  for (const auto* s : {&preview, &production}) {
+    EXPECT_EQ(s->solver.precision, none.solver.precision);
+    EXPECT_EQ(s->solver.transfer, none.solver.transfer);
+    EXPECT_EQ(s->solver.kernel, none.solver.kernel);
+    EXPECT_EQ(s->solver.elastic_cfl, none.solver.elastic_cfl);
+    EXPECT_EQ(s->solver.max_dt, none.solver.max_dt);
+  }
   EXPECT_EQ(reference.solver.precision, slurry::Precision::Double);
-  EXPECT_LT(preview.bodies[0].particles_per_cell, production.bodies[0].particles_per_cell);
-  EXPECT_GT(reference.bodies[0].particles_per_cell, production.bodies[0].particles_per_cell);
-  EXPECT_LT(reference.solver.elastic_cfl, production.solver.elastic_cfl);
+  EXPECT_EQ(reference.solver.elastic_cfl, 0.25);
+  EXPECT_EQ(reference.bodies[0].particles_per_cell, 8);
 }
 
 TEST(Quality, PresetsSetTheirKnobsFlip) {
@@ -54,12 +60,25 @@ TEST(Quality, PresetsSetTheirKnobsFlip) {
   const auto production = slurry::parse_scene(flip_scene(R"(, "quality": "production")"), "p.json");
   const auto reference = slurry::parse_scene(flip_scene(R"(, "quality": "reference")"), "r.json");
   // A FLIP preset also sets the transfer, which a FLIP scene must otherwise give.
-  for (const auto* s : {&preview, &production, &reference}) EXPECT_NE(s->solver.transfer, slurry::TransferKind::MLS);
-  EXPECT_GT(preview.solver.max_dt, production.solver.max_dt);
-  EXPECT_GT(production.solver.max_dt, reference.solver.max_dt);
-  EXPECT_GT(preview.solver.pressure.tolerance, reference.solver.pressure.tolerance);
+  for (const auto* s : {&preview, &production, &reference}) {
+    EXPECT_EQ(s->solver.transfer, slurry::TransferKind::APIC);
+    EXPECT_EQ(s->solver.pressure.preconditioner, slurry::PressurePreconditioner::Multigrid);
+  }
+  EXPECT_EQ(preview.solver.max_dt, 1.0 / 60);
+  EXPECT_EQ(preview.solver.cfl, 2);
+  EXPECT_EQ(preview.solver.kernel, slurry::KernelKind::Quadratic);
+  EXPECT_EQ(preview.solver.pressure.tolerance, 1e-4);
+  EXPECT_EQ(preview.bodies[0].particles_per_cell, 4);
+  for (const auto* s : {&production, &reference}) {
+    EXPECT_EQ(s->solver.max_dt, 1.0 / 240);
+    EXPECT_EQ(s->solver.cfl, 1);
+    EXPECT_EQ(s->solver.kernel, slurry::KernelKind::Linear);
+    EXPECT_EQ(s->bodies[0].particles_per_cell, 8);
+  }
+  EXPECT_EQ(production.solver.precision, slurry::Precision::Float);
+  EXPECT_EQ(production.solver.pressure.tolerance, 1e-6);
   EXPECT_EQ(reference.solver.precision, slurry::Precision::Double);
-  EXPECT_GT(reference.bodies[0].particles_per_cell, preview.bodies[0].particles_per_cell);
+  EXPECT_EQ(reference.solver.pressure.tolerance, 1e-8);
 }
 
 TEST(Quality, ExplicitKeysWin) {
