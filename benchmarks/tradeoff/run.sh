@@ -14,4 +14,7 @@ OMP_WAIT_POLICY=passive "$build/bin/tradeoff" --jobs 2 --threads 1 --out "$out" 
   echo "command: bash benchmarks/tradeoff/run.sh; date: $(date -u '+%Y-%m-%d %H:%M UTC'); commit: $(git -C "$root" rev-parse --short HEAD)"
   echo "machine: $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //'), load average before the run's end: $(cut -d' ' -f1-3 /proc/loadavg)"
 } > "$out/machine.txt"
-python3 "$root/benchmarks/tradeoff/plot.py" "$out"
+# Debian's python3-matplotlib is for /usr/bin/python3 (a python3 earlier on PATH may lack it).
+py=/usr/bin/python3
+[ -x "$py" ] || py=python3
+"$py" "$root/benchmarks/tradeoff/plot.py" "$out"

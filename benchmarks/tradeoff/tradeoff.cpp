@@ -440,20 +440,34 @@ std::vector<bool> pareto(const std::vector<const Point*>& pts) {
   return on;
 }
 
-/// The reduced study's assertions: an error bound at the default settings and, where the
-/// problem has an analytic answer that the method converges to, the smallest acceptable order.
-/// Tolerances and reasons: benchmarks/tradeoff/README.md, "The validation test".
+/// The reduced study's assertions: error bounds at the default settings (the finer of the two
+/// reduced levels), the smallest acceptable observed orders where the error converges, and
+/// where the study found it, that the "production" preset beats the library defaults. Each
+/// bound is the measured value with a margin; the reasons are in README.md ("Speed against
+/// accuracy", "The validation test"). NAN: not asserted.
 struct Check {
   const char* problem;
-  double max_default_error;  ///< error at the default settings (reduced study's finest level)
-  double min_dx_order;       ///< NAN: not asserted
-  double min_dt_order;       ///< NAN: not asserted
+  double max_default_error;
+  double max_default_aux;
+  double min_dx_order;
+  double min_dt_order;
+  bool production_beats_defaults;
 };
 constexpr Check kChecks[] = {
-    {"bar_2d", 0.05, NAN, NAN},           {"disks_2d", 0.5, 0.5, NAN},
-    {"granular_2d", 0.3, NAN, NAN},       {"hydrostatic_2d", 0.05, NAN, NAN},
-    {"standing_wave_2d", 0.1, NAN, NAN},  {"taylor_green_2d", 0.5, 0.5, NAN},
-    {"dam_break_2d", 0.25, NAN, NAN},
+    // measured (reduced, 2026-11-24): 6.9e-4; dx order 2.37 (1.94 over three levels)
+    {"bar_2d", 2e-3, NAN, 1.5, NAN, false},
+    // 0.365; dx order 1.16 (1.38 over three levels); dt 0.87
+    {"disks_2d", 0.45, NAN, 0.8, 0.5, false},
+    // 0.159 (Lube et al. report 10-15 % scatter); dt 0.52; no order in dx (not convergent)
+    {"granular_2d", 0.2, NAN, NAN, 0.3, false},
+    // 2.7e-4 of rho g H; spurious speed 0.86 mm/s
+    {"hydrostatic_2d", 1e-3, 2e-3, NAN, NAN, false},
+    // 0.149; dx order 1.45 (1.81 over three levels); dt 1.67; production 0.043
+    {"standing_wave_2d", 0.2, NAN, 1.0, 1.0, true},
+    // 0.060; dx order 3.06 (3.23 over three levels); production 0.017
+    {"taylor_green_2d", 0.1, NAN, 2.0, NAN, true},
+    // 0.119 (0.104 .. 0.119 at every dx: the comparison with the experiment sets the floor)
+    {"dam_break_2d", 0.15, NAN, NAN, NAN, false},
 };
 
 }  // namespace
@@ -585,17 +599,26 @@ int main(int argc, char** argv) {
     if (check)
       for (const Check& c : kChecks) {
         if (pr.name != c.problem) continue;
-        const Point* def = nullptr;
-        for (const Point* p : all)
+        const Point *def = nullptr, *production = nullptr;
+        for (const Point* p : all) {
           if (p->knob == "default") def = p;
+          if (p->label == "quality=production") production = p;
+        }
         auto verdict = [&](bool ok, const std::string& what) {
           std::printf("[check] %-17s %-60s %s\n", pr.name.c_str(), what.c_str(), ok ? "ok" : "FAILED");
           failures += ok ? 0 : 1;
         };
-        verdict(def && def->status == "ok" && def->r.error <= c.max_default_error,
+        const bool def_ok = def && def->status == "ok";
+        verdict(def_ok && def->r.error <= c.max_default_error,
                 "default error " + fmt(def ? def->r.error : NAN) + " <= " + fmt(c.max_default_error));
+        if (std::isfinite(c.max_default_aux))
+          verdict(def_ok && def->r.aux <= c.max_default_aux,
+                  pr.aux_name + " " + fmt(def ? def->r.aux : NAN) + " <= " + fmt(c.max_default_aux));
         if (std::isfinite(c.min_dx_order)) verdict(o.dx >= c.min_dx_order, "order in dx " + fmt(o.dx, "%.2f") + " >= " + fmt(c.min_dx_order));
         if (std::isfinite(c.min_dt_order)) verdict(o.dt >= c.min_dt_order, "order in dt " + fmt(o.dt, "%.2f") + " >= " + fmt(c.min_dt_order));
+        if (c.production_beats_defaults)
+          verdict(def_ok && production && production->status == "ok" && production->r.error < def->r.error,
+                  "quality=production error " + fmt(production ? production->r.error : NAN) + " < defaults");
       }
   }
   std::ofstream(std::filesystem::path(out) / "tradeoff.md") << md.str();
