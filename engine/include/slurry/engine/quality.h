@@ -15,9 +15,11 @@ namespace slurry {
 /// The names solver.quality accepts.
 inline constexpr std::string_view kQualityPresets[] = {"preview", "production", "reference"};
 
-/// Sets the knobs of preset `quality` for scene.solver.type in scene.solver and in every body of
-/// the scene, and returns the particles_per_cell it gives bodies. Throws SceneError naming
-/// `scene.source`, `solver.quality`, the value and the allowed names for an unknown name.
+/// Sets the knobs of preset `quality` for scene.solver.type in scene.solver and the
+/// particles_per_cell of every body already in the scene, and returns that particles_per_cell
+/// (parse_scene makes it the default of the bodies and emitters it reads afterwards). Throws
+/// SceneError naming `scene.source`, `solver.quality`, the value and the allowed names for an
+/// unknown name, and for solver.type "fem" (no preset was measured for it).
 double apply_quality(Scene& scene, std::string_view quality);
 
 }  // namespace slurry
