@@ -10,3 +10,16 @@ endif()
 if(EXISTS ${CMAKE_CURRENT_SOURCE_DIR}/bench_pressure.cpp)
   slurry_add_benchmark(bench_pressure bench_pressure.cpp)
 endif()
+# The speed-against-accuracy study (benchmarks/tradeoff/README.md): a plain program, not a
+# Google Benchmark; its reduced version is a ctest test in the label "validation".
+if(EXISTS ${CMAKE_CURRENT_SOURCE_DIR}/tradeoff/tradeoff.cpp)
+  add_executable(tradeoff tradeoff/tradeoff.cpp)
+  target_link_libraries(tradeoff PRIVATE slurry::slurry slurry_warnings slurry_native)
+  set_target_properties(tradeoff PROPERTIES RUNTIME_OUTPUT_DIRECTORY ${PROJECT_BINARY_DIR}/bin)
+  if(SLURRY_BUILD_TESTS)
+    add_test(NAME tradeoff_reduced
+             COMMAND tradeoff --reduced --check --jobs 2 --out ${CMAKE_CURRENT_BINARY_DIR}/tradeoff_reduced)
+    set_tests_properties(tradeoff_reduced PROPERTIES LABELS validation PROCESSORS 2 TIMEOUT 900
+                         ENVIRONMENT "OMP_NUM_THREADS=1")
+  endif()
+endif()

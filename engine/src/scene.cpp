@@ -1,5 +1,6 @@
 // Scene files: JSON -> Scene structs, with every key type-checked and range-checked.
 #include "slurry/engine/scene.h"
+#include "slurry/engine/quality.h"
 
 #include <algorithm>
 #include <cmath>
@@ -714,9 +715,14 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.number("dx", s.domain.dx);
     r.choice("grid", kGrid, s.domain.grid);
   });
+  double quality_ppc = 0;  // particles_per_cell of a solver.quality preset, 0 without one
   top.object("solver", [&](ObjectReader& r) {
     r.choice("type", kSolverType, s.solver.type);
     r.integer("dimension", s.solver.dimension);
+    // A preset sets its knobs first (quality.h); the keys read below override them.
+    std::string quality;
+    r.string("quality", quality);
+    if (r.has("quality")) quality_ppc = apply_quality(s, quality);
     r.choice("precision", kPrecision, s.solver.precision);
     r.choice("transfer", kTransfer, s.solver.transfer);
     r.choice("kernel", kKernel, s.solver.kernel);
@@ -776,6 +782,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     fail(source, "bodies", "missing (expected an array of bodies)");
   top.objects("bodies", [&](ObjectReader& r, std::size_t) {
     BodyParams b;
+    if (quality_ppc > 0) b.particles_per_cell = quality_ppc;
     r.choice("shape", kShape, b.shape);
     if (b.shape == Shape::Box) {
       if ((!r.has("min") || !r.has("max")) && !r.has("mesh")) fail(source, r.at("min"), "a box needs \"min\" and \"max\"");
@@ -824,6 +831,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
   });
   top.objects("emitters", [&](ObjectReader& r, std::size_t) {
     EmitterParams e;
+    if (quality_ppc > 0) e.particles_per_cell = quality_ppc;
     r.choice("shape", kShape, e.shape);
     if (e.shape == Shape::Box) {
       if (!r.has("min") || !r.has("max")) fail(source, r.at("min"), "a box needs \"min\" and \"max\"");
