@@ -27,6 +27,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "slurry/engine/colliders.h"
@@ -63,6 +64,24 @@ class SimulationBase {
   /// Conservation and sanity figures of the current state (stats.h). The per-frame figures
   /// (projected, cfl) cover the substeps since the previous call, which resets them.
   virtual RunStats take_stats() = 0;
+
+  /// Appends the state that determines every later substep to `out` (binary, this machine's
+  /// byte order): particles with every channel in their storage order, time, step counter,
+  /// emitter random generators and carried-over grid fields. A simulation built from the same
+  /// scene and given this state by load_state() takes bit-identical substeps from there on.
+  virtual void save_state(std::string& out) const = 0;
+  /// Replaces the state by one save_state() wrote (the simulation must have been built from
+  /// the same scene). Throws IoError naming `what` if the bytes are truncated or do not fit
+  /// this simulation (another solver, dimension, precision or particle layout).
+  virtual void load_state(std::string_view in, const std::string& what) = 0;
+
+  /// Scales every later substep: dt = scale x the stable substep (on_instability "retry"
+  /// halves it; 1 restores the automatic step). In (0, 1].
+  void set_dt_scale(double scale) { dt_scale_ = scale; }
+  double dt_scale() const { return dt_scale_; }
+
+ protected:
+  double dt_scale_ = 1;
 };
 
 /// The substep loop every solver's advance_to shares: takes substeps of stable_dt() from `time`
@@ -165,6 +184,8 @@ class Simulation final : public SimulationBase {
   const CgStats& cg_stats() const { return cg_; }
   std::string solver_status() const override;
   RunStats take_stats() override;
+  void save_state(std::string& out) const override;
+  void load_state(std::string_view in, const std::string& what) override;
 
  private:
   /// Particles are re-stored in bin order every this many substeps (between, they are reached

@@ -65,6 +65,8 @@ class FemSimulation final : public SimulationBase {
   std::string solver_status() const override;
   /// Mass from the lumped vertex masses; volume of the deformed elements.
   RunStats take_stats() override;
+  void save_state(std::string& out) const override;
+  void load_state(std::string_view in, const std::string& what) override;
 
  private:
   struct Boundary;

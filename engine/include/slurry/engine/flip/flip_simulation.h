@@ -84,6 +84,8 @@ class FlipSimulation final : public SimulationBase {
   /// Mass from the nominal particle volume (every particle carries dx^Dim / ppc); volume: the
   /// cells that hold a particle.
   RunStats take_stats() override;
+  void save_state(std::string& out) const override;
+  void load_state(std::string_view in, const std::string& what) override;
   /// Largest particle speed after the last substep (m/s).
   T max_speed() const { return max_speed_; }
   /// Particle volume dx^Dim / particles_per_cell (the nominal seeding density).
