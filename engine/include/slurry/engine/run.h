@@ -95,8 +95,9 @@ struct RunSummary {
 
 /// Runs `scene` to its last frame. Throws SceneError, IoError (ResourceError) or SimulationError.
 /// Checks the scene and its resources (check_scene) before creating anything; the output
-/// directory is created just before frame 0 is written. Frames of an earlier run of the same
-/// scene (their comment names the same source) are removed first, so a sequence is never mixed;
+/// directory is created just before frame 0 is written. Frames and checkpoints of an earlier run
+/// of the same scene (their comment names the same source) are removed first, so a sequence is
+/// never mixed (with options.resume: only the frames after the checkpoint it continues from);
 /// another scene's frames are an IoError unless options.overwrite. Temporary files of a killed
 /// run (frame_NNNN.ply.tmp-PID-N whose process is gone) are removed. Besides the frames it
 /// writes `<directory>/stats.csv`, one row of RunStats per frame (stats.h), and reports drift
@@ -111,8 +112,9 @@ void check_scene(const Scene& scene, double memory_gb = 0);
 /// The file name of frame f: frame_NNNN.ply.
 std::filesystem::path frame_file(const std::filesystem::path& directory, int frame);
 
-/// The scene file a checkpoint in `directory` was written for (its path as the run named it),
-/// from the newest checkpoint that reads; for `slurry resume DIR`. Throws IoError if none does.
+/// The scene file a checkpoint in `directory` was written for, from the newest checkpoint that
+/// reads: its path as the run named it if that names the same file from the working directory
+/// (frames record it), else its absolute path; for `slurry resume DIR`. Throws IoError if none.
 std::filesystem::path checkpoint_scene(const std::filesystem::path& directory);
 
 }  // namespace slurry
