@@ -40,7 +40,8 @@ void write_all(int fd, const char* p, std::size_t n, const fs::path& temp) {
   while (n > 0) {
     const ssize_t w = ::write(fd, p, n);
     if (w < 0 && errno == EINTR) continue;
-    if (w <= 0) io_fail(temp, std::string("writing the checkpoint failed: ") + std::strerror(errno));
+    if (w <= 0)
+      io_fail(temp, std::string("writing the checkpoint failed: ") + std::strerror(errno));
     p += w;
     n -= std::size_t(w);
   }
@@ -69,7 +70,8 @@ std::vector<std::pair<int, fs::path>> list_checkpoints(const fs::path& directory
   return out;
 }
 
-void write_checkpoint(const fs::path& file, std::uint64_t scene_hash, int frame, std::string_view payload) {
+void write_checkpoint(const fs::path& file, std::uint64_t scene_hash, int frame,
+                      std::string_view payload) {
   std::string header(kMagic, sizeof kMagic);
   put(header, kCheckpointVersion);
   put(header, kByteOrder);
@@ -82,7 +84,8 @@ void write_checkpoint(const fs::path& file, std::uint64_t scene_hash, int frame,
   static unsigned long counter = 0;
   temp += ".tmp-" + std::to_string(long(::getpid())) + "-" + std::to_string(counter++);
   const int fd = ::open(temp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
-  if (fd < 0) io_fail(temp, std::string("cannot create the temporary checkpoint: ") + std::strerror(errno));
+  if (fd < 0)
+    io_fail(temp, std::string("cannot create the temporary checkpoint: ") + std::strerror(errno));
   try {
     write_all(fd, header.data(), header.size(), temp);
     write_all(fd, payload.data(), payload.size(), temp);
@@ -99,7 +102,8 @@ void write_checkpoint(const fs::path& file, std::uint64_t scene_hash, int frame,
   if (::rename(temp.c_str(), file.c_str()) != 0) {
     const int err = errno;
     ::unlink(temp.c_str());
-    io_fail(file, std::string("renaming the temporary checkpoint onto it failed: ") + std::strerror(err));
+    io_fail(file,
+            std::string("renaming the temporary checkpoint onto it failed: ") + std::strerror(err));
   }
   // The rename itself is durable once the directory is synced.
   const fs::path dir = file.has_parent_path() ? file.parent_path() : fs::path(".");
@@ -118,19 +122,22 @@ Checkpoint read_checkpoint(const fs::path& file) {
   if (bytes.size() < kHeaderBytes)
     io_fail(file, "truncated: " + std::to_string(bytes.size()) + " bytes, shorter than the " +
                       std::to_string(kHeaderBytes) + "-byte header");
-  if (std::memcmp(bytes.data(), kMagic, sizeof kMagic) != 0) io_fail(file, "not a slurry checkpoint (no SLURRYCP magic)");
+  if (std::memcmp(bytes.data(), kMagic, sizeof kMagic) != 0)
+    io_fail(file, "not a slurry checkpoint (no SLURRYCP magic)");
   Checkpoint c;
   c.file = file;
   c.version = take<std::uint32_t>(bytes, 8);
   if (c.version != kCheckpointVersion)
-    io_fail(file, "checkpoint format version " + std::to_string(c.version) + ", this slurry reads version " +
-                      std::to_string(kCheckpointVersion));
-  if (take<std::uint32_t>(bytes, 12) != kByteOrder) io_fail(file, "written on a machine of another byte order");
+    io_fail(file, "checkpoint format version " + std::to_string(c.version) +
+                      ", this slurry reads version " + std::to_string(kCheckpointVersion));
+  if (take<std::uint32_t>(bytes, 12) != kByteOrder)
+    io_fail(file, "written on a machine of another byte order");
   c.scene_hash = take<std::uint64_t>(bytes, 16);
   c.frame = take<std::int32_t>(bytes, 24);
   const auto size = take<std::uint64_t>(bytes, 32), sum = take<std::uint64_t>(bytes, 40);
   if (size != bytes.size() - kHeaderBytes)
-    io_fail(file, "truncated or padded: the header announces " + std::to_string(size) + " payload bytes, the file holds " +
+    io_fail(file, "truncated or padded: the header announces " + std::to_string(size) +
+                      " payload bytes, the file holds " +
                       std::to_string(bytes.size() - kHeaderBytes));
   c.payload = bytes.substr(kHeaderBytes);
   if (fnv1a64(c.payload) != sum) io_fail(file, "checksum mismatch (the file is corrupt)");

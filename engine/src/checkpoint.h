@@ -4,7 +4,7 @@
 //   offset  size  field
 //        0     8  magic "SLURRYCP"
 //        8     4  format version (kCheckpointVersion)
-//       12     4  byte-order mark 0x01020304 (a checkpoint is read on the machine kind that wrote it)
+//       12     4  byte-order mark 0x01020304 (read on the machine kind that wrote it)
 //       16     8  FNV-1a hash of the scene file (Scene::source_hash)
 //       24     4  frame index
 //       28     4  zero
@@ -36,9 +36,11 @@ struct Checkpoint {
 /// `<directory>/checkpoint_NNNN.slc`.
 std::filesystem::path checkpoint_file(const std::filesystem::path& directory, int frame);
 /// The checkpoint files of a directory with their frames, oldest first.
-std::vector<std::pair<int, std::filesystem::path>> list_checkpoints(const std::filesystem::path& directory);
+std::vector<std::pair<int, std::filesystem::path>> list_checkpoints(
+    const std::filesystem::path& directory);
 /// Writes one checkpoint atomically. Throws IoError.
-void write_checkpoint(const std::filesystem::path& file, std::uint64_t scene_hash, int frame, std::string_view payload);
+void write_checkpoint(const std::filesystem::path& file, std::uint64_t scene_hash, int frame,
+                      std::string_view payload);
 /// Reads a checkpoint and checks its magic, version, byte order, length and checksum. Throws
 /// IoError naming the file and what is wrong (the scene hash is left to the caller).
 Checkpoint read_checkpoint(const std::filesystem::path& file);

@@ -94,16 +94,38 @@ struct RunSection {
 };
 
 void put_stats(detail::StateWriter& w, const RunStats& s) {
-  w.pod(std::int32_t(s.frame)), w.pod(s.time), w.pod(s.substeps), w.pod(std::uint64_t(s.particles)), w.pod(s.mass);
-  w.pod(s.momentum), w.pod(s.angular_momentum), w.pod(s.kinetic), w.pod(s.potential), w.pod(s.elastic);
-  w.pod(s.volume), w.pod(s.max_fluid_J_error), w.pod(s.projected), w.pod(s.cfl);
+  w.pod(std::int32_t(s.frame));
+  w.pod(s.time);
+  w.pod(s.substeps);
+  w.pod(std::uint64_t(s.particles));
+  w.pod(s.mass);
+  w.pod(s.momentum);
+  w.pod(s.angular_momentum);
+  w.pod(s.kinetic);
+  w.pod(s.potential);
+  w.pod(s.elastic);
+  w.pod(s.volume);
+  w.pod(s.max_fluid_J_error);
+  w.pod(s.projected);
+  w.pod(s.cfl);
 }
 
 RunStats get_stats(detail::StateReader& r) {
   RunStats s;
-  s.frame = r.get<std::int32_t>(), r.pod(s.time), r.pod(s.substeps), s.particles = std::size_t(r.get<std::uint64_t>());
-  r.pod(s.mass), r.pod(s.momentum), r.pod(s.angular_momentum), r.pod(s.kinetic), r.pod(s.potential), r.pod(s.elastic);
-  r.pod(s.volume), r.pod(s.max_fluid_J_error), r.pod(s.projected), r.pod(s.cfl);
+  s.frame = r.get<std::int32_t>();
+  r.pod(s.time);
+  r.pod(s.substeps);
+  s.particles = std::size_t(r.get<std::uint64_t>());
+  r.pod(s.mass);
+  r.pod(s.momentum);
+  r.pod(s.angular_momentum);
+  r.pod(s.kinetic);
+  r.pod(s.potential);
+  r.pod(s.elastic);
+  r.pod(s.volume);
+  r.pod(s.max_fluid_J_error);
+  r.pod(s.projected);
+  r.pod(s.cfl);
   return s;
 }
 
@@ -115,7 +137,9 @@ std::string checkpoint_payload(const RunSection& run, const SimulationBase& sim)
   w.text(run.scene);
   w.pod(std::int32_t(run.frame));
   put_stats(w, run.first);
-  w.pod(run.substeps), w.pod(std::int32_t(run.drift_warnings)), w.pod(run.largest_cfl);
+  w.pod(run.substeps);
+  w.pod(std::int32_t(run.drift_warnings));
+  w.pod(run.largest_cfl);
   detail::StateWriter(payload).text(section);
   sim.save_state(payload);
   return payload;
@@ -132,7 +156,9 @@ RunSection parse_payload(const detail::Checkpoint& c, std::string_view& state) {
   run.scene = r.text();
   run.frame = r.get<std::int32_t>();
   run.first = get_stats(r);
-  r.pod(run.substeps), run.drift_warnings = r.get<std::int32_t>(), r.pod(run.largest_cfl);
+  r.pod(run.substeps);
+  run.drift_warnings = r.get<std::int32_t>();
+  r.pod(run.largest_cfl);
   r.finish();
   if (run.frame != c.frame) r.fail("the run section names frame " + std::to_string(run.frame));
   return run;

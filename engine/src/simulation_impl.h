@@ -648,7 +648,11 @@ void Simulation<T, Dim>::save_state(std::string& out) const {
   for (const auto& m : materials_) w.pod(m.wave_speed);
   w.pod(projected_);
   w.pod(cfl_reached_);
-  w.pod(cg_.last_iterations), w.pod(cg_.last_residual), w.pod(cg_.solves), w.pod(cg_.iterations), w.pod(cg_.unconverged);
+  w.pod(cg_.last_iterations);
+  w.pod(cg_.last_residual);
+  w.pod(cg_.solves);
+  w.pod(cg_.iterations);
+  w.pod(cg_.unconverged);
   w.tag(detail::kTagEnd);
 }
 
@@ -682,7 +686,11 @@ void Simulation<T, Dim>::load_state(std::string_view in, const std::string& what
   for (auto& m : materials_) r.pod(m.wave_speed);
   r.pod(projected_);
   r.pod(cfl_reached_);
-  r.pod(cg_.last_iterations), r.pod(cg_.last_residual), r.pod(cg_.solves), r.pod(cg_.iterations), r.pod(cg_.unconverged);
+  r.pod(cg_.last_iterations);
+  r.pod(cg_.last_residual);
+  r.pod(cg_.solves);
+  r.pod(cg_.iterations);
+  r.pod(cg_.unconverged);
   r.tag(detail::kTagEnd, "end");
   r.finish();
   stress_.resize(P.size());

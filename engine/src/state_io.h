@@ -19,7 +19,8 @@
 namespace slurry::detail {
 
 template <class V>
-inline constexpr bool kPlainBytes = std::is_trivially_copyable_v<V> || std::is_base_of_v<Eigen::EigenBase<V>, V>;
+inline constexpr bool kPlainBytes =
+    std::is_trivially_copyable_v<V> || std::is_base_of_v<Eigen::EigenBase<V>, V>;
 
 class StateWriter {
  public:
@@ -75,10 +76,12 @@ class StateReader {
     static_assert(kPlainBytes<V>);
     const auto n = get<std::uint64_t>();
     if (expected >= 0 && n != std::uint64_t(expected))
-      fail(std::string(name) + " has " + std::to_string(n) + " entries, expected " + std::to_string(expected));
+      fail(std::string(name) + " has " + std::to_string(n) + " entries, expected " +
+           std::to_string(expected));
     if (n > (in_.size() - at_) / std::max<std::size_t>(1, sizeof(V))) need(std::size_t(-1), name);
     v.resize(std::size_t(n));
-    if (n > 0) std::memcpy(static_cast<void*>(v.data()), in_.data() + at_, std::size_t(n) * sizeof(V));
+    if (n > 0)
+      std::memcpy(static_cast<void*>(v.data()), in_.data() + at_, std::size_t(n) * sizeof(V));
     at_ += std::size_t(n) * sizeof(V);
   }
   std::string text() {
@@ -98,7 +101,8 @@ class StateReader {
   }
   /// Throws unless every byte was read.
   void finish() {
-    if (at_ != in_.size()) fail(std::to_string(in_.size() - at_) + " bytes left over after the state");
+    if (at_ != in_.size())
+      fail(std::to_string(in_.size() - at_) + " bytes left over after the state");
   }
   [[noreturn]] void fail(const std::string& why) const {
     throw IoError(what_ + ": the solver state does not fit this scene: " + why);
@@ -106,7 +110,8 @@ class StateReader {
 
  private:
   void need(std::size_t n, const char* name) {
-    if (n > in_.size() - at_) throw IoError(what_ + ": truncated solver state (reading " + name + ")");
+    if (n > in_.size() - at_)
+      throw IoError(what_ + ": truncated solver state (reading " + name + ")");
   }
   std::string_view in_;
   std::size_t at_ = 0;
@@ -115,7 +120,7 @@ class StateReader {
 
 /// Section tags ("MPM ", "FLIP", "FEM ") and the (Dim, sizeof T) check shared by the solvers.
 inline constexpr std::uint32_t kTagMpm = 0x204d504d, kTagFlip = 0x50494c46, kTagFem = 0x204d4546,
-                                kTagEnd = 0x20444e45;
+                               kTagEnd = 0x20444e45;
 
 template <class T, int Dim>
 void write_layout(StateWriter& w, std::uint32_t solver) {
@@ -130,7 +135,8 @@ void read_layout(StateReader& r, std::uint32_t solver, const char* name) {
   const auto dim = r.get<std::uint32_t>(), size = r.get<std::uint32_t>();
   if (dim != std::uint32_t(Dim) || size != std::uint32_t(sizeof(T)))
     r.fail("it was written by a " + std::to_string(dim) + "D " + (size == 4 ? "float" : "double") +
-           " simulation, this one is " + std::to_string(Dim) + "D " + (sizeof(T) == 4 ? "float" : "double"));
+           " simulation, this one is " + std::to_string(Dim) + "D " +
+           (sizeof(T) == 4 ? "float" : "double"));
 }
 
 }  // namespace slurry::detail

@@ -86,7 +86,8 @@ std::string slurp(const fs::path& p) {
 
 /// A scratch directory per test, emptied first.
 fs::path scratch(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("slurry_checkpoint_" + std::to_string(::getpid())) / name;
+  const fs::path dir =
+      fs::temp_directory_path() / ("slurry_checkpoint_" + std::to_string(::getpid())) / name;
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir;
@@ -103,8 +104,8 @@ struct Outcome {
   std::vector<std::string> notices;
 };
 
-Outcome run(const slurry::Scene& scene, const fs::path& out, int frames, int threads, bool resume = false,
-        bool force = false) {
+Outcome run(const slurry::Scene& scene, const fs::path& out, int frames, int threads,
+            bool resume = false, bool force = false) {
   Outcome r;
   slurry::RunOptions o;
   o.directory = out;
@@ -146,8 +147,13 @@ fs::path checkpoint(const fs::path& dir, int frame) {
 struct ResumeCase {
   const char* name;
   json (*scene)();
-  int threads;  // of the uninterrupted run and the first half; the resumed half uses the other count
+  int threads;  // of the uninterrupted run and the first half; the resumed half uses the other
+                // count
 };
+
+void PrintTo(const ResumeCase& c, std::ostream* os) {
+  *os << c.name;
+}
 
 class Resume : public ::testing::TestWithParam<ResumeCase> {};
 
@@ -164,7 +170,8 @@ TEST_P(Resume, FramesAndStatsAreByteIdenticalToAnUninterruptedRun) {
   const Outcome resumed = run(scene, dir / "parts", 7, other, true);
   EXPECT_EQ(resumed.summary.resumed_from, 3);
   EXPECT_EQ(resumed.summary.frames_written, 8);
-  EXPECT_NE(joined(resumed.notices).find("resuming from"), std::string::npos) << joined(resumed.notices);
+  EXPECT_NE(joined(resumed.notices).find("resuming from"), std::string::npos)
+      << joined(resumed.notices);
   // Frames 4 and 5 of the first part are written again, then 6 and 7.
   expect_same_frames(dir / "whole", dir / "parts", 7);
   EXPECT_TRUE(fs::exists(checkpoint(dir / "parts", 6)));
@@ -174,11 +181,12 @@ TEST_P(Resume, FramesAndStatsAreByteIdenticalToAnUninterruptedRun) {
   EXPECT_EQ(slurp(slurry::frame_file(dir / "parts", 7)), before);
 }
 
-INSTANTIATE_TEST_SUITE_P(Solvers, Resume,
-                         ::testing::Values(ResumeCase{"mpm_1", mpm_scene, 1}, ResumeCase{"mpm_2", mpm_scene, 2},
-                                           ResumeCase{"flip_1", flip_scene, 1}, ResumeCase{"flip_2", flip_scene, 2},
-                                           ResumeCase{"fem_1", fem_scene, 1}, ResumeCase{"fem_2", fem_scene, 2}),
-                         [](const auto& info) { return std::string(info.param.name); });
+INSTANTIATE_TEST_SUITE_P(
+    Solvers, Resume,
+    ::testing::Values(ResumeCase{"mpm_1", mpm_scene, 1}, ResumeCase{"mpm_2", mpm_scene, 2},
+                      ResumeCase{"flip_1", flip_scene, 1}, ResumeCase{"flip_2", flip_scene, 2},
+                      ResumeCase{"fem_1", fem_scene, 1}, ResumeCase{"fem_2", fem_scene, 2}),
+    [](const auto& info) { return std::string(info.param.name); });
 
 // A SIGINT-style stop (RunOptions::stop) leaves a checkpoint of the frame it stopped after.
 TEST(Checkpoint, StoppedRunLeavesACheckpointOfItsLastFrame) {
@@ -206,10 +214,18 @@ enum class Damage { Flip, Truncate, Version, Empty };
 void damage(const fs::path& file, Damage d) {
   std::string bytes = slurp(file);
   switch (d) {
-    case Damage::Flip: bytes[bytes.size() / 2] ^= 0x10; break;
-    case Damage::Truncate: bytes.resize(bytes.size() - 100); break;
-    case Damage::Version: bytes[8] = 99; break;  // the format version field
-    case Damage::Empty: bytes.clear(); break;
+    case Damage::Flip:
+      bytes[bytes.size() / 2] ^= 0x10;
+      break;
+    case Damage::Truncate:
+      bytes.resize(bytes.size() - 100);
+      break;
+    case Damage::Version:
+      bytes[8] = 99;
+      break;  // the format version field
+    case Damage::Empty:
+      bytes.clear();
+      break;
   }
   std::ofstream(file, std::ios::binary | std::ios::trunc) << bytes;
 }
@@ -226,9 +242,9 @@ TEST(Checkpoint, CorruptTruncatedOrOtherVersionIsRefusedAndThePreviousOneUsed) {
   EXPECT_TRUE(fs::exists(checkpoint(dir / "base", 4)));
   EXPECT_TRUE(fs::exists(checkpoint(dir / "base", 6)));
   const std::pair<Damage, const char*> cases[] = {{Damage::Flip, "checksum mismatch"},
-                                                   {Damage::Truncate, "truncated"},
-                                                   {Damage::Version, "checkpoint format version 99"},
-                                                   {Damage::Empty, "truncated: 0 bytes"}};
+                                                  {Damage::Truncate, "truncated"},
+                                                  {Damage::Version, "checkpoint format version 99"},
+                                                  {Damage::Empty, "truncated: 0 bytes"}};
   for (const auto& [kind, message] : cases) {
     SCOPED_TRACE(message);
     const fs::path out = dir / "damaged";
@@ -237,7 +253,9 @@ TEST(Checkpoint, CorruptTruncatedOrOtherVersionIsRefusedAndThePreviousOneUsed) {
     damage(checkpoint(out, 6), kind);
     const Outcome r = run(scene, out, 8, 1, true);
     const std::string log = joined(r.notices);
-    EXPECT_NE(log.find("refused checkpoint " + checkpoint(out, 6).string() + ": " + message), std::string::npos) << log;
+    EXPECT_NE(log.find("refused checkpoint " + checkpoint(out, 6).string() + ": " + message),
+              std::string::npos)
+        << log;
     EXPECT_NE(log.find("using an earlier one"), std::string::npos) << log;
     EXPECT_EQ(r.summary.resumed_from, 4);
     expect_same_frames(dir / "whole", out, 8);
@@ -271,7 +289,8 @@ TEST(Checkpoint, OtherSolverLayoutIsRefused) {
     run(fem, dir / "frames", 7, 1, true, true);
     ADD_FAILURE() << "resumed an MPM checkpoint in an FEM run";
   } catch (const slurry::IoError& e) {
-    EXPECT_NE(std::string(e.what()).find("expected the FEM section"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("expected the FEM section"), std::string::npos)
+        << e.what();
   }
 }
 
@@ -305,7 +324,8 @@ TEST(Checkpoint, SceneKeysAreValidated) {
     slurry::parse_scene(j.dump(), "s.json");
     ADD_FAILURE();
   } catch (const slurry::SceneError& e) {
-    EXPECT_NE(std::string(e.what()).find("s.json: solver.on_instability"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("s.json: solver.on_instability"), std::string::npos)
+        << e.what();
     EXPECT_NE(std::string(e.what()).find("\"retry\""), std::string::npos) << e.what();
   }
   j = mpm_scene();
@@ -353,10 +373,14 @@ TEST(Retry, SceneThatStopsFinishesWithRetryAndEarlierFramesAreIdentical) {
   EXPECT_EQ(r.summary.frames_written, 11);
   EXPECT_GE(r.summary.retries, 1);
   const std::string log = joined(r.notices);
-  EXPECT_NE(log.find("retry 1 of 3: frame " + std::to_string(good) + " redone from t = "), std::string::npos) << log;
+  EXPECT_NE(log.find("retry 1 of 3: frame " + std::to_string(good) + " redone from t = "),
+            std::string::npos)
+      << log;
   EXPECT_NE(log.find("with the substep x 0.5 after: "), std::string::npos) << log;
   for (int f = 0; f < good; ++f)
-    EXPECT_TRUE(slurp(slurry::frame_file(dir / "stop", f)) == slurp(slurry::frame_file(dir / "retry", f))) << f;
+    EXPECT_TRUE(slurp(slurry::frame_file(dir / "stop", f)) ==
+                slurp(slurry::frame_file(dir / "retry", f)))
+        << f;
   // Every later frame is written (the health check passed every substep after the retry).
   for (int f = good; f <= 10; ++f) EXPECT_TRUE(fs::exists(slurry::frame_file(dir / "retry", f)));
   // Fewer halvings than needed: the run stops, naming the retries.
@@ -369,7 +393,8 @@ TEST(Retry, SceneThatStopsFinishesWithRetryAndEarlierFramesAreIdentical) {
     run(hopeless, dir / "hopeless", 10, 1);
     ADD_FAILURE() << "a collider at 60 m/s was expected to need more than one halving";
   } catch (const slurry::SimulationError& e) {
-    EXPECT_NE(std::string(e.what()).find("still unstable after 1 retries with the substep halved (solver.max_retries)"),
+    EXPECT_NE(std::string(e.what()).find(
+                  "still unstable after 1 retries with the substep halved (solver.max_retries)"),
               std::string::npos)
         << e.what();
   }
@@ -393,7 +418,8 @@ struct Result {
 };
 
 Result cli(const fs::path& dir, const std::string& args) {
-  const std::string cmd = "cd '" + dir.string() + "' && '" + std::string(SLURRY_CLI) + "' " + args + " > out.txt 2> err.txt";
+  const std::string cmd = "cd '" + dir.string() + "' && '" + std::string(SLURRY_CLI) + "' " + args +
+                          " > out.txt 2> err.txt";
   const int status = std::system(cmd.c_str());
   Result r;
   r.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
@@ -413,12 +439,15 @@ TEST(CheckpointCli, KilledRunResumesByteIdentical) {
   ASSERT_GE(pid, 0);
   if (pid == 0) {
     if (::chdir(dir.c_str()) != 0) ::_exit(99);
-    if (!std::freopen("out1.txt", "w", stdout) || !std::freopen("err1.txt", "w", stderr)) ::_exit(98);
-    ::execl(SLURRY_CLI, SLURRY_CLI, "run", "-q", "a.json", "--threads", "2", static_cast<char*>(nullptr));
+    if (!std::freopen("out1.txt", "w", stdout) || !std::freopen("err1.txt", "w", stderr))
+      ::_exit(98);
+    ::execl(SLURRY_CLI, SLURRY_CLI, "run", "-q", "a.json", "--threads", "2",
+            static_cast<char*>(nullptr));
     ::_exit(97);
   }
   // Wait (without a time limit: ctest's timeout is the backstop) for the second checkpoint.
-  while (!fs::exists(checkpoint(dir / "frames", 10))) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  while (!fs::exists(checkpoint(dir / "frames", 10)))
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
   ::kill(pid, SIGKILL);
   int status = 0;
   ASSERT_EQ(::waitpid(pid, &status, 0), pid);
@@ -442,7 +471,8 @@ TEST(CheckpointCli, ChangedSceneNeedsForceAndUsageErrors) {
   std::ofstream(dir / "a.json") << j.dump(2);
   Result r = cli(dir, "run -q a.json --resume --threads 1");
   EXPECT_EQ(r.code, 2) << r.err;
-  EXPECT_NE(r.err.find("a.json: the scene file changed since its checkpoints"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("a.json: the scene file changed since its checkpoints"), std::string::npos)
+      << r.err;
   EXPECT_NE(r.err.find("pass --force"), std::string::npos) << r.err;
   r = cli(dir, "run -q a.json --resume --force --threads 1");
   EXPECT_EQ(r.code, 0) << r.err;

@@ -433,7 +433,10 @@ void FlipSimulation<T, Dim>::save_state(std::string& out) const {
   w.pod(reseed_added_);
   w.pod(reseed_removed_);
   const auto& lp = last_projection_;
-  w.pod(lp.iterations), w.pod(lp.relative_residual), w.pod(std::uint8_t(lp.converged)), w.pod(lp.max_divergence);
+  w.pod(lp.iterations);
+  w.pod(lp.relative_residual);
+  w.pod(std::uint8_t(lp.converged));
+  w.pod(lp.max_divergence);
   w.pod(lp.unknowns);
   w.tag(slurry::detail::kTagEnd);
 }
@@ -475,7 +478,10 @@ void FlipSimulation<T, Dim>::load_state(std::string_view in, const std::string& 
   r.pod(reseed_added_);
   r.pod(reseed_removed_);
   auto& lp = last_projection_;
-  r.pod(lp.iterations), r.pod(lp.relative_residual), lp.converged = r.get<std::uint8_t>() != 0, r.pod(lp.max_divergence);
+  r.pod(lp.iterations);
+  r.pod(lp.relative_residual);
+  lp.converged = r.get<std::uint8_t>() != 0;
+  r.pod(lp.max_divergence);
   r.pod(lp.unknowns);
   r.tag(slurry::detail::kTagEnd, "end");
   r.finish();
