@@ -445,13 +445,18 @@ TEST(CheckpointCli, KilledRunResumesByteIdentical) {
             static_cast<char*>(nullptr));
     ::_exit(97);
   }
-  // Wait (without a time limit: ctest's timeout is the backstop) for the second checkpoint.
-  while (!fs::exists(checkpoint(dir / "frames", 10)))
-    std::this_thread::sleep_for(std::chrono::milliseconds(1));
-  ::kill(pid, SIGKILL);
+  // Wait (without a time limit: ctest's timeout is the backstop) for the second checkpoint,
+  // unless the run ends first (it should not: 50 frames are left).
   int status = 0;
+  pid_t done = 0;
+  while (!fs::exists(checkpoint(dir / "frames", 10)) &&
+         (done = ::waitpid(pid, &status, WNOHANG)) == 0)
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  ASSERT_EQ(done, 0) << "the run ended before its second checkpoint: " << slurp(dir / "err1.txt");
+  ::kill(pid, SIGKILL);
   ASSERT_EQ(::waitpid(pid, &status, 0), pid);
-  ASSERT_TRUE(WIFSIGNALED(status));
+  ASSERT_TRUE(WIFSIGNALED(status)) << "the run finished before it was killed";
+  EXPECT_FALSE(fs::exists(slurry::frame_file(dir / "frames", 60)));
   const Result r = cli(dir, "resume -q frames --threads 1");
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.err.find("slurry: resuming from frames/checkpoint_"), std::string::npos) << r.err;
