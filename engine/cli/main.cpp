@@ -1,6 +1,8 @@
 // slurry: run or check a scene file.
 //
 //   slurry run SCENE.json [--out DIR] [--frames N] [--threads N] [--memory-limit GB] [--overwrite] [--ascii] [--quiet]
+//                         [--resume [--force]]
+//   slurry resume DIR [--frames N] [--threads N] [--memory-limit GB] [--ascii] [--quiet] [--force]
 //   slurry validate SCENE.json [--memory-limit GB]
 //
 // Exit codes: 0 success, 1 the simulation became unstable, 2 invalid scene or usage, 3 file or
@@ -133,7 +135,7 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
 
   std::string scene_path, out_dir, frames_text, threads_text, memory_text;
-  bool ascii = false, quiet = false, overwrite = false;
+  bool ascii = false, quiet = false, overwrite = false, resume = false, force = false;
   auto* run = app.add_subcommand("run", "Run a scene and write its PLY frames");
   run->add_option("scene", scene_path, "Scene file (JSON)")->required();
   auto* out_option = run->add_option("--out,-o", out_dir, "Output directory (replaces output.directory)");
@@ -143,6 +145,18 @@ int main(int argc, char** argv) {
   run->add_flag("--overwrite", overwrite, "Remove another scene's frames from the output directory");
   run->add_flag("--ascii", ascii, "Write ASCII PLY instead of binary");
   run->add_flag("--quiet,-q", quiet, "No progress output");
+  run->add_flag("--resume", resume, "Continue from the newest valid checkpoint in the output directory");
+  run->add_flag("--force", force, "With --resume: accept checkpoints written for another version of the scene file");
+
+  std::string resume_dir;
+  auto* resume_cmd = app.add_subcommand("resume", "Continue the run whose checkpoints are in DIR (its scene file is read again)");
+  resume_cmd->add_option("directory", resume_dir, "Output directory holding checkpoint_NNNN.slc files")->required();
+  resume_cmd->add_option("--frames,-f", frames_text, "Last frame of the run (replaces output.frames)");
+  resume_cmd->add_option("--threads,-t", threads_text, "Worker threads (0 = all cores)");
+  resume_cmd->add_option("--memory-limit", memory_text, "Memory limit in GiB (replaces limits.memory_gb)");
+  resume_cmd->add_flag("--ascii", ascii, "Write ASCII PLY instead of binary");
+  resume_cmd->add_flag("--quiet,-q", quiet, "No progress output");
+  resume_cmd->add_flag("--force", force, "Accept checkpoints written for another version of the scene file");
 
   auto* validate = app.add_subcommand("validate", "Check a scene file, its meshes and its resources, and exit");
   validate->add_option("scene", scene_path, "Scene file (JSON)")->required();
@@ -153,10 +167,15 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
     const int hardware = int(std::max(1u, std::thread::hardware_concurrency()));
-    if (!frames_text.empty() || run->count("--frames")) frames = int(parse_integer("--frames", frames_text, 0, INT_MAX));
-    if (run->count("--threads")) threads = int(parse_integer("--threads", threads_text, 0, 4 * hardware));
-    if (run->count("--memory-limit") || validate->count("--memory-limit")) memory_gb = parse_positive("--memory-limit", memory_text);
+    if (!frames_text.empty() || run->count("--frames") || resume_cmd->count("--frames"))
+      frames = int(parse_integer("--frames", frames_text, 0, INT_MAX));
+    if (run->count("--threads") || resume_cmd->count("--threads"))
+      threads = int(parse_integer("--threads", threads_text, 0, 4 * hardware));
+    if (run->count("--memory-limit") || validate->count("--memory-limit") || resume_cmd->count("--memory-limit"))
+      memory_gb = parse_positive("--memory-limit", memory_text);
     if (out_option->count() && out_dir.empty()) throw UsageError("--out: expected a non-empty directory path, got \"\"");
+    if (force && run->parsed() && !resume) throw UsageError("--force: only with --resume");
+    if (resume && overwrite) throw UsageError("--resume and --overwrite: expected one of them (--overwrite starts afresh)");
   } catch (const CLI::ParseError& e) {
     if (e.get_exit_code() == 0) return app.exit(e);  // --help
     std::fprintf(stderr, "slurry: error: %s (usage: slurry --help)\n", e.what());
@@ -167,6 +186,11 @@ int main(int argc, char** argv) {
   }
 
   try {
+    if (resume_cmd->parsed()) {
+      scene_path = slurry::checkpoint_scene(resume_dir).string();
+      out_dir = resume_dir;
+      resume = true;
+    }
     const slurry::Scene scene = slurry::load_scene(scene_path);
     if (validate->parsed()) {
       slurry::check_scene(scene, memory_gb);
@@ -181,6 +205,8 @@ int main(int argc, char** argv) {
     opt.threads = threads;
     opt.memory_gb = memory_gb;
     opt.overwrite = overwrite;
+    opt.resume = resume;
+    opt.force = force;
     opt.stop = &g_stop;
     opt.notice = [](const std::string& line) { std::fprintf(stderr, "slurry: %s\n", line.c_str()); };
     if (!quiet && scene.solver.type == slurry::SolverType::FEM)
@@ -198,8 +224,9 @@ int main(int argc, char** argv) {
     Progress progress(quiet);
     const auto s = slurry::run_scene(scene, opt, std::ref(progress));
     if (s.interrupted) {
-      std::fprintf(stderr, "\nslurry: stopped by %s after frame %d (frames 0-%d are complete)\n",
-                   s.interrupted == SIGINT ? "SIGINT" : "SIGTERM", s.frames_written - 1, s.frames_written - 1);
+      std::fprintf(stderr, "\nslurry: stopped by %s after frame %d (frames 0-%d are complete%s)\n",
+                   s.interrupted == SIGINT ? "SIGINT" : "SIGTERM", s.frames_written - 1, s.frames_written - 1,
+                   s.checkpoints_written > 0 ? "; continue with slurry run SCENE --resume" : "");
       print_summary(s);
       return 128 + s.interrupted;
     }

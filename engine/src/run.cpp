@@ -11,10 +11,12 @@
 #include <signal.h>
 #include <thread>
 
+#include "checkpoint.h"
 #include "slurry/engine/fem/tetgen.h"
 #include "slurry/engine/ply.h"
 #include "slurry/engine/simulation.h"
 #include "slurry/transfer/parallel.h"
+#include "state_io.h"
 
 namespace slurry {
 namespace fs = std::filesystem;
@@ -43,10 +45,12 @@ bool same_file(const std::string& a, const std::string& b) {
   return !ec1 && !ec2 && ca == cb;
 }
 
-/// What the output directory holds before a run: frames of an earlier run, and temporary
-/// frame files of a killed one (frame_NNNN.ply.tmp-PID-N whose process is gone).
+/// What the output directory holds before a run: frames and checkpoints of an earlier run,
+/// and temporary files of a killed one (frame_NNNN.ply.tmp-PID-N or checkpoint_NNNN.slc.tmp-PID-N
+/// whose process is gone).
 struct DirectoryState {
   std::vector<fs::path> frames, stale;
+  std::vector<std::pair<int, fs::path>> checkpoints;  // oldest first
   std::string source;  // the scene the frames came from
 };
 
@@ -56,7 +60,8 @@ DirectoryState scan_directory(const fs::path& dir) {
   if (!fs::exists(dir, ec)) return s;
   if (!fs::is_directory(dir, ec))
     throw IoError(dir.string() + ": exists and is not a directory (expected an output directory)");
-  static const std::regex frame(R"(frame_\d{4,}\.ply)"), temp(R"(frame_\d{4,}\.ply\.tmp-(\d+)-\d+)");
+  static const std::regex frame(R"(frame_\d{4,}\.ply)"),
+      temp(R"((?:frame_\d{4,}\.ply|checkpoint_\d{4,}\.slc)\.tmp-(\d+)-\d+)");
   for (const auto& e : fs::directory_iterator(dir, ec)) {
     const std::string name = e.path().filename().string();
     std::smatch m;
@@ -70,7 +75,113 @@ DirectoryState scan_directory(const fs::path& dir) {
   if (ec) throw IoError(dir.string() + ": cannot list the output directory: " + ec.message());
   std::sort(s.frames.begin(), s.frames.end());
   if (!s.frames.empty()) s.source = frame_source(s.frames.front());
+  s.checkpoints = detail::list_checkpoints(dir);
   return s;
+}
+
+/// The frame index of frame_NNNN.ply.
+int frame_index(const fs::path& file) { return std::atoi(file.filename().string().c_str() + 6); }
+
+/// The run's own part of a checkpoint (the solver's state follows it in the payload).
+struct RunSection {
+  std::string source;  // the scene file as the run named it (Scene::source; frames carry it)
+  std::string scene;   // its absolute path
+  int frame = 0;
+  RunStats first;     // frame 0's figures, the reference of the drift warnings
+  std::int64_t substeps = 0;
+  int drift_warnings = 0;
+  double largest_cfl = 0;
+};
+
+void put_stats(detail::StateWriter& w, const RunStats& s) {
+  w.pod(std::int32_t(s.frame));
+  w.pod(s.time);
+  w.pod(s.substeps);
+  w.pod(std::uint64_t(s.particles));
+  w.pod(s.mass);
+  w.pod(s.momentum);
+  w.pod(s.angular_momentum);
+  w.pod(s.kinetic);
+  w.pod(s.potential);
+  w.pod(s.elastic);
+  w.pod(s.volume);
+  w.pod(s.max_fluid_J_error);
+  w.pod(s.projected);
+  w.pod(s.cfl);
+}
+
+RunStats get_stats(detail::StateReader& r) {
+  RunStats s;
+  s.frame = r.get<std::int32_t>();
+  r.pod(s.time);
+  r.pod(s.substeps);
+  s.particles = std::size_t(r.get<std::uint64_t>());
+  r.pod(s.mass);
+  r.pod(s.momentum);
+  r.pod(s.angular_momentum);
+  r.pod(s.kinetic);
+  r.pod(s.potential);
+  r.pod(s.elastic);
+  r.pod(s.volume);
+  r.pod(s.max_fluid_J_error);
+  r.pod(s.projected);
+  r.pod(s.cfl);
+  return s;
+}
+
+/// Payload: the run section (length-prefixed), then the solver state.
+std::string checkpoint_payload(const RunSection& run, const SimulationBase& sim) {
+  std::string section, payload;
+  detail::StateWriter w(section);
+  w.text(run.source);
+  w.text(run.scene);
+  w.pod(std::int32_t(run.frame));
+  put_stats(w, run.first);
+  w.pod(run.substeps);
+  w.pod(std::int32_t(run.drift_warnings));
+  w.pod(run.largest_cfl);
+  detail::StateWriter(payload).text(section);
+  sim.save_state(payload);
+  return payload;
+}
+
+/// Splits a checkpoint's payload into its run section and the solver state.
+RunSection parse_payload(const detail::Checkpoint& c, std::string_view& state) {
+  detail::StateReader outer(c.payload, c.file.string());
+  const std::string section = outer.text();
+  state = std::string_view(c.payload).substr(section.size() + sizeof(std::uint64_t));
+  detail::StateReader r(section, c.file.string());
+  RunSection run;
+  run.source = r.text();
+  run.scene = r.text();
+  run.frame = r.get<std::int32_t>();
+  run.first = get_stats(r);
+  r.pod(run.substeps);
+  run.drift_warnings = r.get<std::int32_t>();
+  r.pod(run.largest_cfl);
+  r.finish();
+  if (run.frame != c.frame) r.fail("the run section names frame " + std::to_string(run.frame));
+  return run;
+}
+
+/// Keeps stats.csv's header and its rows of frames <= last (written again after a resume).
+void truncate_stats(const fs::path& file, int last) {
+  std::ifstream in(file, std::ios::binary);
+  if (!in) return;
+  std::string kept, line;
+  for (int i = 0; std::getline(in, line); ++i)
+    if (i == 0 || (!line.empty() && std::atoi(line.c_str()) <= last)) kept += line + '\n';
+  in.close();
+  fs::path temp = file;
+  temp += ".tmp";
+  {
+    std::ofstream out(temp, std::ios::binary | std::ios::trunc);
+    out << kept;
+    if (!out.flush()) throw IoError(file.string() + ": cannot rewrite the run statistics for the resumed run");
+  }
+  std::error_code ec;
+  fs::rename(temp, file, ec);
+  if (ec) throw IoError(file.string() + ": cannot rewrite the run statistics: " + ec.message());
 }
 
 int remove_all(const std::vector<fs::path>& files) {
@@ -131,6 +242,9 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   const auto seconds_since = [](Clock::time_point t0) {
     return std::chrono::duration<double>(Clock::now() - t0).count();
   };
+  const auto notice = [&](const std::string& line) {
+    if (options.notice) options.notice(line);
+  };
   Scene limited = scene;
   if (options.memory_gb > 0) limited.limits.memory_gb = options.memory_gb;
   check_scene(limited);
@@ -171,30 +285,169 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   tol.energy = scene.output.energy_growth;
   tol.check_energy = scene.emitters.empty();
   for (const auto& c : scene.colliders) tol.check_energy = tol.check_energy && c.velocity.isZero();
+  // The energy the scene can release: its kinetic energy plus its mass falling the domain's
+  // extent along gravity.
+  const auto energy_scale_of = [&](const RunStats& first) {
+    const Eigen::Vector3d g = scene.solver.gravity;
+    const int dim = scene.solver.dimension;
+    double H = 0;
+    if (g.head(dim).norm() > 0)
+      for (int d = 0; d < dim; ++d)
+        H += std::abs(scene.domain.max[d] - scene.domain.min[d]) * std::abs(g[d]) / g.head(dim).norm();
+    return first.kinetic + first.mass * g.head(dim).norm() * H;
+  };
   double energy_scale = 0;
   RunSummary summary;
   summary.directory = dir;
   summary.particles = sim->particle_count();
+  const fs::path scene_file = fs::absolute(scene.source);
+
+  // Resume: the newest checkpoint that reads, fits this solver and was written for this scene
+  // file (or any, with force); the ones refused are named.
+  int first_frame = 0;
+  std::vector<fs::path> removed_frames = before.frames;
+  if (options.resume && !files)
+    throw SceneError(scene.source + ": resume: a run that writes no files (RunOptions::write_files = false) has no "
+                     "checkpoints to resume from");
+  if (options.resume) {
+    if (before.checkpoints.empty())
+      throw IoError(dir.string() + ": no checkpoint to resume from (expected checkpoint_NNNN.slc files, written every "
+                    "output.checkpoint_every frames); run without --resume to start from frame 0");
+    std::vector<std::string> refused;
+    bool other_scene = false;
+    for (auto it = before.checkpoints.rbegin(); it != before.checkpoints.rend() && summary.resumed_from < 0; ++it) {
+      const fs::path& file = it->second;
+      try {
+        const detail::Checkpoint c = detail::read_checkpoint(file);
+        if (c.frame > frames) {
+          refused.push_back(file.string() + ": frame " + std::to_string(c.frame) + " lies beyond the run's last frame " +
+                            std::to_string(frames));
+          continue;
+        }
+        if (c.scene_hash != scene.source_hash && !options.force) {
+          other_scene = true;
+          refused.push_back(file.string() + ": written for another version of the scene file " + scene.source +
+                            " (its hash differs; pass --force to resume anyway)");
+          continue;
+        }
+        for (int f = 0; f <= c.frame; ++f)
+          if (!fs::exists(frame_file(dir, f)))
+            throw IoError(file.string() + ": frame " + frame_file(dir, f).filename().string() + " before it is missing");
+        std::string_view state;
+        const RunSection run = parse_payload(c, state);
+        sim->load_state(state, file.string());
+        summary.resumed_from = c.frame;
+        summary.first = run.first;
+        summary.substeps = run.substeps;
+        summary.drift_warnings = run.drift_warnings;
+        summary.largest_cfl = run.largest_cfl;
+        energy_scale = energy_scale_of(run.first);
+        first_frame = c.frame + 1;
+      } catch (const IoError& e) {
+        refused.push_back(e.what());
+        sim = make_simulation(limited);  // a failed load_state may have left part of the state
+      }
+    }
+    for (const auto& r : refused)
+      notice("refused checkpoint " + r + (summary.resumed_from >= 0 ? "; using an earlier one" : ""));
+    if (summary.resumed_from < 0) {
+      std::string why;
+      for (const auto& r : refused) why += "\n  " + r;
+      if (other_scene)
+        throw SceneError(scene.source + ": the scene file changed since its checkpoints in " + dir.string() +
+                         " were written; expected the same scene file, or pass --force to resume anyway:" + why);
+      throw IoError(dir.string() + ": no valid checkpoint to resume from:" + why);
+    }
+    notice("resuming from " + detail::checkpoint_file(dir, summary.resumed_from).string() + " (frame " +
+           std::to_string(summary.resumed_from) + ", t = " + fmt(sim->time()) + " s, step " +
+           std::to_string(sim->steps()) + ")");
+    summary.particles = sim->particle_count();
+    // Frames after the checkpoint are written again.
+    removed_frames.erase(std::remove_if(removed_frames.begin(), removed_frames.end(),
+                                        [&](const fs::path& f) { return frame_index(f) <= summary.resumed_from; }),
+                         removed_frames.end());
+  }
   summary.removed_temporaries = remove_all(before.stale);
-  summary.removed_frames = remove_all(before.frames);  // a sequence is never mixed with an earlier run's
-  if (options.notice && summary.removed_temporaries > 0)
-    options.notice("removed " + std::to_string(summary.removed_temporaries) + " temporary frame files of a killed run from " +
-                   dir.string());
-  if (options.notice && summary.removed_frames > 0)
-    options.notice("removed " + std::to_string(summary.removed_frames) + " frames of an earlier run" +
-                   (same_file(before.source, scene.source) ? " of this scene" : " (--overwrite)") + " from " + dir.string() +
-                   " before writing");
+  summary.removed_frames = remove_all(removed_frames);  // a sequence is never mixed with an earlier run's
+  {
+    std::vector<fs::path> old;  // checkpoints the run will not continue from
+    for (const auto& [f, file] : before.checkpoints)
+      if (f > summary.resumed_from) old.push_back(file);
+    remove_all(old);
+  }
+  if (summary.removed_temporaries > 0)
+    notice("removed " + std::to_string(summary.removed_temporaries) + " temporary frame files of a killed run from " +
+           dir.string());
+  if (summary.removed_frames > 0 && summary.resumed_from >= 0)
+    notice("removed " + std::to_string(summary.removed_frames) + " frames after the checkpoint from " + dir.string() +
+           " (they are written again)");
+  else if (summary.removed_frames > 0)
+    notice("removed " + std::to_string(summary.removed_frames) + " frames of an earlier run" +
+           (same_file(before.source, scene.source) ? " of this scene" : " (--overwrite)") + " from " + dir.string() +
+           " before writing");
   double sim_seconds = 0, particle_steps = 0;
 
   std::error_code ec;
   const bool created = files && !fs::exists(dir, ec);
   if (files) fs::create_directories(dir, ec);
   if (ec) throw IoError(dir.string() + ": cannot create the output directory: " + ec.message());
-  for (int f = 0; f <= frames; ++f) {
+  if (first_frame > 0) {
+    truncate_stats(dir / "stats.csv", first_frame - 1);
+    const bool had = fs::exists(dir / "stats.csv");
+    csv.open(dir / "stats.csv", std::ios::app);
+    if (!csv) throw IoError((dir / "stats.csv").string() + ": cannot write the run statistics");
+    if (!had) csv << stats_csv_header() << '\n';
+    summary.frames_written = first_frame;
+  }
+  const int every = scene.output.checkpoint_every;
+  const bool retry = scene.solver.on_instability == OnInstability::Retry;
+  std::string snapshot;  // on_instability "retry": the state at the start of the frame
+  const auto write_checkpoint = [&](int f) {
+    RunSection run;
+    run.source = scene.source;
+    run.scene = scene_file.string();
+    run.frame = f;
+    run.first = summary.first;
+    run.substeps = summary.substeps;
+    run.drift_warnings = summary.drift_warnings;
+    run.largest_cfl = summary.largest_cfl;
+    detail::write_checkpoint(detail::checkpoint_file(dir, f), scene.source_hash, f, checkpoint_payload(run, *sim));
+    ++summary.checkpoints_written;
+    // Keep the last two.
+    auto list = detail::list_checkpoints(dir);
+    std::vector<fs::path> old;
+    for (std::size_t i = 0; i + 2 < list.size(); ++i) old.push_back(list[i].second);
+    remove_all(old);
+  };
+  for (int f = first_frame; f <= frames; ++f) {
     const auto t0 = Clock::now();
     std::int64_t substeps = 0;
     if (f > 0) {
-      substeps = sim->advance_to(f * scene.frame_dt());
+      const double t_end = f * scene.frame_dt();
+      if (retry) {
+        snapshot.clear();
+        sim->save_state(snapshot);
+        for (int attempt = 0;; ++attempt) {
+          try {
+            substeps = sim->advance_to(t_end);
+            break;
+          } catch (const SimulationError& e) {
+            if (attempt == scene.solver.max_retries)
+              throw SimulationError(scene.source + ": frame " + std::to_string(f) + " is still unstable after " +
+                                    std::to_string(attempt) + " retries with the substep halved (solver.max_retries): " +
+                                    e.what());
+            sim->load_state(snapshot, "the retry snapshot");
+            sim->set_dt_scale(0.5 * sim->dt_scale());
+            ++summary.retries;
+            notice("retry " + std::to_string(attempt + 1) + " of " + std::to_string(scene.solver.max_retries) +
+                   ": frame " + std::to_string(f) + " redone from t = " + fmt(sim->time()) + " s with the substep x " +
+                   fmt(sim->dt_scale()) + " after: " + e.what());
+          }
+        }
+        sim->set_dt_scale(1);
+      } else {
+        substeps = sim->advance_to(t_end);
+      }
       sim_seconds += seconds_since(t0);
       particle_steps += double(sim->particle_count()) * double(substeps);  // emitters add particles
     }
@@ -211,18 +464,10 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     std::vector<std::string> warnings;
     if (f == 0) {
       summary.first = stats;
-      // The energy the scene can release: its kinetic energy plus its mass falling the
-      // domain's extent along gravity.
-      const Eigen::Vector3d g = scene.solver.gravity;
-      const int dim = scene.solver.dimension;
-      double H = 0;
-      if (g.head(dim).norm() > 0)
-        for (int d = 0; d < dim; ++d)
-          H += std::abs(scene.domain.max[d] - scene.domain.min[d]) * std::abs(g[d]) / g.head(dim).norm();
-      energy_scale = stats.kinetic + stats.mass * g.head(dim).norm() * H;
+      energy_scale = energy_scale_of(stats);
       if (files) csv.open(dir / "stats.csv");
       if (files && !csv) throw IoError((dir / "stats.csv").string() + ": cannot write the run statistics");
-      csv << stats_csv_header() << '\n';
+      if (files) csv << stats_csv_header() << '\n';
     } else {
       warnings = drift_warnings(summary.first, stats, tol, energy_scale);
       summary.drift_warnings += !warnings.empty();
@@ -250,7 +495,10 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
       r.warnings = std::move(warnings);
       on_frame(r);
     }
-    if (options.stop && *options.stop) {  // the frame just written is complete; stop here
+    const bool stopping = options.stop && *options.stop;
+    // A stopped run also leaves a checkpoint of the frame it stopped after.
+    if (files && every > 0 && f > 0 && (f % every == 0 || (stopping && f < frames))) write_checkpoint(f);
+    if (stopping) {  // the frame just written is complete; stop here
       summary.interrupted = int(*options.stop);
       break;
     }
@@ -260,6 +508,24 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   summary.particles = sim->particle_count();
   if (sim_seconds > 0) summary.particle_steps_per_second = particle_steps / sim_seconds;
   return summary;
+}
+
+std::filesystem::path checkpoint_scene(const std::filesystem::path& directory) {
+  const auto list = detail::list_checkpoints(directory);
+  std::string why;
+  for (auto it = list.rbegin(); it != list.rend(); ++it) {
+    try {
+      const detail::Checkpoint c = detail::read_checkpoint(it->second);
+      std::string_view state;
+      const RunSection run = parse_payload(c, state);
+      // The name the run used, if it still names the same file from here (frames record it).
+      return same_file(run.source, run.scene) ? run.source : run.scene;
+    } catch (const IoError& e) {
+      why += std::string("\n  ") + e.what();
+    }
+  }
+  throw IoError(directory.string() + ": no readable checkpoint (checkpoint_NNNN.slc) to resume from" +
+                (why.empty() ? std::string(" (the directory holds none)") : ":" + why));
 }
 
 }  // namespace slurry

@@ -2,6 +2,8 @@
 #include "slurry/engine/scene.h"
 #include "slurry/engine/quality.h"
 
+#include "fnv1a.h"
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -60,6 +62,7 @@ const NameTable<PressurePreconditioner> kPreconditioner{{"multigrid", PressurePr
                                                         {"mic0", PressurePreconditioner::MIC0},
                                                         {"jacobi", PressurePreconditioner::Jacobi},
                                                         {"none", PressurePreconditioner::None}};
+const NameTable<OnInstability> kOnInstability{{"stop", OnInstability::Stop}, {"retry", OnInstability::Retry}};
 const std::vector<std::string> kAttributes{"position", "velocity", "material", "J", "plastic", "id"};
 
 template <class E>
@@ -379,6 +382,7 @@ std::string_view to_string(Integrator m) { return name_of(kIntegrator, m); }
 std::string_view to_string(ImplicitPreconditioner m) { return name_of(kImplicitPreconditioner, m); }
 std::string_view to_string(AdvectionScheme m) { return name_of(kAdvection, m); }
 std::string_view to_string(PressurePreconditioner m) { return name_of(kPreconditioner, m); }
+std::string_view to_string(OnInstability m) { return name_of(kOnInstability, m); }
 
 int Scene::material_index(std::string_view name) const {
   for (std::size_t i = 0; i < materials.size(); ++i)
@@ -525,6 +529,8 @@ void Scene::validate() const {
   c.in_range("solver.cg_tolerance", solver.cg_tolerance, 0, 1, true, true);
   if (solver.cg_max_iterations < 1)
     fail(source, "solver.cg_max_iterations", "expected an integer >= 1, got " + std::to_string(solver.cg_max_iterations));
+  if (solver.max_retries < 1 || solver.max_retries > 30)
+    fail(source, "solver.max_retries", "expected an integer in [1, 30], got " + std::to_string(solver.max_retries));
 
   if (flip) validate_flip();
   if (!flip && !emitters.empty()) fail(source, "emitters", "emitters need solver.type \"flip\"");
@@ -652,6 +658,8 @@ void Scene::validate() const {
   c.in_range("output.fps", output.fps, 1e-6, 1e6, false, false);
   if (output.frames < 0) fail(source, "output.frames", "expected an integer >= 0, got " + std::to_string(output.frames));
   if (output.directory.empty()) fail(source, "output.directory", "expected a non-empty path");
+  if (output.checkpoint_every < 0)
+    fail(source, "output.checkpoint_every", "expected an integer >= 0 (0 = no checkpoints), got " + std::to_string(output.checkpoint_every));
   for (const auto& [key, value] : {std::pair<const char*, double>{"output.mass_drift", output.mass_drift},
                                    {"output.volume_drift", output.volume_drift},
                                    {"output.energy_growth", output.energy_growth}})
@@ -699,6 +707,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
   const json j = parse_json(text, source);
   Scene s;
   s.source = source;
+  s.source_hash = detail::fnv1a64(text);
   // The dimension decides the length of every vector, so it is read first.
   if (j.is_object() && j.contains("solver") && j["solver"].is_object() && j["solver"].contains("dimension")) {
     const json& d = j["solver"]["dimension"];
@@ -748,6 +757,8 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.number("cg_tolerance", s.solver.cg_tolerance);
     r.integer("cg_max_iterations", s.solver.cg_max_iterations);
     r.choice("implicit_preconditioner", kImplicitPreconditioner, s.solver.implicit_preconditioner);
+    r.choice("on_instability", kOnInstability, s.solver.on_instability);
+    r.integer("max_retries", s.solver.max_retries, 1, 30);
   });
   if (!top.has("materials")) fail(source, "materials", "missing (expected an array of materials)");
   top.objects("materials", [&](ObjectReader& r, std::size_t) {
@@ -862,6 +873,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.number("mass_drift", s.output.mass_drift);
     r.number("volume_drift", s.output.volume_drift);
     r.number("energy_growth", s.output.energy_growth);
+    r.integer("checkpoint_every", s.output.checkpoint_every, 0, std::numeric_limits<int>::max());
   });
   top.object("limits", [&](ObjectReader& r) {
     r.number("memory_gb", s.limits.memory_gb);

@@ -14,6 +14,7 @@
 
 #include "frame_builder.h"
 #include "implicit_update.h"
+#include "state_io.h"
 #include "slurry/engine/simulation.h"
 #include "slurry/transfer/parallel.h"
 #include "slurry/transfer/transfers.h"
@@ -184,7 +185,7 @@ T Simulation<T, Dim>::stable_dt() const {
 
 template <class T, int Dim>
 std::int64_t Simulation<T, Dim>::advance_to(double t_end) {
-  return substep_to(time_, t_end, [&] { return stable_dt(); }, [&](double dt) { step(T(dt)); }, scene_);
+  return substep_to(time_, t_end, [&] { return dt_scale_ * double(stable_dt()); }, [&](double dt) { step(T(dt)); }, scene_);
 }
 
 template <class T, int Dim>
@@ -617,6 +618,82 @@ RunStats Simulation<T, Dim>::take_stats() {
   projected_ = 0;
   cfl_reached_ = 0;
   return s;
+}
+
+template <class T, int Dim>
+void Simulation<T, Dim>::save_state(std::string& out) const {
+  // Between substeps the grid, the bins and the stress are scratch (rebuilt by every substep);
+  // what carries over is the particles in their storage order (the periodic re-sort depends on
+  // steps_), the step and time, the speed and wave-speed limits of the next stable_dt() (snow
+  // hardening raises a material's wave speed), and the counters of take_stats().
+  detail::StateWriter w(out);
+  detail::write_layout<T, Dim>(w, detail::kTagMpm);
+  const auto& P = particles_;
+  w.pod(P.channels);
+  w.vec(P.x);
+  w.vec(P.v);
+  w.vec(P.m);
+  w.vec(P.vol0);
+  w.vec(P.F);
+  w.vec(P.J);
+  w.vec(P.C);
+  w.vec(P.plastic);
+  w.vec(P.material);
+  w.vec(P.id);
+  w.pod(time_);
+  w.pod(steps_);
+  w.pod(max_speed_);
+  w.pod(max_wave_speed_);
+  w.pod(std::uint64_t(materials_.size()));
+  for (const auto& m : materials_) w.pod(m.wave_speed);
+  w.pod(projected_);
+  w.pod(cfl_reached_);
+  w.pod(cg_.last_iterations);
+  w.pod(cg_.last_residual);
+  w.pod(cg_.solves);
+  w.pod(cg_.iterations);
+  w.pod(cg_.unconverged);
+  w.tag(detail::kTagEnd);
+}
+
+template <class T, int Dim>
+void Simulation<T, Dim>::load_state(std::string_view in, const std::string& what) {
+  detail::StateReader r(in, what);
+  detail::read_layout<T, Dim>(r, detail::kTagMpm, "MPM");
+  auto& P = particles_;
+  const Channels c = r.get<Channels>();
+  if (c.F != P.channels.F || c.J != P.channels.J || c.C != P.channels.C || c.plastic != P.channels.plastic ||
+      c.material != P.channels.material)
+    r.fail("its particles carry other channels (F, J, C, plastic, material) than this scene's materials and transfer need");
+  r.vec(P.x, -1, "x");
+  const auto n = std::int64_t(P.x.size());
+  r.vec(P.v, n, "v");
+  r.vec(P.m, n, "m");
+  r.vec(P.vol0, n, "vol0");
+  r.vec(P.F, c.F ? n : 0, "F");
+  r.vec(P.J, c.J ? n : 0, "J");
+  r.vec(P.C, c.C ? n : 0, "C");
+  r.vec(P.plastic, c.plastic ? n : 0, "plastic");
+  r.vec(P.material, c.material ? n : 0, "material");
+  r.vec(P.id, n, "id");
+  for (const auto k : P.material)
+    if (k >= materials_.size()) r.fail("a particle's material " + std::to_string(k) + " is not one of this scene's");
+  r.pod(time_);
+  r.pod(steps_);
+  r.pod(max_speed_);
+  r.pod(max_wave_speed_);
+  if (r.get<std::uint64_t>() != materials_.size()) r.fail("it has another number of materials");
+  for (auto& m : materials_) r.pod(m.wave_speed);
+  r.pod(projected_);
+  r.pod(cfl_reached_);
+  r.pod(cg_.last_iterations);
+  r.pod(cg_.last_residual);
+  r.pod(cg_.solves);
+  r.pod(cg_.iterations);
+  r.pod(cg_.unconverged);
+  r.tag(detail::kTagEnd, "end");
+  r.finish();
+  stress_.resize(P.size());
 }
 
 template <class T, int Dim>

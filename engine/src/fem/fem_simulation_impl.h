@@ -10,6 +10,7 @@
 #include <string>
 
 #include "../frame_builder.h"
+#include "../state_io.h"
 #include "slurry/engine/fem/fem_simulation.h"
 #include "slurry/engine/fem/tetgen.h"
 
@@ -129,7 +130,37 @@ T FemSimulation<T, Dim>::stable_dt() const {
 
 template <class T, int Dim>
 std::int64_t FemSimulation<T, Dim>::advance_to(double t_end) {
-  return substep_to(time_, t_end, [&] { return stable_dt(); }, [&](double dt) { step(T(dt)); }, scene_);
+  return substep_to(time_, t_end, [&] { return dt_scale_ * double(stable_dt()); }, [&](double dt) { step(T(dt)); }, scene_);
+}
+
+template <class T, int Dim>
+void FemSimulation<T, Dim>::save_state(std::string& out) const {
+  // The mesh, masses and rest quantities follow from the scene; positions and velocities of
+  // the vertices (and time, step, counters) are the state.
+  detail::StateWriter w(out);
+  detail::write_layout<T, Dim>(w, detail::kTagFem);
+  w.vec(fem_->x);
+  w.vec(fem_->v);
+  w.pod(time_);
+  w.pod(steps_);
+  w.pod(cfl_reached_);
+  w.pod(last_iterations_);
+  w.tag(detail::kTagEnd);
+}
+
+template <class T, int Dim>
+void FemSimulation<T, Dim>::load_state(std::string_view in, const std::string& what) {
+  detail::StateReader r(in, what);
+  detail::read_layout<T, Dim>(r, detail::kTagFem, "FEM");
+  const auto n = std::int64_t(fem_->vertex_count());
+  r.vec(fem_->x, n, "vertex positions");
+  r.vec(fem_->v, n, "vertex velocities");
+  r.pod(time_);
+  r.pod(steps_);
+  r.pod(cfl_reached_);
+  r.pod(last_iterations_);
+  r.tag(detail::kTagEnd, "end");
+  r.finish();
 }
 
 template <class T, int Dim>

@@ -10,6 +10,7 @@
 #include <string>
 
 #include "../frame_builder.h"
+#include "../state_io.h"
 #include "slurry/engine/flip/advection.h"
 #include "slurry/engine/flip/extrapolate.h"
 #include "slurry/engine/flip/face_transfer.h"
@@ -111,7 +112,7 @@ T FlipSimulation<T, Dim>::stable_dt() const {
 
 template <class T, int Dim>
 std::int64_t FlipSimulation<T, Dim>::advance_to(double t_end) {
-  return substep_to(time_, t_end, [&] { return stable_dt(); }, [&](double dt) { step(T(dt)); }, scene_);
+  return substep_to(time_, t_end, [&] { return dt_scale_ * double(stable_dt()); }, [&](double dt) { step(T(dt)); }, scene_);
 }
 
 template <class T, int Dim>
@@ -393,6 +394,99 @@ T FlipSimulation<T, Dim>::fluid_cell_volume() const {
   std::int64_t n = 0;
   for (auto l : grid_.label) n += l == Grid::Fluid;
   return T(n) * std::pow(grid_.dx, T(Dim));
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::save_state(std::string& out) const {
+  // Carried over between substeps: the particles in their storage order (with the next id),
+  // the emitters' generators and carried fractions, the pressure (the warm start of the next
+  // projection), and the face velocities, validity, labels and level set of the last substep.
+  // Face weights and solid velocities are rebuilt from the colliders at the next substep;
+  // sorting, transfer weights and solver work vectors are scratch.
+  slurry::detail::StateWriter w(out);
+  slurry::detail::write_layout<T, Dim>(w, slurry::detail::kTagFlip);
+  const auto& P = particles_;
+  w.pod(std::uint8_t(P.affine));
+  w.pod(std::uint8_t(P.has_material));
+  w.vec(P.x);
+  w.vec(P.v);
+  for (int d = 0; d < Dim; ++d) w.vec(P.c[std::size_t(d)]);
+  w.vec(P.material);
+  w.vec(P.id);
+  w.pod(P.next_id);
+  for (int d = 0; d < Dim; ++d) {
+    w.vec(grid_.u[std::size_t(d)]);
+    w.vec(grid_.valid[std::size_t(d)]);
+  }
+  w.vec(grid_.label);
+  w.vec(grid_.phi);
+  w.vec(grid_.pressure);
+  w.pod(std::uint64_t(emitters_.size()));
+  for (const auto& e : emitters_) {
+    w.pod(e.carry);
+    w.pod(e.emitted);
+    w.rng(e.rng);
+  }
+  w.pod(max_speed_);
+  w.pod(cfl_reached_);
+  w.pod(time_);
+  w.pod(steps_);
+  w.pod(reseed_added_);
+  w.pod(reseed_removed_);
+  const auto& lp = last_projection_;
+  w.pod(lp.iterations);
+  w.pod(lp.relative_residual);
+  w.pod(std::uint8_t(lp.converged));
+  w.pod(lp.max_divergence);
+  w.pod(lp.unknowns);
+  w.tag(slurry::detail::kTagEnd);
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::load_state(std::string_view in, const std::string& what) {
+  slurry::detail::StateReader r(in, what);
+  slurry::detail::read_layout<T, Dim>(r, slurry::detail::kTagFlip, "FLIP");
+  auto& P = particles_;
+  if (r.get<std::uint8_t>() != std::uint8_t(P.affine) || r.get<std::uint8_t>() != std::uint8_t(P.has_material))
+    r.fail("its particles carry other channels (APIC vectors, material) than this scene's transfer and materials need");
+  r.vec(P.x, -1, "x");
+  const auto n = std::int64_t(P.x.size());
+  r.vec(P.v, n, "v");
+  for (int d = 0; d < Dim; ++d) r.vec(P.c[std::size_t(d)], P.affine ? n : 0, "c");
+  r.vec(P.material, P.has_material ? n : 0, "material");
+  r.vec(P.id, n, "id");
+  r.pod(P.next_id);
+  for (const auto k : P.material)
+    if (k >= scene_.materials.size()) r.fail("a particle's material " + std::to_string(k) + " is not one of this scene's");
+  for (int d = 0; d < Dim; ++d) {
+    r.vec(grid_.u[std::size_t(d)], std::int64_t(grid_.num_faces(d)), "u");
+    r.vec(grid_.valid[std::size_t(d)], std::int64_t(grid_.num_faces(d)), "valid");
+  }
+  const auto cells = std::int64_t(grid_.num_cells());
+  r.vec(grid_.label, cells, "label");
+  r.vec(grid_.phi, cells, "phi");
+  r.vec(grid_.pressure, cells, "pressure");
+  if (r.get<std::uint64_t>() != emitters_.size()) r.fail("it has another number of emitters");
+  for (auto& e : emitters_) {
+    r.pod(e.carry);
+    r.pod(e.emitted);
+    r.rng(e.rng);
+  }
+  r.pod(max_speed_);
+  r.pod(cfl_reached_);
+  r.pod(time_);
+  r.pod(steps_);
+  r.pod(reseed_added_);
+  r.pod(reseed_removed_);
+  auto& lp = last_projection_;
+  r.pod(lp.iterations);
+  r.pod(lp.relative_residual);
+  lp.converged = r.get<std::uint8_t>() != 0;
+  r.pod(lp.max_divergence);
+  r.pod(lp.unknowns);
+  r.tag(slurry::detail::kTagEnd, "end");
+  r.finish();
+  faces_ready_ = false;  // face weights and solid velocities are rebuilt by the next substep
 }
 
 template <class T, int Dim>

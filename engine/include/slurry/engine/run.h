@@ -7,6 +7,24 @@
 /// or failed run leaves every frame it finished intact and no partial one. If the simulation
 /// becomes unstable, SimulationError is thrown after the last good frame: a frame with
 /// non-finite values is never written.
+///
+/// Checkpoints: every output.checkpoint_every frames (and never for frame 0) the run writes
+/// `<directory>/checkpoint_NNNN.slc` after frame NNNN, atomically (temporary name, fsync,
+/// rename), and keeps the last two. It holds the solver's whole state (particles with every
+/// channel in storage order, time, step counter, emitter generators, carried-over grid fields
+/// or FEM vertex state), the run's figures (frame 0's statistics, substep count), the format
+/// version, the hash of the scene file and a checksum. RunOptions::resume continues from the
+/// newest valid one: frames after it are written again, byte-identical to an uninterrupted run
+/// on any thread count; stats.csv keeps its rows up to the checkpoint. A checkpoint that is
+/// corrupt, truncated, of another format version or another solver layout is refused with a
+/// notice and the previous one is used; one written for another version of the scene file is
+/// refused (SceneError if no other fits) unless RunOptions::force.
+///
+/// solver.on_instability "retry": the state at the start of each frame is kept in memory (one
+/// copy); when the health check fires, the frame is redone from there with the substep halved,
+/// up to solver.max_retries halvings, and the next frame returns to the automatic substep. Each
+/// retry is told to RunOptions::notice. Frames before the first retry are byte-identical to
+/// those of "stop".
 #include <csignal>
 #include <cstdint>
 #include <filesystem>
@@ -36,7 +54,12 @@ struct RunOptions {
   /// Polled between substep loops and frames: when non-zero, the run stops after the frame it
   /// is writing (no partial frame) and returns with `interrupted` set to its value (a signal number).
   const volatile std::sig_atomic_t* stop = nullptr;
-  /// Told, before frame 0, what the run removed from the output directory (one line each).
+  /// Continue from the newest valid checkpoint in the output directory instead of frame 0.
+  bool resume = false;
+  /// With resume: accept a checkpoint written for another version of the scene file.
+  bool force = false;
+  /// Told what the run removed from the output directory, which checkpoint it resumes from
+  /// (and which it refused), and each retry of an unstable frame (one line each).
   std::function<void(const std::string&)> notice;
 };
 
@@ -72,12 +95,16 @@ struct RunSummary {
   int interrupted = 0;          ///< RunOptions::stop's value if the run was stopped early, else 0
   int removed_frames = 0;       ///< frames of an earlier run removed from the directory before the run
   int removed_temporaries = 0;  ///< temporary frame files of a killed run removed before the run
+  int resumed_from = -1;        ///< frame of the checkpoint the run continued from, or -1
+  int checkpoints_written = 0;
+  int retries = 0;              ///< frames redone with a halved substep (on_instability "retry")
 };
 
 /// Runs `scene` to its last frame. Throws SceneError, IoError (ResourceError) or SimulationError.
 /// Checks the scene and its resources (check_scene) before creating anything; the output
-/// directory is created just before frame 0 is written. Frames of an earlier run of the same
-/// scene (their comment names the same source) are removed first, so a sequence is never mixed;
+/// directory is created just before frame 0 is written. Frames and checkpoints of an earlier run
+/// of the same scene (their comment names the same source) are removed first, so a sequence is
+/// never mixed (with options.resume: only the frames after the checkpoint it continues from);
 /// another scene's frames are an IoError unless options.overwrite. Temporary files of a killed
 /// run (frame_NNNN.ply.tmp-PID-N whose process is gone) are removed. Besides the frames it
 /// writes `<directory>/stats.csv`, one row of RunStats per frame (stats.h), and reports drift
@@ -91,5 +118,10 @@ void check_scene(const Scene& scene, double memory_gb = 0);
 
 /// The file name of frame f: frame_NNNN.ply.
 std::filesystem::path frame_file(const std::filesystem::path& directory, int frame);
+
+/// The scene file a checkpoint in `directory` was written for, from the newest checkpoint that
+/// reads: its path as the run named it if that names the same file from the working directory
+/// (frames record it), else its absolute path; for `slurry resume DIR`. Throws IoError if none.
+std::filesystem::path checkpoint_scene(const std::filesystem::path& directory);
 
 }  // namespace slurry

@@ -48,6 +48,9 @@ enum class AdvectionScheme { Euler, Midpoint, Heun, RK3 };
 /// Preconditioner of the FLIP pressure solve (PCG).
 /// Multigrid: one V-cycle per iteration (McAdams et al. 2010), about 7 iterations at any size.
 enum class PressurePreconditioner { None, Jacobi, MIC0, Multigrid };
+/// What a run does when the health check fires (SimulationError): stop after the last good
+/// frame, or roll back to the start of the frame and redo it with the substep halved.
+enum class OnInstability { Stop, Retry };
 
 struct DomainParams {
   Eigen::Vector3d min{0, 0, 0};  ///< lower corner (m)
@@ -99,6 +102,10 @@ struct SolverParams {
   int cg_max_iterations = 500;  ///< implicit: CG iteration cap, >= 1
   /// implicit MPM: "ic0" (block Jacobi where IC(0) breaks down), "block_jacobi" or "jacobi"
   ImplicitPreconditioner implicit_preconditioner = ImplicitPreconditioner::IC0;
+  /// "stop": an unstable substep ends the run after the last good frame. "retry": the frame is
+  /// redone from its start with the substep halved, up to max_retries halvings (run.h).
+  OnInstability on_instability = OnInstability::Stop;
+  int max_retries = 3;  ///< halvings per frame for on_instability "retry", [1, 30]
 };
 
 struct MaterialParams {
@@ -181,6 +188,9 @@ struct OutputParams {
   double mass_drift = 1e-4;
   double volume_drift = 0.1;
   double energy_growth = 0.05;
+  /// A checkpoint (the full solver state, run.h) is written beside the frames every this many
+  /// frames; the last two are kept. 0 = none.
+  int checkpoint_every = 10;
 };
 
 /// Limits checked before a run allocates or steps (README, "Limits"): the estimated memory of
@@ -203,6 +213,9 @@ struct ResourceEstimate {
 
 struct Scene {
   std::string source = "<scene>";  ///< the file it came from, for messages
+  /// FNV-1a hash of the scene file's bytes (parse_scene's text; 0 for a scene built in code):
+  /// checkpoints record it, so that a changed scene is not resumed by mistake.
+  std::uint64_t source_hash = 0;
   DomainParams domain;
   SolverParams solver;
   std::vector<MaterialParams> materials;
@@ -252,5 +265,6 @@ std::string_view to_string(Integrator);
 std::string_view to_string(ImplicitPreconditioner);
 std::string_view to_string(AdvectionScheme);
 std::string_view to_string(PressurePreconditioner);
+std::string_view to_string(OnInstability);
 
 }  // namespace slurry

@@ -27,6 +27,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "slurry/engine/colliders.h"
@@ -140,6 +141,8 @@ class Simulation final : public SimulationBase {
   std::string solver_status() const override;
   RunStats take_stats() override;
   ParticleStorage particle_storage() const override;
+  void save_state(std::string& out) const override;
+  void load_state(std::string_view in, const std::string& what) override;
 
  private:
   /// Particles are re-stored in bin order every this many substeps (between, they are reached

@@ -20,6 +20,7 @@
 #include <memory>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "slurry/engine/errors.h"
@@ -102,6 +103,21 @@ class SimulationBase {
   /// Where the particle channels are now (valid until the next substep).
   virtual ParticleStorage particle_storage() const = 0;
 
+  /// Appends the state that determines every later substep to `out` (binary, this machine's
+  /// byte order): particles with every channel in their storage order, time, step counter,
+  /// emitter random generators and carried-over grid fields. A simulation built from the same
+  /// scene and given this state by load_state() takes bit-identical substeps from there on.
+  virtual void save_state(std::string& out) const = 0;
+  /// Replaces the state by one save_state() wrote (the simulation must have been built from
+  /// the same scene). Throws IoError naming `what` if the bytes are truncated or do not fit
+  /// this simulation (another solver, dimension, precision or particle layout).
+  virtual void load_state(std::string_view in, const std::string& what) = 0;
+
+  /// Scales every later substep: dt = scale x the stable substep (on_instability "retry"
+  /// halves it; 1 restores the automatic step). In (0, 1].
+  void set_dt_scale(double scale) { dt_scale_ = scale; }
+  double dt_scale() const { return dt_scale_; }
+
   /// The current particles in ascending id order, typed as the scene's precision and dimension
   /// (float or double, 2 or 3). Throws std::invalid_argument for another T or Dim.
   template <class T, int Dim>
@@ -117,6 +133,7 @@ class SimulationBase {
   }
 
  protected:
+  double dt_scale_ = 1;
   /// The storage index of each particle in ascending-id order; empty when the storage already is
   /// in that order (or has no ids).
   static std::vector<std::uint32_t> id_order(const std::uint32_t* ids, std::size_t n);

@@ -86,6 +86,8 @@ class FlipSimulation final : public SimulationBase {
   RunStats take_stats() override;
   /// position, velocity, id, material (when the scene has more than one liquid).
   ParticleStorage particle_storage() const override;
+  void save_state(std::string& out) const override;
+  void load_state(std::string_view in, const std::string& what) override;
   /// Largest particle speed after the last substep (m/s).
   T max_speed() const { return max_speed_; }
   /// Particle volume dx^Dim / particles_per_cell (the nominal seeding density).

@@ -1,0 +1,142 @@
+// Binary (de)serialisation of solver state for checkpoints and the retry snapshot
+// (SimulationBase::save_state / load_state): plain bytes in this machine's byte order, every
+// vector prefixed by its length. A checkpoint is read back by the same build on the same
+// machine; its header (run.cpp) carries a format version and a checksum.
+#pragma once
+#include <Eigen/Core>
+#include <algorithm>
+#include <cstdint>
+#include <cstring>
+#include <random>
+#include <sstream>
+#include <string>
+#include <string_view>
+#include <type_traits>
+#include <vector>
+
+#include "slurry/engine/errors.h"
+
+namespace slurry::detail {
+
+template <class V>
+inline constexpr bool kPlainBytes =
+    std::is_trivially_copyable_v<V> || std::is_base_of_v<Eigen::EigenBase<V>, V>;
+
+class StateWriter {
+ public:
+  explicit StateWriter(std::string& out) : out_(out) {}
+  /// A scalar or a fixed-size Eigen object, as its bytes.
+  template <class V>
+  void pod(const V& v) {
+    static_assert(kPlainBytes<V>);
+    out_.append(reinterpret_cast<const char*>(&v), sizeof(V));
+  }
+  template <class V>
+  void vec(const std::vector<V>& v) {
+    static_assert(kPlainBytes<V>);
+    pod(std::uint64_t(v.size()));
+    if (!v.empty()) out_.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(V));
+  }
+  void text(const std::string& s) {
+    pod(std::uint64_t(s.size()));
+    out_.append(s);
+  }
+  /// The generator's state in its standard text form (operator<<, exact for mt19937_64).
+  void rng(const std::mt19937_64& g) {
+    std::ostringstream o;
+    o << g;
+    text(o.str());
+  }
+  /// A section tag: load_state checks it, so that a layout mismatch is named, not misread.
+  void tag(std::uint32_t t) { pod(t); }
+
+ private:
+  std::string& out_;
+};
+
+class StateReader {
+ public:
+  StateReader(std::string_view in, std::string what) : in_(in), what_(std::move(what)) {}
+  template <class V>
+  void pod(V& v) {
+    static_assert(kPlainBytes<V>);
+    need(sizeof(V), "a value");
+    std::memcpy(static_cast<void*>(&v), in_.data() + at_, sizeof(V));
+    at_ += sizeof(V);
+  }
+  template <class V>
+  V get() {
+    V v{};
+    pod(v);
+    return v;
+  }
+  /// A vector; `expected` (if not -1) is the length it must have.
+  template <class V>
+  void vec(std::vector<V>& v, std::int64_t expected = -1, const char* name = "a channel") {
+    static_assert(kPlainBytes<V>);
+    const auto n = get<std::uint64_t>();
+    if (expected >= 0 && n != std::uint64_t(expected))
+      fail(std::string(name) + " has " + std::to_string(n) + " entries, expected " +
+           std::to_string(expected));
+    if (n > (in_.size() - at_) / std::max<std::size_t>(1, sizeof(V))) need(std::size_t(-1), name);
+    v.resize(std::size_t(n));
+    if (n > 0)
+      std::memcpy(static_cast<void*>(v.data()), in_.data() + at_, std::size_t(n) * sizeof(V));
+    at_ += std::size_t(n) * sizeof(V);
+  }
+  std::string text() {
+    const auto n = get<std::uint64_t>();
+    need(n, "a string");
+    std::string s(in_.substr(at_, std::size_t(n)));
+    at_ += std::size_t(n);
+    return s;
+  }
+  void rng(std::mt19937_64& g) {
+    std::istringstream i(text());
+    i >> g;
+    if (!i) fail("a random generator state does not parse");
+  }
+  void tag(std::uint32_t t, const char* name) {
+    if (get<std::uint32_t>() != t) fail(std::string("expected the ") + name + " section");
+  }
+  /// Throws unless every byte was read.
+  void finish() {
+    if (at_ != in_.size())
+      fail(std::to_string(in_.size() - at_) + " bytes left over after the state");
+  }
+  [[noreturn]] void fail(const std::string& why) const {
+    throw IoError(what_ + ": the solver state does not fit this scene: " + why);
+  }
+
+ private:
+  void need(std::size_t n, const char* name) {
+    if (n > in_.size() - at_)
+      throw IoError(what_ + ": truncated solver state (reading " + name + ")");
+  }
+  std::string_view in_;
+  std::size_t at_ = 0;
+  std::string what_;
+};
+
+/// Section tags ("MPM ", "FLIP", "FEM ") and the (Dim, sizeof T) check shared by the solvers.
+inline constexpr std::uint32_t kTagMpm = 0x204d504d, kTagFlip = 0x50494c46, kTagFem = 0x204d4546,
+                               kTagEnd = 0x20444e45;
+
+template <class T, int Dim>
+void write_layout(StateWriter& w, std::uint32_t solver) {
+  w.tag(solver);
+  w.pod(std::uint32_t(Dim));
+  w.pod(std::uint32_t(sizeof(T)));
+}
+
+template <class T, int Dim>
+void read_layout(StateReader& r, std::uint32_t solver, const char* name) {
+  r.tag(solver, name);
+  const auto dim = r.get<std::uint32_t>(), size = r.get<std::uint32_t>();
+  if (dim != std::uint32_t(Dim) || size != std::uint32_t(sizeof(T)))
+    r.fail("it was written by a " + std::to_string(dim) + "D " + (size == 4 ? "float" : "double") +
+           " simulation, this one is " + std::to_string(Dim) + "D " +
+           (sizeof(T) == 4 ? "float" : "double"));
+}
+
+}  // namespace slurry::detail
