@@ -109,4 +109,5 @@ TEST(ExtremesFlip, EmitterAtItsLimit) {
   EXPECT_LT(double(o.particles), 1.5 * 16 * 16 * 8) << "particles bounded by the box's capacity";
 }
 
+
 }  // namespace
