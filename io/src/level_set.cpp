@@ -6,6 +6,7 @@
 #include <openvdb/tools/LevelSetMeasure.h>
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/ParticlesToLevelSet.h>
+#include <openvdb/tools/Prune.h>
 #include <openvdb/tools/VolumeToMesh.h>
 
 #include <algorithm>
@@ -16,6 +17,7 @@
 
 #include "slurry/engine/errors.h"
 #include "slurry/io/surface.h"
+#include "slurry/transfer/parallel.h"
 #include "vdb_common.h"
 
 namespace slurry::io {
@@ -78,18 +80,113 @@ double LevelSet::enclosed_volume() const {
   return openvdb::tools::levelSetVolume(*impl_->grid, /*useWorldSpace=*/true);
 }
 
+namespace {
+
+/// The union of spheres by ParticlesToLevelSet.
+openvdb::FloatGrid::Ptr spheres_openvdb(const PointCloud& points, double h, double r) {
+  openvdb::FloatGrid::Ptr grid = openvdb::createLevelSet<openvdb::FloatGrid>(h, kHalfWidth);
+  openvdb::tools::ParticlesToLevelSet<openvdb::FloatGrid> raster(*grid);
+  raster.setRmin(1.5);  // OpenVDB's default, stated: r >= 1.5 voxels by construction
+  raster.rasterizeSpheres(ParticleList{points}, r);
+  raster.finalize(/*prune=*/true);
+  return grid;
+}
+
+/// The same union of spheres, voxel for voxel (ParticlesToLevelSet's makeSphere: each particle
+/// at index-space position P lowers every voxel c with |c - P| < R + w to h (|c - P| - R)), on a
+/// dense block over the particles' bounding box instead of the sparse tree: a plain float min
+/// per voxel instead of a tree probe, about 5x faster. Parallel over slabs of the block, each
+/// written by one task from the particles that reach it (race-free, independent of the thread
+/// count). Returns null when the block would exceed 2^28 voxels (then ParticlesToLevelSet runs).
+openvdb::FloatGrid::Ptr spheres_dense(const PointCloud& points, double h, double r) {
+  const double R = r / h, w = kHalfWidth, reach = R + w, reach2 = reach * reach;
+  const float background = float(w * h);
+  std::array<double, 3> lo{1e300, 1e300, 1e300}, hi{-1e300, -1e300, -1e300};
+  for (const auto& p : points.position)
+    for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], p[d] / h), hi[d] = std::max(hi[d], p[d] / h);
+  std::array<std::int64_t, 3> origin{}, n{};
+  double voxels = 1;
+  for (int d = 0; d < 3; ++d) {
+    origin[d] = std::int64_t(std::floor(lo[d] - reach));
+    n[d] = std::int64_t(std::ceil(hi[d] + reach)) - origin[d] + 1;
+    voxels *= double(n[d]);
+  }
+  if (voxels > double(1 << 28)) return nullptr;
+  std::vector<float> phi(std::size_t(voxels), background);
+  // Particles by the x column of the voxel they are in (counting sort).
+  const std::size_t columns = std::size_t(n[0]);
+  std::vector<std::uint32_t> start(columns + 1, 0), order(points.size());
+  const auto column = [&](std::size_t i) { return std::size_t(std::int64_t(std::floor(points.position[i][0] / h)) - origin[0]); };
+  for (std::size_t i = 0; i < points.size(); ++i) ++start[column(i) + 1];
+  for (std::size_t c = 0; c < columns; ++c) start[c + 1] += start[c];
+  {
+    std::vector<std::uint32_t> next(start.begin(), start.end() - 1);
+    for (std::size_t i = 0; i < points.size(); ++i) order[next[column(i)]++] = std::uint32_t(i);
+  }
+  const std::int64_t slab = 4, slabs = (n[0] + slab - 1) / slab, margin = std::int64_t(std::ceil(reach)) + 1;
+  slurry::parallel::parallel_tasks(0, slabs, [&](std::int64_t t) {
+    const std::int64_t x0 = t * slab, x1 = std::min(n[0], x0 + slab);  // block-relative x range written
+    const std::int64_t c0 = std::max<std::int64_t>(0, x0 - margin), c1 = std::min(n[0], x1 + margin);
+    for (std::uint32_t k = start[std::size_t(c0)]; k < start[std::size_t(c1)]; ++k) {
+      const auto& p = points.position[order[k]];
+      const double P[3] = {p[0] / h - double(origin[0]), p[1] / h - double(origin[1]), p[2] / h - double(origin[2])};
+      const std::int64_t ilo = std::max(x0, std::int64_t(std::floor(P[0] - reach))), ihi = std::min(x1 - 1, std::int64_t(std::ceil(P[0] + reach)));
+      const std::int64_t jlo = std::int64_t(std::floor(P[1] - reach)), jhi = std::int64_t(std::ceil(P[1] + reach));
+      const std::int64_t klo = std::int64_t(std::floor(P[2] - reach)), khi = std::int64_t(std::ceil(P[2] + reach));
+      for (std::int64_t i = ilo; i <= ihi; ++i) {
+        const double x2 = (double(i) - P[0]) * (double(i) - P[0]);
+        for (std::int64_t j = jlo; j <= jhi; ++j) {
+          const double x2y2 = x2 + (double(j) - P[1]) * (double(j) - P[1]);
+          if (x2y2 >= reach2) continue;
+          float* row = phi.data() + std::size_t((i * n[1] + j) * n[2]);
+          for (std::int64_t kk = klo; kk <= khi; ++kk) {
+            const double d2 = x2y2 + (double(kk) - P[2]) * (double(kk) - P[2]);
+            if (d2 >= reach2) continue;
+            const float v = float(h * (std::sqrt(d2) - R));
+            if (v < row[kk]) row[kk] = v;
+          }
+        }
+      }
+    }
+  });
+  openvdb::FloatGrid::Ptr grid = openvdb::createLevelSet<openvdb::FloatGrid>(h, kHalfWidth);
+  auto acc = grid->getAccessor();
+  for (std::int64_t i = 0; i < n[0]; ++i)
+    for (std::int64_t j = 0; j < n[1]; ++j) {
+      const float* row = phi.data() + std::size_t((i * n[1] + j) * n[2]);
+      for (std::int64_t k = 0; k < n[2]; ++k)
+        if (row[k] < background)
+          acc.setValue(openvdb::Coord(int(i + origin[0]), int(j + origin[1]), int(k + origin[2])), row[k]);
+    }
+  openvdb::tools::pruneLevelSet(grid->tree());
+  return grid;
+}
+
+openvdb::FloatGrid::Ptr union_grid(const PointCloud& points, double voxel_size, double radius, bool openvdb_rasterizer) {
+  if (!(voxel_size > 0) || !(radius >= 1.5 * voxel_size) || !std::isfinite(radius))
+    throw std::invalid_argument("union_of_spheres: expected a voxel size > 0 and a radius >= 1.5 voxels, got " + fmt(voxel_size) +
+                                " and " + fmt(radius));
+  if (points.size() == 0) throw std::invalid_argument("union_of_spheres: no particles to surface");
+  detail::initialize_openvdb();
+  openvdb::FloatGrid::Ptr grid;
+  if (!openvdb_rasterizer) grid = spheres_dense(points, voxel_size, radius);
+  if (!grid) grid = spheres_openvdb(points, voxel_size, radius);
+  grid->setName("surface");
+  grid->setGridClass(openvdb::GRID_LEVEL_SET);
+  return grid;
+}
+
+}  // namespace
+
+LevelSet union_of_spheres(const PointCloud& points, double voxel_size, double radius, bool openvdb_rasterizer) {
+  return LevelSet(std::make_shared<const LevelSet::Impl>(LevelSet::Impl{union_grid(points, voxel_size, radius, openvdb_rasterizer)}));
+}
+
 LevelSet particles_to_level_set(const PointCloud& points, const SurfaceParams& params) {
   params.validate();
   if (points.size() == 0) throw std::invalid_argument("particles_to_level_set: no particles to surface");
-  detail::initialize_openvdb();
-  const double h = params.voxel_size, r = params.radius();
-  openvdb::FloatGrid::Ptr grid = openvdb::createLevelSet<openvdb::FloatGrid>(h, kHalfWidth);
-  {
-    openvdb::tools::ParticlesToLevelSet<openvdb::FloatGrid> raster(*grid);
-    raster.setRmin(1.5);  // OpenVDB's default, stated: r >= 1.5 voxels by construction
-    raster.rasterizeSpheres(ParticleList{points}, r);
-    raster.finalize(/*prune=*/true);
-  }
+  const double r = params.radius();
+  openvdb::FloatGrid::Ptr grid = union_grid(points, params.voxel_size, r, false);
   openvdb::tools::LevelSetFilter<openvdb::FloatGrid> filter(*grid);
   // Closing: erode the union of spheres back to half a spacing beyond the outermost centres.
   filter.offset(float(r - 0.5 * params.spacing));

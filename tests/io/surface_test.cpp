@@ -200,6 +200,33 @@ TEST(Surface, VdbGridNamedSurfaceReadsBack) {
   fs::remove_all(dir);
 }
 
+TEST(Surface, DenseRasterizerMatchesParticlesToLevelSet) {
+  // Random particles (no lattice: every offset from the voxel centres occurs), two clusters.
+  PointCloud cloud;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (int i = 0; i < 20000; ++i) cloud.position.push_back({0.2f + 0.3f * u(rng), 0.1f + 0.5f * u(rng), 0.3f * u(rng)});
+  for (int i = 0; i < 3000; ++i) cloud.position.push_back({0.8f + 0.1f * u(rng), 0.7f + 0.1f * u(rng), 0.5f + 0.1f * u(rng)});
+  const double h = 0.02, r = 0.037;
+  const auto dense = slurry::io::union_of_spheres(cloud, h, r);
+  const auto vdb = slurry::io::union_of_spheres(cloud, h, r, /*openvdb_rasterizer=*/true);
+  ASSERT_EQ(dense.active_voxels(), vdb.active_voxels());
+  EXPECT_EQ(dense.bounding_box(), vdb.bounding_box());
+  // Values at voxel centres (trilinear sampling at a voxel centre is the voxel's value) across
+  // the whole band, equal to float round-off.
+  const auto b = vdb.bounding_box();
+  double worst = 0;
+  std::size_t compared = 0;
+  for (int i = b[0]; i <= b[3]; ++i)
+    for (int j = b[1]; j <= b[4]; j += 2)
+      for (int k = b[2]; k <= b[5]; ++k) {
+        const std::array<double, 3> x{i * h, j * h, k * h};
+        worst = std::max(worst, std::abs(dense.value(x) - vdb.value(x)));
+        ++compared;
+      }
+  EXPECT_LT(worst, 1e-6 * h) << "over " << compared << " voxels";
+}
+
 TEST(Surface, VdbPointsReadBackWithIdsVelocitiesAndRadius) {
   PointCloud cloud;
   std::mt19937 rng(7);

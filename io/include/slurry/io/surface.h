@@ -8,8 +8,8 @@
 ///
 /// Surfacing (surface_particles) follows the usual "union of spheres, then closing" recipe:
 ///  1. every particle is rasterized as a sphere of radius r = max(spacing, 1.5 voxels) into a
-///     narrow-band signed distance field (openvdb::tools::ParticlesToLevelSet; 1.5 voxels is its
-///     smallest radius, below which it skips particles);
+///     narrow-band signed distance field (what openvdb::tools::ParticlesToLevelSet computes,
+///     1.5 voxels being its smallest radius; see union_of_spheres);
 ///  2. the field is eroded by r - spacing / 2 (LevelSetFilter::offset), so the zero level lies
 ///     half a particle spacing beyond the outermost particle centres, where the sampled liquid
 ///     ends (each particle stands for a cube of side `spacing`); with step 1 this is a
@@ -95,6 +95,12 @@ struct Surface {
   TriangleMesh mesh;
 };
 
+/// Step 1 alone: the union of spheres of `radius` (>= 1.5 voxels) as a narrow-band level set of
+/// half-width 3 voxels. By default computed on a dense block of voxels over the particles, with
+/// the values ParticlesToLevelSet::rasterizeSpheres computes (voxel for voxel, tested) about 5x
+/// faster; by ParticlesToLevelSet itself with `openvdb_rasterizer`, or when the block would
+/// exceed 2^28 voxels.
+LevelSet union_of_spheres(const PointCloud& points, double voxel_size, double radius, bool openvdb_rasterizer = false);
 /// Steps 1-3 above. Throws std::invalid_argument for invalid parameters or no particles.
 LevelSet particles_to_level_set(const PointCloud& points, const SurfaceParams& params);
 /// Step 4 above, with velocities from `points` (step 5) when it has them.
