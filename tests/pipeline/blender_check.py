@@ -42,6 +42,20 @@ def new_objects(before):
     return [o for o in bpy.context.scene.objects if o.name not in before]
 
 
+def material(name, colour, roughness):
+    """A material of one Principled BSDF (nodes made here: the empty factory startup has no defaults)."""
+    m = bpy.data.materials.new(name)
+    m.use_nodes = True
+    nodes = m.node_tree.nodes
+    nodes.clear()
+    bsdf = nodes.new("ShaderNodeBsdfPrincipled")
+    bsdf.inputs["Base Color"].default_value = colour
+    bsdf.inputs["Roughness"].default_value = roughness
+    out = nodes.new("ShaderNodeOutputMaterial")
+    m.node_tree.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
+    return m
+
+
 def main():
     argv = sys.argv[sys.argv.index("--") + 1:]
     directory, frame, out_png = argv[0], int(argv[1]), argv[2]
@@ -120,12 +134,7 @@ def main():
     scene.render.resolution_percentage = 100
     scene.render.filepath = out_png
     scene.render.image_settings.file_format = "PNG"
-    water = bpy.data.materials.new("water")
-    water.use_nodes = True
-    bsdf = water.node_tree.nodes["Principled BSDF"]
-    bsdf.inputs["Base Color"].default_value = (0.15, 0.45, 0.85, 1.0)
-    bsdf.inputs["Roughness"].default_value = 0.15
-    mesh.materials.append(water)
+    mesh.materials.append(material("water", (0.15, 0.45, 0.85, 1.0), 0.15))
     for p in mesh.polygons:
         p.use_smooth = True
     points.hide_render = True
@@ -137,10 +146,7 @@ def main():
     size = max(b - a for a, b in zip(lo, hi))
     target = (centre[0], -centre[2], centre[1])  # (x, y, z) -> (x, -z, y) by the rotation above
     bpy.ops.mesh.primitive_plane_add(size=20 * size, location=(target[0], target[1], lo[1]))
-    floor = bpy.data.materials.new("floor")
-    floor.use_nodes = True
-    floor.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.8, 0.8, 0.75, 1.0)
-    bpy.context.object.data.materials.append(floor)
+    bpy.context.object.data.materials.append(material("floor", (0.8, 0.8, 0.75, 1.0), 0.6))
     cam_data = bpy.data.cameras.new("camera")
     cam = bpy.data.objects.new("camera", cam_data)
     scene.collection.objects.link(cam)
@@ -155,7 +161,11 @@ def main():
     scene.collection.objects.link(sun)
     world = bpy.data.worlds.new("world")
     world.use_nodes = True
-    world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.6, 0.7, 0.85, 1.0)
+    world.node_tree.nodes.clear()
+    background = world.node_tree.nodes.new("ShaderNodeBackground")
+    background.inputs["Color"].default_value = (0.6, 0.7, 0.85, 1.0)
+    world_out = world.node_tree.nodes.new("ShaderNodeOutputWorld")
+    world.node_tree.links.new(background.outputs["Background"], world_out.inputs["Surface"])
     scene.world = world
     bpy.ops.render.render(write_still=True)
     expect(os.path.getsize(out_png) > 1000, f"rendered {out_png} ({os.path.getsize(out_png)} bytes)")
