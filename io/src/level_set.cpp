@@ -98,8 +98,8 @@ openvdb::FloatGrid::Ptr spheres_openvdb(const PointCloud& points, double h, doub
 /// per voxel instead of a tree probe, about 5x faster. Parallel over slabs of the block, each
 /// written by one task from the particles that reach it (race-free, independent of the thread
 /// count). Returns null when the block would exceed 2^28 voxels (then ParticlesToLevelSet runs).
-openvdb::FloatGrid::Ptr spheres_dense(const PointCloud& points, double h, double r, double outside) {
-  const double R = r / h, w = kHalfWidth, reach = R + outside, reach2 = reach * reach;
+openvdb::FloatGrid::Ptr spheres_dense(const PointCloud& points, double h, double r, double outside, bool interior_off) {
+  const double R = r / h, w = kHalfWidth, reach = R + outside, reach_all = reach, reach2_all = reach * reach;
   const float background = float(w * h);
   std::array<double, 3> lo{1e300, 1e300, 1e300}, hi{-1e300, -1e300, -1e300};
   for (const auto& p : points.position)
@@ -123,6 +123,53 @@ openvdb::FloatGrid::Ptr spheres_dense(const PointCloud& points, double h, double
     std::vector<std::uint32_t> next(start.begin(), start.end() - 1);
     for (std::size_t i = 0; i < points.size(); ++i) order[next[column(i)]++] = std::uint32_t(i);
   }
+  // Deep particles: the voxel nearest to them (round(P)) and every voxel within K = ceil(reach +
+  // 1/2) of it (Chebyshev distance) hold a particle. A voxel centre x within `reach` of a deep
+  // particle p lies within K of p's voxel, so its own voxel holds a particle q with
+  // |x - q| <= sqrt(3)/2; p can be x's nearest particle only if |x - p| <= sqrt(3)/2. Deep
+  // particles are therefore rasterized to `near` = 1 voxel only, and every value stays exact
+  // (the interior of a liquid at 8 particles per cell is most of it).
+  const double near = 1.0, near2 = near * near;
+  const std::int64_t K = std::int64_t(std::ceil(reach + 0.5));
+  const auto at = [&](std::int64_t i, std::int64_t j, std::int64_t k) { return std::size_t((i * n[1] + j) * n[2] + k); };
+  std::vector<std::uint8_t> deep(phi.size(), 0);
+  {
+    for (const auto& p : points.position)
+      deep[at(std::int64_t(std::lround(p[0] / h)) - origin[0], std::int64_t(std::lround(p[1] / h)) - origin[1],
+              std::int64_t(std::lround(p[2] / h)) - origin[2])] = 1;
+  }
+  // Erosion by a (2E+1)^3 box, one axis at a time: a voxel stays if the run of occupied voxels
+  // through it along the axis reaches E either side.
+  const auto erode = [&](std::vector<std::uint8_t>& mask, std::int64_t E) {
+    std::vector<std::uint8_t> tmp(mask.size());
+    const std::int64_t stride[3] = {n[1] * n[2], n[2], 1};
+    for (int axis = 0; axis < 3; ++axis) {
+      tmp = mask;
+      const std::int64_t len = n[axis], s = stride[axis];
+      for (std::size_t base = 0; base < mask.size(); ++base) {
+        if ((std::int64_t(base) / s) % len != 0) continue;  // each line once, from its first voxel
+        std::int64_t run_start = -1;
+        for (std::int64_t q = 0; q <= len; ++q) {
+          const bool on = q < len && tmp[std::size_t(std::int64_t(base) + q * s)];
+          if (on && run_start < 0) run_start = q;
+          if (!on && run_start >= 0) {
+            for (std::int64_t m = run_start; m < q; ++m)
+              mask[std::size_t(std::int64_t(base) + m * s)] = (m - run_start >= E && q - 1 - m >= E) ? 1 : 0;
+            run_start = -1;
+          }
+        }
+      }
+    }
+  };
+  erode(deep, K);
+  // Voxels two further in (at least 6.5 voxels inside the union, 5 inside the closed surface)
+  // lie beyond the band of the closed surface: with `interior_off` they are left inactive and
+  // inside, as in any narrow-band level set, so that the filters skip them.
+  std::vector<std::uint8_t> interior;
+  if (interior_off) {
+    interior = deep;
+    erode(interior, 2);
+  }
   const std::int64_t slab = 4, slabs = (n[0] + slab - 1) / slab, margin = std::int64_t(std::ceil(reach)) + 1;
   slurry::parallel::parallel_tasks(0, slabs, [&](std::int64_t t) {
     const std::int64_t x0 = t * slab, x1 = std::min(n[0], x0 + slab);  // block-relative x range written
@@ -130,18 +177,21 @@ openvdb::FloatGrid::Ptr spheres_dense(const PointCloud& points, double h, double
     for (std::uint32_t k = start[std::size_t(c0)]; k < start[std::size_t(c1)]; ++k) {
       const auto& p = points.position[order[k]];
       const double P[3] = {p[0] / h - double(origin[0]), p[1] / h - double(origin[1]), p[2] / h - double(origin[2])};
-      const std::int64_t ilo = std::max(x0, std::int64_t(std::floor(P[0] - reach))), ihi = std::min(x1 - 1, std::int64_t(std::ceil(P[0] + reach)));
-      const std::int64_t jlo = std::int64_t(std::floor(P[1] - reach)), jhi = std::int64_t(std::ceil(P[1] + reach));
-      const std::int64_t klo = std::int64_t(std::floor(P[2] - reach)), khi = std::int64_t(std::ceil(P[2] + reach));
+      const bool is_deep = deep[at(std::int64_t(std::lround(p[0] / h)) - origin[0], std::int64_t(std::lround(p[1] / h)) - origin[1],
+                                   std::int64_t(std::lround(p[2] / h)) - origin[2])] != 0;
+      const double pr = is_deep ? near : reach_all, pr2 = is_deep ? near2 : reach2_all;
+      const std::int64_t ilo = std::max(x0, std::int64_t(std::floor(P[0] - pr))), ihi = std::min(x1 - 1, std::int64_t(std::ceil(P[0] + pr)));
+      const std::int64_t jlo = std::int64_t(std::floor(P[1] - pr)), jhi = std::int64_t(std::ceil(P[1] + pr));
+      const std::int64_t klo = std::int64_t(std::floor(P[2] - pr)), khi = std::int64_t(std::ceil(P[2] + pr));
       for (std::int64_t i = ilo; i <= ihi; ++i) {
         const double x2 = (double(i) - P[0]) * (double(i) - P[0]);
         for (std::int64_t j = jlo; j <= jhi; ++j) {
           const double x2y2 = x2 + (double(j) - P[1]) * (double(j) - P[1]);
-          if (x2y2 >= reach2) continue;
+          if (x2y2 >= pr2) continue;
           float* row = phi.data() + std::size_t((i * n[1] + j) * n[2]);
           for (std::int64_t kk = klo; kk <= khi; ++kk) {
             const double d2 = x2y2 + (double(kk) - P[2]) * (double(kk) - P[2]);
-            if (d2 >= reach2) continue;
+            if (d2 >= pr2) continue;
             const float v = float(h * (std::sqrt(d2) - R));
             if (v < row[kk]) row[kk] = v;
           }
@@ -155,7 +205,9 @@ openvdb::FloatGrid::Ptr spheres_dense(const PointCloud& points, double h, double
     for (std::int64_t j = 0; j < n[1]; ++j) {
       const float* row = phi.data() + std::size_t((i * n[1] + j) * n[2]);
       for (std::int64_t k = 0; k < n[2]; ++k)
-        if (row[k] < background)
+        if (interior_off && interior[at(i, j, k)])
+          acc.setValueOff(openvdb::Coord(int(i + origin[0]), int(j + origin[1]), int(k + origin[2])), -background);
+        else if (row[k] < background)
           acc.setValue(openvdb::Coord(int(i + origin[0]), int(j + origin[1]), int(k + origin[2])), row[k]);
     }
   openvdb::tools::pruneLevelSet(grid->tree());
@@ -172,7 +224,7 @@ openvdb::FloatGrid::Ptr union_grid(const PointCloud& points, double voxel_size, 
   if (points.size() == 0) throw std::invalid_argument("union_of_spheres: no particles to surface");
   detail::initialize_openvdb();
   openvdb::FloatGrid::Ptr grid;
-  if (!openvdb_rasterizer) grid = spheres_dense(points, voxel_size, radius, outside);
+  if (!openvdb_rasterizer) grid = spheres_dense(points, voxel_size, radius, outside, outside < kHalfWidth);
   if (!grid) grid = spheres_openvdb(points, voxel_size, radius);
   grid->setName("surface");
   grid->setGridClass(openvdb::GRID_LEVEL_SET);

@@ -201,12 +201,15 @@ TEST(Surface, VdbGridNamedSurfaceReadsBack) {
 }
 
 TEST(Surface, DenseRasterizerMatchesParticlesToLevelSet) {
-  // Random particles (no lattice: every offset from the voxel centres occurs), two clusters.
+  // Random particles (no lattice: every offset from the voxel centres occurs): a sparse cluster
+  // with empty voxels inside, a small one, and a dense block (8 per voxel) whose interior takes
+  // the rasterizer's short cut for deep particles.
   PointCloud cloud;
   std::mt19937 rng(3);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   for (int i = 0; i < 20000; ++i) cloud.position.push_back({0.2f + 0.3f * u(rng), 0.1f + 0.5f * u(rng), 0.3f * u(rng)});
   for (int i = 0; i < 3000; ++i) cloud.position.push_back({0.8f + 0.1f * u(rng), 0.7f + 0.1f * u(rng), 0.5f + 0.1f * u(rng)});
+  for (int i = 0; i < 64000; ++i) cloud.position.push_back({1.0f + 0.4f * u(rng), 0.2f + 0.4f * u(rng), 0.6f + 0.4f * u(rng)});
   const double h = 0.02, r = 0.037;
   const auto dense = slurry::io::union_of_spheres(cloud, h, r);
   const auto vdb = slurry::io::union_of_spheres(cloud, h, r, /*openvdb_rasterizer=*/true);
