@@ -1,12 +1,12 @@
 // The effects-pipeline part of the slurry CLI (pipeline.h).
 #include "pipeline.h"
 
+#include <unistd.h>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <sstream>
 #include <thread>
-#include <unistd.h>
 
 #include "slurry/engine/errors.h"
 #include "slurry/io/pipeline.h"
@@ -42,7 +42,8 @@ int integer(const std::string& option, const std::string& text, int lo, int hi) 
     end = 0;
   }
   if (end == 0 || end != text.size() || v < lo || v > hi)
-    throw Usage(option + ": expected an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "], got \"" + text + "\"");
+    throw Usage(option + ": expected an integer in [" + std::to_string(lo) + ", " +
+                std::to_string(hi) + "], got \"" + text + "\"");
   return int(v);
 }
 
@@ -64,14 +65,23 @@ std::string seconds(double s) {
 }  // namespace
 
 void add_surface_command(CLI::App& app, SurfaceCommand& c) {
-  c.app = app.add_subcommand("surface", "Surface a PLY frame sequence already written: level sets (.vdb) and meshes (.ply, .obj)");
-  c.app->add_option("dir", c.dir, "Directory of frame_NNNN.ply files (the outputs go beside them)")->required();
-  c.app->add_option("--scene", c.scene, "Scene of the frames: its domain.dx, particles_per_cell and output.surface_* settings "
-                                        "(default: the scene named in the frames)");
-  c.app->add_option("--voxel-size", c.voxel_size, "Level-set voxel size in m (default: the scene's domain.dx)");
-  c.app->add_option("--spacing", c.spacing, "Particle spacing in m (default: dx / particles_per_cell^(1/3))");
-  c.app->add_option("--smoothing", c.smoothing, "Gaussian smoothing passes (default: output.surface_smoothing, 2)");
-  c.app->add_option("--formats", c.formats, "Comma-separated surface formats: vdb, ply, obj (default: all three)");
+  c.app = app.add_subcommand(
+      "surface",
+      "Surface a PLY frame sequence already written: level sets (.vdb) and meshes (.ply, .obj)");
+  c.app->add_option("dir", c.dir, "Directory of frame_NNNN.ply files (the outputs go beside them)")
+      ->required();
+  c.app->add_option(
+      "--scene", c.scene,
+      "Scene of the frames: its domain.dx, particles_per_cell and output.surface_* settings "
+      "(default: the scene named in the frames)");
+  c.app->add_option("--voxel-size", c.voxel_size,
+                    "Level-set voxel size in m (default: the scene's domain.dx)");
+  c.app->add_option("--spacing", c.spacing,
+                    "Particle spacing in m (default: dx / particles_per_cell^(1/3))");
+  c.app->add_option("--smoothing", c.smoothing,
+                    "Gaussian smoothing passes (default: output.surface_smoothing, 2)");
+  c.app->add_option("--formats", c.formats,
+                    "Comma-separated surface formats: vdb, ply, obj (default: all three)");
   c.app->add_flag("--points", c.points, "Also write OpenVDB points (points_NNNN.vdb)");
   c.app->add_option("--threads,-t", c.threads, "Worker threads (0 = all cores)");
   c.app->add_flag("--quiet,-q", c.quiet, "No progress output");
@@ -82,10 +92,15 @@ int run_surface_command(const SurfaceCommand& c) {
     io::FrameOutputs out;
     std::istringstream formats(c.formats);
     for (std::string f; std::getline(formats, f, ',');) {
-      if (f == "vdb") out.vdb = true;
-      else if (f == "ply") out.ply = true;
-      else if (f == "obj") out.obj = true;
-      else throw Usage("--formats: expected a comma-separated list of vdb, ply, obj, got \"" + c.formats + "\"");
+      if (f == "vdb")
+        out.vdb = true;
+      else if (f == "ply")
+        out.ply = true;
+      else if (f == "obj")
+        out.obj = true;
+      else
+        throw Usage("--formats: expected a comma-separated list of vdb, ply, obj, got \"" +
+                    c.formats + "\"");
     }
     out.vdb_points = c.points;
     if (!out.any()) throw Usage("--formats: expected at least one of vdb, ply, obj (or --points)");
@@ -97,14 +112,16 @@ int run_surface_command(const SurfaceCommand& c) {
 
     const auto frames = io::find_frames(c.dir);
     if (frames.empty()) throw IoError(c.dir + ": no frame_NNNN.ply files in it");
-    // The scene: given, or named by the first frame (relative to the working directory, as run wrote it).
+    // The scene: given, or named by the first frame (relative to the working directory, as run
+    // wrote it).
     std::string scene_path = c.scene;
     if (scene_path.empty() && (voxel == 0 || spacing == 0)) {
       scene_path = frame_source(io::read_ply(frames.front().second));
       std::error_code ec;
       if (scene_path.empty() || !fs::is_regular_file(scene_path, ec))
-        throw Usage(frames.front().second.string() + " names the scene \"" + scene_path +
-                    "\", which is not a file here: pass --scene SCENE.json, or --voxel-size and --spacing");
+        throw Usage(
+            frames.front().second.string() + " names the scene \"" + scene_path +
+            "\", which is not a file here: pass --scene SCENE.json, or --voxel-size and --spacing");
     }
     if (!scene_path.empty()) {
       const Scene scene = load_scene(scene_path);
@@ -125,8 +142,11 @@ int run_surface_command(const SurfaceCommand& c) {
     const io::ThreadLimit limit(threads);
     const bool tty = isatty(fileno(stderr)) != 0;
     if (!c.quiet)
-      std::fprintf(stderr, "slurry: surfacing %zu frames in %s: voxel %.4g m, particle spacing %.4g m, radius %.4g m, %d smoothing passes\n",
-                   frames.size(), c.dir.c_str(), out.params.voxel_size, out.params.spacing, out.params.radius(), out.params.smoothing);
+      std::fprintf(stderr,
+                   "slurry: surfacing %zu frames in %s: voxel %.4g m, particle spacing %.4g m, "
+                   "radius %.4g m, %d smoothing passes\n",
+                   frames.size(), c.dir.c_str(), out.params.voxel_size, out.params.spacing,
+                   out.params.radius(), out.params.smoothing);
     const auto start = std::chrono::steady_clock::now();
     std::size_t files = 0;
     for (std::size_t i = 0; i < frames.size(); ++i) {
@@ -143,17 +163,23 @@ int run_surface_command(const SurfaceCommand& c) {
         const int width = 30, filled = int(width * (i + 1) / frames.size());
         std::string bar(std::size_t(filled), '#');
         bar.resize(width, '.');
-        std::fprintf(stderr, "\r[%s] frame %zu/%zu  %.2f s/frame  ETA %s   ", bar.c_str(), i + 1, frames.size(), took, seconds(eta).c_str());
+        std::fprintf(stderr, "\r[%s] frame %zu/%zu  %.2f s/frame  ETA %s   ", bar.c_str(), i + 1,
+                     frames.size(), took, seconds(eta).c_str());
         if (i + 1 == frames.size()) std::fputc('\n', stderr);
       } else {
-        std::fprintf(stderr, "frame %d: %zu particles -> %zu vertices, %zu triangles, %zu voxels; surfacing %.3f s, writing %.3f s, "
-                     "frame %.3f s\n", frames[i].first, frame.element("vertex").count, r.vertices, r.triangles, r.voxels,
-                     r.surface_seconds, r.write_seconds, took);
+        std::fprintf(stderr,
+                     "frame %d: %zu particles -> %zu vertices, %zu triangles, %zu voxels; "
+                     "surfacing %.3f s, writing %.3f s, "
+                     "frame %.3f s\n",
+                     frames[i].first, frame.element("vertex").count, r.vertices, r.triangles,
+                     r.voxels, r.surface_seconds, r.write_seconds, took);
       }
       std::fflush(stderr);
     }
-    const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    std::printf("done: %zu frames surfaced in %s, %zu files written to %s\n", frames.size(), seconds(total).c_str(), files, c.dir.c_str());
+    const double total =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    std::printf("done: %zu frames surfaced in %s, %zu files written to %s\n", frames.size(),
+                seconds(total).c_str(), files, c.dir.c_str());
     return 0;
   } catch (const Usage& e) {
     std::fprintf(stderr, "slurry: error: %s\n", e.what());
@@ -177,16 +203,20 @@ FrameOutputWriter::FrameOutputWriter(const Scene& scene) {
   state_ = std::move(s);
 }
 
-bool FrameOutputWriter::active() const { return state_->outputs.any(); }
+bool FrameOutputWriter::active() const {
+  return state_->outputs.any();
+}
 
 std::string FrameOutputWriter::operator()(const FrameReport& r) const {
   if (!active()) return "";
   const io::PlyData frame = io::read_ply(r.file);
   const auto t0 = std::chrono::steady_clock::now();
-  const io::FrameOutputReport out = io::write_frame_outputs(frame, r.frame, r.file.parent_path(), state_->outputs);
+  const io::FrameOutputReport out =
+      io::write_frame_outputs(frame, r.frame, r.file.parent_path(), state_->outputs);
   const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   char line[160];
-  std::snprintf(line, sizeof line, "%zu pipeline files (%zu vertices, %zu voxels), surfacing %.2f s, in all %.2f s",
+  std::snprintf(line, sizeof line,
+                "%zu pipeline files (%zu vertices, %zu voxels), surfacing %.2f s, in all %.2f s",
                 out.files.size(), out.vertices, out.voxels, out.surface_seconds, took);
   return line;
 }

@@ -1,12 +1,12 @@
 // The OpenVDB-free half of slurry::io (surface.h): particle frames to point clouds, per-vertex
 // velocities, PLY and OBJ mesh files.
+#include <unistd.h>
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <limits>
 #include <numeric>
-#include <unistd.h>
 
 #include "slurry/engine/errors.h"
 #include "slurry/io/surface.h"
@@ -38,16 +38,16 @@ PointCloud point_cloud(const PlyData& frame, int material) {
     if (has_v) c.velocity.push_back({vx[i], vy[i], vz[i]});
     if (!id.empty()) {
       if (!(id[i] >= 0 && id[i] <= double(std::numeric_limits<std::uint32_t>::max())))
-        throw IoError(frame.source.string() + ": vertex " + std::to_string(i) + ": id " + std::to_string(id[i]) +
-                      " is not an unsigned 32-bit integer");
+        throw IoError(frame.source.string() + ": vertex " + std::to_string(i) + ": id " +
+                      std::to_string(id[i]) + " is not an unsigned 32-bit integer");
       c.id.push_back(std::uint32_t(id[i]));
     }
   }
   return c;
 }
 
-std::vector<std::array<float, 3>> sample_velocities(const std::vector<std::array<float, 3>>& vertices,
-                                                     const PointCloud& points, double spacing) {
+std::vector<std::array<float, 3>> sample_velocities(
+    const std::vector<std::array<float, 3>>& vertices, const PointCloud& points, double spacing) {
   const std::size_t n = points.size();
   std::vector<std::array<float, 3>> out(vertices.size(), {0.0f, 0.0f, 0.0f});
   if (n == 0 || points.velocity.size() != n) return out;
@@ -63,7 +63,9 @@ std::vector<std::array<float, 3>> sample_velocities(const std::vector<std::array
   const auto cell_of = [&](const std::array<float, 3>& p, std::array<std::int64_t, 3>& c) {
     for (int d = 0; d < 3; ++d) c[d] = std::int64_t(std::floor((p[d] - lo[d]) / h));
   };
-  const auto key = [&](const std::array<std::int64_t, 3>& c) { return (c[0] * dims[1] + c[1]) * dims[2] + c[2]; };
+  const auto key = [&](const std::array<std::int64_t, 3>& c) {
+    return (c[0] * dims[1] + c[1]) * dims[2] + c[2];
+  };
   std::vector<std::pair<std::int64_t, std::uint32_t>> sorted(n);
   for (std::size_t i = 0; i < n; ++i) {
     std::array<std::int64_t, 3> c;
@@ -83,14 +85,16 @@ std::vector<std::array<float, 3>> sample_velocities(const std::vector<std::array
         for (std::int64_t e = c[2] - 1; e <= c[2] + 1; ++e) {
           if (a < 0 || b < 0 || e < 0 || a >= dims[0] || b >= dims[1] || e >= dims[2]) continue;
           const std::int64_t k = key({a, b, e});
-          auto it = std::lower_bound(sorted.begin(), sorted.end(), std::make_pair(k, std::uint32_t(0)));
+          auto it =
+              std::lower_bound(sorted.begin(), sorted.end(), std::make_pair(k, std::uint32_t(0)));
           for (; it != sorted.end() && it->first == k; ++it) {
             const auto& p = points.position[it->second];
             const double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
             const double r2 = dx * dx + dy * dy + dz * dz;
             if (r2 < nearest) nearest = r2, nearest_index = it->second;
             if (r2 >= h * h) continue;
-            const double s = 1 - r2 / (h * h), w = s * s * s;  // poly6 (Mueller et al. 2003, eq. 20), unnormalized
+            const double s = 1 - r2 / (h * h),
+                         w = s * s * s;  // poly6 (Mueller et al. 2003, eq. 20), unnormalized
             w_sum += w;
             for (int d = 0; d < 3; ++d) u[d] += w * points.velocity[it->second][d];
           }
@@ -100,12 +104,14 @@ std::vector<std::array<float, 3>> sample_velocities(const std::vector<std::array
       for (int d = 0; d < 3; ++d) o[d] = float(u[d] / w_sum);
     } else if (nearest < 1e300) {
       o = points.velocity[nearest_index];
-    } else {  // no particle within 1.5 h: the closest one of all (rare; closing keeps vertices near particles)
+    } else {  // no particle within 1.5 h: the closest one of all (rare; closing keeps vertices near
+              // particles)
       std::size_t best = 0;
       double best_r2 = 1e300;
       for (std::size_t i = 0; i < n; ++i) {
         const auto& p = points.position[i];
-        const double r2 = (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]) + (p[2] - q[2]) * (p[2] - q[2]);
+        const double r2 = (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]) +
+                          (p[2] - q[2]) * (p[2] - q[2]);
         if (r2 < best_r2) best_r2 = r2, best = i;
       }
       o = points.velocity[best];
@@ -116,8 +122,8 @@ std::vector<std::array<float, 3>> sample_velocities(const std::vector<std::array
 
 void write_mesh_ply(const std::filesystem::path& path, const TriangleMesh& mesh, PlyFormat format) {
   if (!mesh.velocities.empty() && mesh.velocities.size() != mesh.vertices.size())
-    throw IoError(path.string() + ": " + std::to_string(mesh.velocities.size()) + " velocities for " +
-                  std::to_string(mesh.vertices.size()) + " vertices");
+    throw IoError(path.string() + ": " + std::to_string(mesh.velocities.size()) +
+                  " velocities for " + std::to_string(mesh.vertices.size()) + " vertices");
   PlyData data;
   data.comments.push_back("slurry surface mesh");
   PlyElement& v = data.elements.emplace_back();
@@ -153,10 +159,12 @@ void write_mesh_obj(const std::filesystem::path& path, const TriangleMesh& mesh)
   {
     std::FILE* f = std::fopen(tmp.c_str(), "wb");
     if (!f) throw IoError(path.string() + ": cannot create the temporary file " + tmp.string());
-    std::fprintf(f, "# slurry surface mesh: %zu vertices, %zu triangles\n", mesh.vertices.size(), mesh.triangles.size());
+    std::fprintf(f, "# slurry surface mesh: %zu vertices, %zu triangles\n", mesh.vertices.size(),
+                 mesh.triangles.size());
     // %.9g prints a float with enough digits to read back to the same bits.
     for (const auto& p : mesh.vertices) std::fprintf(f, "v %.9g %.9g %.9g\n", p[0], p[1], p[2]);
-    for (const auto& t : mesh.triangles) std::fprintf(f, "f %d %d %d\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    for (const auto& t : mesh.triangles)
+      std::fprintf(f, "f %d %d %d\n", t[0] + 1, t[1] + 1, t[2] + 1);
     const bool ok = std::ferror(f) == 0;
     if (std::fclose(f) != 0 || !ok) {
       std::error_code ec;

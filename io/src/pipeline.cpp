@@ -40,7 +40,8 @@ FrameOutputs frame_outputs(const Scene& scene) {
   // them if it has none: a surface of snow or sand is asked for as well).
   std::vector<int> liquid;
   for (std::size_t m = 0; m < scene.materials.size(); ++m)
-    if (scene.solver.type == SolverType::FLIP || scene.materials[m].model == ElasticModel::Fluid) liquid.push_back(int(m));
+    if (scene.solver.type == SolverType::FLIP || scene.materials[m].model == ElasticModel::Fluid)
+      liquid.push_back(int(m));
   if (liquid.empty())
     for (std::size_t m = 0; m < scene.materials.size(); ++m) liquid.push_back(int(m));
   out.groups.clear();
@@ -64,7 +65,8 @@ fs::path numbered(const fs::path& dir, const std::string& stem, int index, const
 
 }  // namespace
 
-FrameOutputReport write_frame_outputs(const PlyData& frame, int index, const fs::path& dir, const FrameOutputs& outputs) {
+FrameOutputReport write_frame_outputs(const PlyData& frame, int index, const fs::path& dir,
+                                      const FrameOutputs& outputs) {
   FrameOutputReport report;
   if (outputs.vdb_points) {
     const PointCloud all = point_cloud(frame);
@@ -106,7 +108,8 @@ FrameOutputReport write_frame_outputs(const PlyData& frame, int index, const fs:
       write_mesh_obj(report.files.back(), s.mesh);
     }
     report.surface_seconds += std::chrono::duration<double>(t1 - t0).count();
-    report.write_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+    report.write_seconds +=
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
     report.vertices += s.mesh.vertices.size();
     report.triangles += s.mesh.triangles.size();
     report.voxels += s.level_set.active_voxels();
@@ -116,7 +119,8 @@ FrameOutputReport write_frame_outputs(const PlyData& frame, int index, const fs:
 
 std::vector<std::pair<int, fs::path>> find_frames(const fs::path& dir) {
   std::error_code ec;
-  if (!fs::is_directory(dir, ec)) throw IoError(dir.string() + ": expected a directory of frame_NNNN.ply files, it is none");
+  if (!fs::is_directory(dir, ec))
+    throw IoError(dir.string() + ": expected a directory of frame_NNNN.ply files, it is none");
   static const std::regex frame(R"(frame_(\d{4,})\.ply)");
   std::vector<std::pair<int, fs::path>> frames;
   for (const auto& e : fs::directory_iterator(dir, ec)) {
@@ -133,7 +137,8 @@ struct ThreadLimit::Impl {
   std::unique_ptr<tbb::global_control> tbb;
   slurry::parallel::ThreadLimit slurry;
   explicit Impl(int threads)
-      : tbb(threads > 0 ? std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, std::size_t(threads))
+      : tbb(threads > 0 ? std::make_unique<tbb::global_control>(
+                              tbb::global_control::max_allowed_parallelism, std::size_t(threads))
                         : nullptr),
         slurry(threads) {}
 };

@@ -46,14 +46,17 @@ double signed_volume(const TriangleMesh& m) {
     const auto& a = m.vertices[std::size_t(t[0])];
     const auto& b = m.vertices[std::size_t(t[1])];
     const auto& c = m.vertices[std::size_t(t[2])];
-    v += (double(a[0]) * (double(b[1]) * c[2] - double(b[2]) * c[1]) - double(a[1]) * (double(b[0]) * c[2] - double(b[2]) * c[0]) +
-          double(a[2]) * (double(b[0]) * c[1] - double(b[1]) * c[0])) / 6;
+    v += (double(a[0]) * (double(b[1]) * c[2] - double(b[2]) * c[1]) -
+          double(a[1]) * (double(b[0]) * c[2] - double(b[2]) * c[0]) +
+          double(a[2]) * (double(b[0]) * c[1] - double(b[1]) * c[0])) /
+         6;
   }
   return v;
 }
 
 fs::path temp_dir(const std::string& name) {
-  const fs::path d = fs::temp_directory_path() / ("slurry_io_test_" + name + "_" + std::to_string(::getpid()));
+  const fs::path d =
+      fs::temp_directory_path() / ("slurry_io_test_" + name + "_" + std::to_string(::getpid()));
   fs::remove_all(d);
   fs::create_directories(d);
   return d;
@@ -103,9 +106,12 @@ TEST(Surface, UnsmoothedSphereEnclosesTheSampledVolumeAndRadius) {
   EXPECT_NEAR(mean_radius(surface.mesh, sc.c), sc.R, 0.05 * sc.dx);
   double worst = 0;
   for (const auto& v : surface.mesh.vertices)
-    worst = std::max(worst, std::abs(std::hypot(v[0] - sc.c[0], v[1] - sc.c[1], v[2] - sc.c[2]) - sc.R));
-  std::printf("unsmoothed: volume / exact %.4f, mean radius - R %.3f voxel, worst vertex %.3f voxel\n",
-              signed_volume(surface.mesh) / exact, (mean_radius(surface.mesh, sc.c) - sc.R) / sc.dx, worst / sc.dx);
+    worst = std::max(worst,
+                     std::abs(std::hypot(v[0] - sc.c[0], v[1] - sc.c[1], v[2] - sc.c[2]) - sc.R));
+  std::printf(
+      "unsmoothed: volume / exact %.4f, mean radius - R %.3f voxel, worst vertex %.3f voxel\n",
+      signed_volume(surface.mesh) / exact, (mean_radius(surface.mesh, sc.c) - sc.R) / sc.dx,
+      worst / sc.dx);
   EXPECT_LT(worst, 0.3 * sc.dx) << "largest |r - R| of a vertex";
 }
 
@@ -122,9 +128,13 @@ TEST(Surface, SmoothedSphereShrinksAsTheGaussianPredicts) {
   EXPECT_NEAR(sc.surface.level_set.enclosed_volume() / exact, 1.0, 0.01);
   EXPECT_NEAR(mean_radius(m, sc.c), R, 0.05 * sc.dx);
   double worst = 0;
-  for (const auto& v : m.vertices) worst = std::max(worst, std::abs(std::hypot(v[0] - sc.c[0], v[1] - sc.c[1], v[2] - sc.c[2]) - R));
-  std::printf("smoothed: volume / predicted %.4f, mean radius - (R - delta) %.3f voxel, worst vertex %.3f voxel\n",
-              signed_volume(m) / exact, (mean_radius(m, sc.c) - R) / sc.dx, worst / sc.dx);
+  for (const auto& v : m.vertices)
+    worst =
+        std::max(worst, std::abs(std::hypot(v[0] - sc.c[0], v[1] - sc.c[1], v[2] - sc.c[2]) - R));
+  std::printf(
+      "smoothed: volume / predicted %.4f, mean radius - (R - delta) %.3f voxel, worst vertex %.3f "
+      "voxel\n",
+      signed_volume(m) / exact, (mean_radius(m, sc.c) - R) / sc.dx, worst / sc.dx);
   EXPECT_LT(worst, 0.2 * sc.dx) << "largest |r - (R - delta)| of a vertex";
 }
 
@@ -141,7 +151,8 @@ TEST(Surface, SphereMeshIsClosedOrientedAndOfGenusZero) {
   }
   EXPECT_EQ(bad, 0u) << "edges not shared by exactly two opposite triangles";
   // Euler characteristic V - E + F = 2 of a sphere.
-  const long long V = (long long)m.vertices.size(), E = (long long)directed.size() / 2, F = (long long)m.triangles.size();
+  const long long V = (long long)m.vertices.size(), E = (long long)directed.size() / 2,
+                  F = (long long)m.triangles.size();
   EXPECT_EQ(V - E + F, 2);
   // Outward normals: positive enclosed volume.
   EXPECT_GT(signed_volume(m), 0);
@@ -182,7 +193,8 @@ TEST(Surface, VdbGridNamedSurfaceReadsBack) {
   // The narrow band: voxels within 3 voxels either side of the sphere, about 4 pi R^2 * 6 dx / dx^3
   // (17 000); within 15 % (the band's edges are voxel-ragged).
   const double band = 4 * kPi * sc.R * sc.R * 6 * sc.dx / std::pow(sc.dx, 3);
-  EXPECT_NEAR(double(back.active_voxels()) / band, 1.0, 0.15) << back.active_voxels() << " active voxels";
+  EXPECT_NEAR(double(back.active_voxels()) / band, 1.0, 0.15)
+      << back.active_voxels() << " active voxels";
   // Signed distances: the surface lies at R - delta (the smoothing's shrink, see above).
   const double delta = sc.params.smoothing * (8 * sc.dx * sc.dx / 3) / sc.R;
   EXPECT_NEAR(back.value({sc.c[0] + sc.R - delta, sc.c[1], sc.c[2]}), 0.0, 0.1 * sc.dx);
@@ -207,9 +219,12 @@ TEST(Surface, DenseRasterizerMatchesParticlesToLevelSet) {
   PointCloud cloud;
   std::mt19937 rng(3);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
-  for (int i = 0; i < 20000; ++i) cloud.position.push_back({0.2f + 0.3f * u(rng), 0.1f + 0.5f * u(rng), 0.3f * u(rng)});
-  for (int i = 0; i < 3000; ++i) cloud.position.push_back({0.8f + 0.1f * u(rng), 0.7f + 0.1f * u(rng), 0.5f + 0.1f * u(rng)});
-  for (int i = 0; i < 64000; ++i) cloud.position.push_back({1.0f + 0.4f * u(rng), 0.2f + 0.4f * u(rng), 0.6f + 0.4f * u(rng)});
+  for (int i = 0; i < 20000; ++i)
+    cloud.position.push_back({0.2f + 0.3f * u(rng), 0.1f + 0.5f * u(rng), 0.3f * u(rng)});
+  for (int i = 0; i < 3000; ++i)
+    cloud.position.push_back({0.8f + 0.1f * u(rng), 0.7f + 0.1f * u(rng), 0.5f + 0.1f * u(rng)});
+  for (int i = 0; i < 64000; ++i)
+    cloud.position.push_back({1.0f + 0.4f * u(rng), 0.2f + 0.4f * u(rng), 0.6f + 0.4f * u(rng)});
   const double h = 0.02, r = 0.037;
   const auto dense = slurry::io::union_of_spheres(cloud, h, r);
   const auto vdb = slurry::io::union_of_spheres(cloud, h, r, /*openvdb_rasterizer=*/true);
@@ -250,10 +265,11 @@ TEST(Surface, VdbPointsReadBackWithIdsVelocitiesAndRadius) {
   ASSERT_EQ(pscale.size(), n);
   double worst = 0;
   for (std::size_t i = 0; i < n; ++i) {
-    ASSERT_EQ(back.id[i], cloud.id[i]);  // read back in id order, as written
+    ASSERT_EQ(back.id[i], cloud.id[i]);              // read back in id order, as written
     EXPECT_EQ(back.velocity[i], cloud.velocity[i]);  // stored uncompressed
     EXPECT_FLOAT_EQ(pscale[i], 0.0125f);
-    for (int d = 0; d < 3; ++d) worst = std::max(worst, double(std::abs(back.position[i][d] - cloud.position[i][d])));
+    for (int d = 0; d < 3; ++d)
+      worst = std::max(worst, double(std::abs(back.position[i][d] - cloud.position[i][d])));
   }
   // Positions are stored as float offsets within a voxel of 0.05 m: round-off ~ 1e-7 m.
   EXPECT_LT(worst, 1e-6);
@@ -271,7 +287,8 @@ TEST(Surface, MeshFilesReadBack) {
   EXPECT_EQ(v.column<float>("z")[9], m.vertices[9][2]);
   const auto& f = ply.element("face");
   ASSERT_EQ(f.count, m.triangles.size());
-  EXPECT_EQ(f.list("vertex_indices").data[5], (std::vector<std::int32_t>{m.triangles[5][0], m.triangles[5][1], m.triangles[5][2]}));
+  EXPECT_EQ(f.list("vertex_indices").data[5],
+            (std::vector<std::int32_t>{m.triangles[5][0], m.triangles[5][1], m.triangles[5][2]}));
 
   slurry::io::write_mesh_obj(dir / "m.obj", m);
   std::ifstream obj(dir / "m.obj");
@@ -292,7 +309,8 @@ TEST(Surface, MeshFilesReadBack) {
     } else if (tag == "f") {
       in >> f3[0] >> f3[1] >> f3[2];
       if (nf == 4) {
-        EXPECT_EQ(f3, (std::array<int, 3>{m.triangles[4][0] + 1, m.triangles[4][1] + 1, m.triangles[4][2] + 1}));
+        EXPECT_EQ(f3, (std::array<int, 3>{m.triangles[4][0] + 1, m.triangles[4][1] + 1,
+                                          m.triangles[4][2] + 1}));
       }
       ++nf;
     }
@@ -326,8 +344,12 @@ TEST(Surface, PointCloudFromAFrameSelectsAMaterial) {
 
 TEST(Surface, InvalidParametersAreRejected) {
   const PointCloud cloud = lattice_sphere(0.05, 0.01, {0, 0, 0});
-  EXPECT_THROW((void)slurry::io::particles_to_level_set(cloud, SurfaceParams{0, 0.01, 1}), std::invalid_argument);
-  EXPECT_THROW((void)slurry::io::particles_to_level_set(cloud, SurfaceParams{0.01, -1, 1}), std::invalid_argument);
-  EXPECT_THROW((void)slurry::io::particles_to_level_set(cloud, SurfaceParams{0.01, 0.01, -1}), std::invalid_argument);
-  EXPECT_THROW((void)slurry::io::particles_to_level_set(PointCloud{}, SurfaceParams{0.01, 0.01, 1}), std::invalid_argument);
+  EXPECT_THROW((void)slurry::io::particles_to_level_set(cloud, SurfaceParams{0, 0.01, 1}),
+               std::invalid_argument);
+  EXPECT_THROW((void)slurry::io::particles_to_level_set(cloud, SurfaceParams{0.01, -1, 1}),
+               std::invalid_argument);
+  EXPECT_THROW((void)slurry::io::particles_to_level_set(cloud, SurfaceParams{0.01, 0.01, -1}),
+               std::invalid_argument);
+  EXPECT_THROW((void)slurry::io::particles_to_level_set(PointCloud{}, SurfaceParams{0.01, 0.01, 1}),
+               std::invalid_argument);
 }

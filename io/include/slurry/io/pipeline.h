@@ -4,7 +4,8 @@
 /// beside `frame_NNNN.ply`, `surface_NNNN.vdb` (a level set grid named "surface"),
 /// `surface_NNNN.ply` and `.obj` (its triangle mesh, the PLY with per-vertex velocity), and
 /// `points_NNNN.vdb` (OpenVDB points with v, id and pscale). A scene asks for them with
-/// output.surface and output.vdb_points; `slurry surface DIR` makes them from frames already written.
+/// output.surface and output.vdb_points; `slurry surface DIR` makes them from frames already
+/// written.
 #include <filesystem>
 #include <functional>
 #include <memory>
@@ -26,9 +27,10 @@ struct SurfaceGroup {
 
 /// What to write for each frame.
 struct FrameOutputs {
-  bool vdb = false, ply = false, obj = false;  ///< the surface as a level set, a PLY mesh, an OBJ mesh
-  bool vdb_points = false;                     ///< points_NNNN.vdb
-  SurfaceParams params;                        ///< voxel size, particle spacing, smoothing
+  bool vdb = false, ply = false,
+       obj = false;         ///< the surface as a level set, a PLY mesh, an OBJ mesh
+  bool vdb_points = false;  ///< points_NNNN.vdb
+  SurfaceParams params;     ///< voxel size, particle spacing, smoothing
   std::vector<SurfaceGroup> groups{SurfaceGroup{}};
   PlyFormat format = PlyFormat::BinaryLittleEndian;  ///< of the PLY mesh
   bool any_surface() const { return vdb || ply || obj; }
@@ -52,7 +54,8 @@ struct FrameOutputReport {
 
 /// Writes the outputs of particle frame `frame` (index `index`) into `dir`. A group with no
 /// particles in this frame writes no surface files. Throws IoError.
-FrameOutputReport write_frame_outputs(const PlyData& frame, int index, const std::filesystem::path& dir,
+FrameOutputReport write_frame_outputs(const PlyData& frame, int index,
+                                      const std::filesystem::path& dir,
                                       const FrameOutputs& outputs);
 
 /// The frames `frame_NNNN.ply` of `dir`, sorted by index. Throws IoError if `dir` is no directory.

@@ -38,7 +38,8 @@
 
 namespace slurry::io {
 
-/// Particles in world space (m). `velocity` (m/s) and `id` are empty or hold one entry per position.
+/// Particles in world space (m). `velocity` (m/s) and `id` are empty or hold one entry per
+/// position.
 struct PointCloud {
   std::vector<std::array<float, 3>> position;
   std::vector<std::array<float, 3>> velocity;
@@ -100,17 +101,19 @@ struct Surface {
 /// the values ParticlesToLevelSet::rasterizeSpheres computes (voxel for voxel, tested) about 5x
 /// faster; by ParticlesToLevelSet itself with `openvdb_rasterizer`, or when the block would
 /// exceed 2^28 voxels.
-LevelSet union_of_spheres(const PointCloud& points, double voxel_size, double radius, bool openvdb_rasterizer = false);
+LevelSet union_of_spheres(const PointCloud& points, double voxel_size, double radius,
+                          bool openvdb_rasterizer = false);
 /// Steps 1-3 above. Throws std::invalid_argument for invalid parameters or no particles.
 LevelSet particles_to_level_set(const PointCloud& points, const SurfaceParams& params);
 /// Step 4 above, with velocities from `points` (step 5) when it has them.
-TriangleMesh level_set_to_mesh(const LevelSet& level_set, const PointCloud& points, const SurfaceParams& params);
+TriangleMesh level_set_to_mesh(const LevelSet& level_set, const PointCloud& points,
+                               const SurfaceParams& params);
 /// Steps 1-5: the level set and its mesh.
 Surface surface_particles(const PointCloud& points, const SurfaceParams& params);
 
 /// Per-vertex velocities (step 5) at `vertices` from `points` (which must have velocities).
-std::vector<std::array<float, 3>> sample_velocities(const std::vector<std::array<float, 3>>& vertices,
-                                                     const PointCloud& points, double spacing);
+std::vector<std::array<float, 3>> sample_velocities(
+    const std::vector<std::array<float, 3>>& vertices, const PointCloud& points, double spacing);
 
 /// Writes the level set as a .vdb file holding one FloatGrid named "surface" (class level set),
 /// atomically (temporary name, then rename). Throws IoError.
