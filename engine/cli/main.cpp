@@ -4,6 +4,8 @@
 //                         [--resume [--force]]
 //   slurry resume DIR [--frames N] [--threads N] [--memory-limit GB] [--ascii] [--quiet] [--force]
 //   slurry validate SCENE.json [--memory-limit GB]
+//   slurry surface DIR [--scene S] [--voxel-size H] [--spacing S] [--smoothing N] [--formats vdb,ply,obj] [--points]
+//                      (built with slurry::io, SLURRY_BUILD_IO=ON)
 //
 // Exit codes: 0 success, 1 the simulation became unstable, 2 invalid scene or usage, 3 file or
 // resource error, 130 / 143 stopped by SIGINT / SIGTERM after the last complete frame.
@@ -23,6 +25,9 @@
 #include "slurry/engine/run.h"
 #include "slurry/engine/scene.h"
 #include "slurry/transfer/parallel.h"
+#ifdef SLURRY_WITH_IO
+#include "pipeline.h"
+#endif
 
 namespace {
 
@@ -162,6 +167,11 @@ int main(int argc, char** argv) {
   validate->add_option("scene", scene_path, "Scene file (JSON)")->required();
   validate->add_option("--memory-limit", memory_text, "Memory limit in GiB (replaces limits.memory_gb)");
 
+#ifdef SLURRY_WITH_IO
+  slurry::cli::SurfaceCommand surface;
+  slurry::cli::add_surface_command(app, surface);
+#endif
+
   int frames = -1, threads = 0;
   double memory_gb = 0;
   try {
@@ -184,6 +194,10 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "slurry: error: %s\n", e.what());
     return 2;
   }
+
+#ifdef SLURRY_WITH_IO
+  if (surface.app->parsed()) return slurry::cli::run_surface_command(surface);
+#endif
 
   try {
     if (resume_cmd->parsed()) {
@@ -220,9 +234,23 @@ int main(int argc, char** argv) {
                    std::string(slurry::to_string(scene.solver.transfer)).c_str(),
                    std::string(slurry::to_string(scene.solver.kernel)).c_str(), slurry::parallel::backend(),
                    threads > 0 ? threads : slurry::parallel::max_threads());
+#ifdef SLURRY_WITH_IO
+    const slurry::cli::FrameOutputWriter pipeline(scene);
+#else
+    if (!scene.output.surface.empty() || scene.output.vdb_points)
+      throw slurry::SceneError(scene_path + ": " + (scene.output.vdb_points ? "output.vdb_points" : "output.surface") +
+                               ": this slurry was built without OpenVDB (SLURRY_BUILD_IO=OFF); expected no pipeline outputs");
+#endif
     install_signal_handlers();
     Progress progress(quiet);
-    const auto s = slurry::run_scene(scene, opt, std::ref(progress));
+    const auto on_frame = [&](const slurry::FrameReport& r) {
+#ifdef SLURRY_WITH_IO
+      const std::string line = pipeline(r);
+      if (!quiet && !line.empty() && !isatty(fileno(stderr))) std::fprintf(stderr, "frame %d: %s\n", r.frame, line.c_str());
+#endif
+      progress(r);
+    };
+    const auto s = slurry::run_scene(scene, opt, on_frame);
     if (s.interrupted) {
       std::fprintf(stderr, "\nslurry: stopped by %s after frame %d (frames 0-%d are complete%s)\n",
                    s.interrupted == SIGINT ? "SIGINT" : "SIGTERM", s.frames_written - 1, s.frames_written - 1,

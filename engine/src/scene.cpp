@@ -141,6 +141,12 @@ class ObjectReader {
       fail(source, path, "expected an integer in [" + int_str(lo) + ", " + int_str(hi) + "], got " + dump_short(v));
     return x;
   }
+  void boolean(const std::string& key, bool& out) {
+    if (const json* v = raw(key)) {
+      if (!v->is_boolean()) fail(source_, at(key), "expected true or false, got " + dump_short(*v));
+      out = v->get<bool>();
+    }
+  }
   void string(const std::string& key, std::string& out) {
     if (const json* v = raw(key)) {
       if (!v->is_string()) fail(source_, at(key), "expected a string, got " + dump_short(*v));
@@ -714,8 +720,8 @@ void Scene::validate() const {
     for (const auto& k : kAttributes) known = known || k == a;
     if (!known)
       fail(source, p, "expected one of \"position\", \"velocity\", \"material\", \"J\", \"plastic\", \"id\", got \"" + a + "\"");
-    if (a == "id" && solver.type != SolverType::FLIP)
-      fail(source, p, "\"id\" (persistent particle ids) is written by solver.type \"flip\" only");
+    if (a == "id" && solver.type == SolverType::FEM)
+      fail(source, p, "\"id\" (persistent particle ids) is written by solver.type \"mpm\" and \"flip\", not \"fem\" (its vertices keep their order)");
     for (std::size_t j = 0; j < i; ++j)
       if (output.attributes[j] == a) fail(source, p, "duplicate attribute \"" + a + "\"");
     if (a == "plastic") {
@@ -724,6 +730,43 @@ void Scene::validate() const {
       if (!any) fail(source, p, "\"plastic\" needs a material with plasticity; this scene has none");
     }
   }
+  validate_pipeline_outputs();
+}
+
+void Scene::validate_pipeline_outputs() const {
+  const auto has = [&](const char* a) { return std::find(output.attributes.begin(), output.attributes.end(), a) != output.attributes.end(); };
+  for (std::size_t i = 0; i < output.surface.size(); ++i) {
+    const auto& f = output.surface[i];
+    const std::string p = "output.surface[" + std::to_string(i) + "]";
+    if (f != "vdb" && f != "ply" && f != "obj") fail(source, p, "expected one of \"vdb\", \"ply\", \"obj\", got \"" + f + "\"");
+    for (std::size_t j = 0; j < i; ++j)
+      if (output.surface[j] == f) fail(source, p, "duplicate format \"" + f + "\"");
+  }
+  if (!output.surface.empty() && solver.dimension != 3)
+    fail(source, "output.surface", "surfaces are made of 3D scenes only (solver.dimension is " + std::to_string(solver.dimension) + ")");
+  if ((!output.surface.empty() || output.vdb_points) && solver.type == SolverType::FEM)
+    fail(source, output.vdb_points ? "output.vdb_points" : "output.surface",
+         "solver.type \"fem\" writes meshes, not particles: surfaces and VDB points are for \"mpm\" and \"flip\"");
+  if (output.vdb_points && !(has("velocity") && has("id")))
+    fail(source, "output.vdb_points", "the points carry velocity and a persistent id: expected \"velocity\" and \"id\" in output.attributes");
+  if (!(output.surface_voxel_size >= 0 && output.surface_voxel_size <= 1e300))
+    fail(source, "output.surface_voxel_size", "expected a length >= 0 (0: domain.dx), got " + fmt_num(output.surface_voxel_size));
+  if (output.surface_voxel_size > 0 && (output.surface_voxel_size > 100 * domain.dx || output.surface_voxel_size < 0.01 * domain.dx))
+    fail(source, "output.surface_voxel_size", "expected a length within [0.01, 100] x domain.dx (" + fmt_num(domain.dx) + "), got " +
+                                                  fmt_num(output.surface_voxel_size));
+  if (output.surface_smoothing < 0 || output.surface_smoothing > 100)
+    fail(source, "output.surface_smoothing", "expected an integer in [0, 100], got " + std::to_string(output.surface_smoothing));
+  // An MPM surface of some of the materials selects particles by the frame's material column.
+  if (!output.surface.empty() && solver.type == SolverType::MPM && materials.size() > 1 && !has("material")) {
+    std::size_t fluids = 0;
+    for (const auto& m : materials) fluids += m.model == ElasticModel::Fluid;
+    if (output.surface_per_material || (fluids > 0 && fluids < materials.size()))
+      fail(source, "output.surface", "the surface is of some materials only (" +
+                                         std::string(output.surface_per_material ? "output.surface_per_material" : "the \"fluid\" ones") +
+                                         "): expected \"material\" in output.attributes");
+  }
+  if (!output.surface.empty() && solver.type == SolverType::FLIP && output.surface_per_material && materials.size() > 1 && !has("material"))
+    fail(source, "output.surface_per_material", "one surface per material: expected \"material\" in output.attributes");
 }
 
 Scene parse_scene(std::string_view text, const std::string& source) {
@@ -897,6 +940,11 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.number("volume_drift", s.output.volume_drift);
     r.number("energy_growth", s.output.energy_growth);
     r.integer("checkpoint_every", s.output.checkpoint_every, 0, std::numeric_limits<int>::max());
+    r.strings("surface", s.output.surface);
+    r.boolean("vdb_points", s.output.vdb_points);
+    r.number("surface_voxel_size", s.output.surface_voxel_size);
+    r.integer("surface_smoothing", s.output.surface_smoothing, -1000000, 1000000);
+    r.boolean("surface_per_material", s.output.surface_per_material);
   });
   top.object("limits", [&](ObjectReader& r) {
     r.number("memory_gb", s.limits.memory_gb);

@@ -828,6 +828,8 @@ io::PlyData Simulation<T, Dim>::frame(const std::vector<std::string>& attributes
       });
     } else if (a == "plastic") {
       out.add("plastic", [&](std::size_t p) { return P.plastic.empty() ? T(0) : P.plastic[p]; });
+    } else if (a == "id") {
+      out.add("id", [&](std::size_t p) { return P.id[p]; });  // = the row: MPM keeps every particle
     }
   }
   return std::move(out.data());

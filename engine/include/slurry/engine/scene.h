@@ -181,8 +181,16 @@ struct OutputParams {
   std::string directory = "frames";  ///< relative paths are relative to the working directory
   double fps = 24;
   int frames = 24;  ///< frames written after the initial one (frame 0)
-  std::vector<std::string> attributes{"position"};  ///< position, velocity, material, J, plastic
+  std::vector<std::string> attributes{"position"};  ///< position, velocity, material, J, plastic, id
   PlyEncoding format = PlyEncoding::Binary;
+  /// Effects-pipeline outputs beside each frame (written by the CLI built with slurry::io; the
+  /// engine only validates them): the liquid's surface as any of "vdb" (a level set grid named
+  /// "surface"), "ply" and "obj" (its triangle mesh); OpenVDB points with v, id and pscale.
+  std::vector<std::string> surface;
+  bool vdb_points = false;
+  double surface_voxel_size = 0;      ///< m; 0 = domain.dx
+  int surface_smoothing = 1;          ///< Gaussian filter passes of the level set, [0, 100]
+  bool surface_per_material = false;  ///< one surface per liquid material instead of one for all
   /// Drift warnings (stats.h): relative change of the total mass, of the volume, and growth of
   /// the total energy relative to the energy available, beyond which a frame is reported.
   double mass_drift = 1e-4;
@@ -230,6 +238,8 @@ struct Scene {
   void validate() const;
   /// The checks particular to solver.type "flip" (called by validate()).
   void validate_flip() const;
+  /// The checks of output.surface, output.vdb_points and their parameters (called by validate()).
+  void validate_pipeline_outputs() const;
   /// Index of the material named `name`, or -1.
   int material_index(std::string_view name) const;
   /// The frame duration 1 / output.fps.

@@ -1,0 +1,140 @@
+// The effects-pipeline outputs of a run: scene keys, what a scene asks for, MPM ids, and the
+// CLI's per-frame outputs and `slurry surface`.
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <fstream>
+#include <string>
+
+#include "slurry/engine/errors.h"
+#include "slurry/engine/scene.h"
+#include "slurry/io/pipeline.h"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+/// A small 3D MPM scene: a water cube (fluid) and a jelly cube (solid), dx 0.05.
+std::string scene_text(const std::string& output, const std::string& dir = "frames") {
+  return R"({"domain": {"min": [0, 0, 0], "max": [1, 1, 1], "dx": 0.05},
+    "solver": {"dimension": 3, "max_dt": 0.002},
+    "materials": [{"name": "water", "model": "fluid", "bulk_modulus": 20000},
+                  {"name": "jelly", "E": 20000, "nu": 0.3}],
+    "bodies": [{"shape": "box", "min": [0.1, 0.1, 0.1], "max": [0.4, 0.4, 0.4], "material": "water"},
+               {"shape": "box", "min": [0.6, 0.1, 0.6], "max": [0.8, 0.3, 0.8], "material": "jelly", "particles_per_cell": 27}],
+    "output": {"directory": ")" +
+         dir + R"(", "fps": 50, "frames": 1, )" + output + "}}";
+}
+
+std::string error_of(const std::string& output) {
+  try {
+    (void)slurry::parse_scene(scene_text(output), "s.json");
+  } catch (const slurry::SceneError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+int run(const std::string& cmd) {
+  const int status = std::system(cmd.c_str());
+  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+}  // namespace
+
+TEST(Pipeline, SceneKeysAreValidated) {
+  EXPECT_NE(error_of(R"("attributes": ["position", "material"], "surface": ["vdb", "stl"])")
+                .find("output.surface[1]: expected one of \"vdb\", \"ply\", \"obj\", got \"stl\""),
+            std::string::npos);
+  EXPECT_NE(error_of(R"("attributes": ["position", "material"], "surface": ["ply", "ply"])")
+                .find("duplicate format"),
+            std::string::npos);
+  EXPECT_NE(error_of(R"("vdb_points": true)")
+                .find("output.vdb_points: the points carry velocity and a persistent id"),
+            std::string::npos);
+  EXPECT_NE(error_of(R"("vdb_points": 1)").find("output.vdb_points: expected true or false"),
+            std::string::npos);
+  EXPECT_NE(
+      error_of(
+          R"("attributes": ["position", "material"], "surface": ["vdb"], "surface_smoothing": 101)")
+          .find("output.surface_smoothing"),
+      std::string::npos);
+  EXPECT_NE(
+      error_of(
+          R"("attributes": ["position", "material"], "surface": ["vdb"], "surface_voxel_size": 10)")
+          .find("output.surface_voxel_size"),
+      std::string::npos);
+  // A fluid and a solid: the liquid is some of the materials, chosen by the material column.
+  EXPECT_NE(error_of(R"("surface": ["vdb"])").find("expected \"material\" in output.attributes"),
+            std::string::npos);
+  // MPM writes ids now.
+  EXPECT_EQ(
+      error_of(
+          R"("attributes": ["position", "velocity", "id", "material"], "surface": ["vdb"], "vdb_points": true)"),
+      "");
+}
+
+TEST(Pipeline, FrameOutputsOfAScene) {
+  const auto s = slurry::parse_scene(
+      scene_text(R"("attributes": ["position", "material"], "surface": ["ply", "vdb"])"), "s.json");
+  const auto o = slurry::io::frame_outputs(s);
+  EXPECT_TRUE(o.ply && o.vdb && !o.obj && !o.vdb_points);
+  EXPECT_DOUBLE_EQ(o.params.voxel_size, 0.05);
+  // The largest particles_per_cell (27, the jelly) sets the spacing dx / 3.
+  EXPECT_NEAR(o.params.spacing, 0.05 / 3, 1e-12);
+  ASSERT_EQ(o.groups.size(), 1u);
+  EXPECT_EQ(o.groups[0].materials, std::vector<int>{0});  // the water only
+}
+
+#ifdef SLURRY_CLI
+TEST(Pipeline, CliWritesSurfacesPointsAndIdsAndResurfaces) {
+  const fs::path dir =
+      fs::temp_directory_path() / ("slurry_pipeline_cli_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  std::ofstream(dir / "s.json") << scene_text(
+      R"("attributes": ["position", "velocity", "id", "material"], "surface": ["vdb", "ply", "obj"], "vdb_points": true)",
+      (dir / "frames").string());
+  ASSERT_EQ(run(std::string(SLURRY_CLI) + " run -q " + (dir / "s.json").string()), 0);
+  const fs::path f = dir / "frames";
+  for (const char* name : {"surface_0001.vdb", "surface_0001.ply", "surface_0001.obj",
+                           "points_0001.vdb", "surface_0000.vdb"})
+    EXPECT_TRUE(fs::exists(f / name)) << name;
+  // MPM frames list particles by id: the id column is the row.
+  const auto frame = slurry::io::read_ply(f / "frame_0001.ply");
+  const auto& id = frame.element("vertex").column<std::uint32_t>("id");
+  for (std::size_t i = 0; i < id.size(); ++i) ASSERT_EQ(id[i], i);
+  // The VDB points: every particle, its id and velocity.
+  const auto cloud = slurry::io::point_cloud(frame);
+  std::vector<float> pscale;
+  const auto points = slurry::io::read_vdb_points(f / "points_0001.vdb", &pscale);
+  ASSERT_EQ(points.size(), cloud.size());
+  EXPECT_EQ(points.id, cloud.id);
+  EXPECT_EQ(points.velocity, cloud.velocity);
+  EXPECT_FLOAT_EQ(pscale[0], float(0.5 * 0.05 / 3));
+  // The surface of the water alone: its mesh lies within the water cube grown by a voxel or so
+  // (the jelly at x >= 0.6 is not surfaced).
+  const auto mesh =
+      slurry::io::read_ply(f / "surface_0001.ply").element("vertex").column_as_double("x");
+  ASSERT_FALSE(mesh.empty());
+  for (double x : mesh) ASSERT_LT(x, 0.5);
+  const std::size_t vertices = mesh.size();
+
+  // Re-meshing the frames already written: the scene named in them gives the same parameters.
+  fs::remove(f / "surface_0001.ply");
+  ASSERT_EQ(run(std::string(SLURRY_CLI) + " surface -q " + f.string() + " --formats ply"), 0);
+  EXPECT_EQ(slurry::io::read_ply(f / "surface_0001.ply").element("vertex").count, vertices);
+  // Usage and file errors.
+  EXPECT_EQ(
+      run(std::string(SLURRY_CLI) + " surface -q " + f.string() + " --formats stl 2>/dev/null"), 2);
+  EXPECT_EQ(
+      run(std::string(SLURRY_CLI) + " surface -q " + f.string() + " --voxel-size -1 2>/dev/null"),
+      2);
+  EXPECT_EQ(
+      run(std::string(SLURRY_CLI) + " surface -q " + (dir / "missing").string() + " 2>/dev/null"),
+      3);
+  fs::remove_all(dir);
+}
+#endif

@@ -1,0 +1,37 @@
+# The solver core without OpenVDB (ctest io.core_without_openvdb): configures Slurry with
+# -DSLURRY_BUILD_IO=OFF in a scratch directory, compiles the CLI's main.cpp there (the one
+# source with an IO-less branch), and checks that no source of the core (engine/, transfer/,
+# constitutive/) includes an OpenVDB header and that the core's link interface names no OpenVDB.
+#   cmake -DSOURCE=<slurry> -DWORK=<scratch dir> -P io_off_check.cmake
+file(REMOVE_RECURSE ${WORK})
+execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE} -B ${WORK} -G "Unix Makefiles" -DSLURRY_BUILD_IO=OFF -DSLURRY_BUILD_TESTS=OFF
+                        -DSLURRY_BUILD_BENCHMARKS=OFF -DSLURRY_BUILD_EXAMPLES=OFF -DCMAKE_BUILD_TYPE=Release
+                RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "configure with SLURRY_BUILD_IO=OFF failed:\n${out}\n${err}")
+endif()
+file(READ ${WORK}/CMakeCache.txt cache)
+if(cache MATCHES "OpenVDB_DIR|OpenVDB_INCLUDE_DIR|SLURRY_OPENVDB_MODULE_DIR")
+  message(FATAL_ERROR "configure with SLURRY_BUILD_IO=OFF looked for OpenVDB")
+endif()
+execute_process(COMMAND ${CMAKE_COMMAND} --build ${WORK}/engine --target cli/main.cpp.o
+                RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "the CLI's main.cpp does not compile without slurry::io:\n${out}\n${err}")
+endif()
+file(GLOB_RECURSE core LIST_DIRECTORIES false ${SOURCE}/engine/* ${SOURCE}/transfer/* ${SOURCE}/constitutive/*)
+foreach(f ${core})
+  if(f MATCHES "/engine/cli/pipeline\\.(h|cpp)$")
+    continue()  # the CLI's io part, compiled only with slurry::io
+  endif()
+  file(STRINGS ${f} hits REGEX "#include [<\"](openvdb|slurry/io/)")
+  if(hits)
+    message(FATAL_ERROR "${f} includes OpenVDB or slurry::io: ${hits}")
+  endif()
+endforeach()
+file(STRINGS ${SOURCE}/engine/CMakeLists.txt hits REGEX "OpenVDB|slurry::io")
+if(hits)
+  message(FATAL_ERROR "engine/CMakeLists.txt names OpenVDB or slurry::io: ${hits}")
+endif()
+file(REMOVE_RECURSE ${WORK})
+message(STATUS "the core configures and the CLI compiles without OpenVDB")
