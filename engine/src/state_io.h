@@ -1,7 +1,8 @@
 // Binary (de)serialisation of solver state for checkpoints and the retry snapshot
 // (SimulationBase::save_state / load_state): plain bytes in this machine's byte order, every
-// vector prefixed by its length. A checkpoint is read back by the same build on the same
-// machine; its header (run.cpp) carries a format version and a checksum.
+// vector prefixed by its length. Nothing is converted: a checkpoint is read back on a machine of
+// the byte order that wrote it (its header, checkpoint.h, carries a byte-order mark, a format
+// version and a checksum).
 #pragma once
 #include <Eigen/Core>
 #include <algorithm>
