@@ -60,7 +60,9 @@ void expect_view_matches_frame(const slurry::SimulationBase& sim, bool frame_has
   static const char* xs[3] = {"x", "y", "z"};
   static const char* vs[3] = {"vx", "vy", "vz"};
   for (std::size_t i = 0; i < view.size(); ++i) {
-    if (i > 0) ASSERT_LT(view.id(i - 1), view.id(i)) << "ids must ascend";
+    if (i > 0) {
+      ASSERT_LT(view.id(i - 1), view.id(i)) << "ids must ascend";
+    }
     ASSERT_EQ(row_of.count(view.id(i)), 1u) << "id " << view.id(i) << " is not in the frame";
     const std::size_t r = row_of[view.id(i)];
     for (int d = 0; d < Dim; ++d) {
