@@ -122,7 +122,7 @@ void for_each_grid_condition(const Eigen::Matrix<int, Dim, 1>& idx, Position&& p
     const Vec xi = position();
     Vec n;
     for (const auto& c : *bc.colliders)
-      if (c.inside(xi, bc.time, n)) fn(c.velocity, n, c.condition, c.friction);
+      if (c.inside(xi, bc.time, n)) fn(c.velocity_at(xi, bc.time), n, c.condition, c.friction);
   }
 }
 

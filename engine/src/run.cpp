@@ -12,6 +12,7 @@
 #include <thread>
 
 #include "checkpoint.h"
+#include "geometry/scene_meshes.h"
 #include "slurry/engine/fem/tetgen.h"
 #include "slurry/engine/ply.h"
 #include "slurry/engine/simulation.h"
@@ -224,6 +225,7 @@ void substep_limit_error(const Scene& scene, double dt, double interval, std::in
 void check_scene(const Scene& scene, double memory_gb) {
   scene.validate();
   check_resources(scene, memory_gb);
+  detail::check_scene_meshes(scene);
   if (scene.solver.type != SolverType::FEM) return;
   for (const auto& b : scene.bodies) {
     if (b.mesh.empty()) continue;
@@ -284,7 +286,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   if (!liquid) tol.volume = std::numeric_limits<double>::infinity();
   tol.energy = scene.output.energy_growth;
   tol.check_energy = scene.emitters.empty();
-  for (const auto& c : scene.colliders) tol.check_energy = tol.check_energy && c.velocity.isZero();
+  for (const auto& c : scene.colliders) tol.check_energy = tol.check_energy && c.velocity.isZero() && c.keyframes.empty();
   // The energy the scene can release: its kinetic energy plus its mass falling the domain's
   // extent along gravity.
   const auto energy_scale_of = [&](const RunStats& first) {

@@ -45,11 +45,13 @@ const NameTable<PlasticModel> kPlastic{{"none", PlasticModel::None},
                                        {"snow", PlasticModel::Snow},
                                        {"drucker_prager", PlasticModel::DruckerPrager},
                                        {"von_mises", PlasticModel::VonMises}};
-const NameTable<Shape> kShape{{"box", Shape::Box}, {"sphere", Shape::Sphere}, {"cylinder", Shape::Cylinder}};
+const NameTable<Shape> kShape{
+    {"box", Shape::Box}, {"sphere", Shape::Sphere}, {"cylinder", Shape::Cylinder}, {"mesh", Shape::Mesh}};
 const NameTable<Sampling> kSampling{{"regular", Sampling::Regular}, {"jittered", Sampling::Jittered}};
 const NameTable<ColliderShape> kColliderShape{{"half_space", ColliderShape::HalfSpace},
                                               {"box", ColliderShape::Box},
-                                              {"sphere", ColliderShape::Sphere}};
+                                              {"sphere", ColliderShape::Sphere},
+                                              {"mesh", ColliderShape::Mesh}};
 const NameTable<Condition> kCondition{
     {"sticky", Condition::Sticky}, {"slip", Condition::Slip}, {"separate", Condition::Separate}};
 const NameTable<GridKind> kGrid{{"auto", GridKind::Auto}, {"sparse", GridKind::Sparse}, {"dense", GridKind::Dense}};
@@ -266,10 +268,15 @@ void validate_fem(const Scene& s) {
       fail(s.source, p + ".plasticity", "solver.type \"fem\" has no plasticity (expected \"none\")");
     c.non_negative(p + ".damping", m.damping);
   }
-  for (std::size_t i = 0; i < s.bodies.size(); ++i)
+  for (std::size_t i = 0; i < s.bodies.size(); ++i) {
+    if (s.bodies[i].shape == Shape::Mesh)
+      fail(s.source, "bodies[" + std::to_string(i) + "].shape",
+           "solver.type \"fem\" reads a TetGen \"mesh\" for a \"box\" or \"sphere\" body; \"mesh\" bodies (triangle meshes) are "
+           "filled with particles by \"mpm\" and \"flip\"");
     if (s.bodies[i].mesh.empty() && s.bodies[i].shape == Shape::Cylinder)
       fail(s.source, "bodies[" + std::to_string(i) + "].shape",
            "solver.type \"fem\" meshes \"box\" and \"sphere\" bodies; give a cylinder as a TetGen \"mesh\"");
+  }
 }
 
 /// json::parse with the limits a scene file needs, checked while parsing (before a deep or huge
@@ -458,7 +465,7 @@ void Scene::validate_flip() const {
       lo = e.center.array() - e.radius;
       hi = e.center.array() + e.radius;
     } else {
-      fail(source, p + ".shape", "expected \"box\" or \"sphere\", got \"cylinder\"");
+      fail(source, p + ".shape", std::string("expected \"box\" or \"sphere\", got \"") + (e.shape == Shape::Mesh ? "mesh" : "cylinder") + "\"");
     }
     for (int d = 0; d < dim; ++d)
       if (lo[d] < domain.min[d] || hi[d] > domain.max[d])
@@ -494,9 +501,19 @@ void Scene::validate() const {
         fail(source, "solver.integrator",
              "\"implicit\" is for solids; materials[" + std::to_string(i) + "] (\"" + materials[i].name +
                  "\") is a \"fluid\", which runs with \"explicit\" only");
-  for (std::size_t i = 0; i < bodies.size(); ++i)
-    if (!bodies[i].mesh.empty() && !fem)
-      fail(source, "bodies[" + std::to_string(i) + "].mesh", "meshes are read by solver.type \"fem\" only");
+  for (std::size_t i = 0; i < bodies.size(); ++i) {
+    const auto& b = bodies[i];
+    const std::string p = "bodies[" + std::to_string(i) + "]";
+    if (!b.mesh.empty() && !fem && b.shape != Shape::Mesh)
+      fail(source, p + ".mesh", "a triangle mesh is filled with particles by \"shape\": \"mesh\" (TetGen meshes are for solver.type \"fem\")");
+    if (b.shape == Shape::Mesh && !fem) {
+      if (b.mesh.empty()) fail(source, p + ".mesh", "missing (expected the path of a closed triangle mesh, .obj or .ply)");
+      if (dim != 3) fail(source, p + ".shape", "\"mesh\" bodies are 3D (solver.dimension is 2)");
+      for (int d = 0; d < 3; ++d)
+        if (!(std::abs(b.scale[d]) > 0))
+          fail(source, p + ".scale[" + std::to_string(d) + "]", "expected a non-zero factor, got " + fmt_num(b.scale[d]));
+    }
+  }
   if (fem) validate_fem(*this);
 
   // Domain.
@@ -610,9 +627,9 @@ void Scene::validate() const {
       for (const auto& m : materials) known += (known.empty() ? "\"" : ", \"") + m.name + "\"";
       fail(source, p + ".material", "expected the name of a material (" + known + "), got \"" + b.material + "\"");
     }
-    if (!b.mesh.empty()) continue;  // a mesh body's extent is checked when the mesh is read
     c.positive(p + ".particles_per_cell", b.particles_per_cell);
     if (b.particles_per_cell > 512) fail(source, p + ".particles_per_cell", "expected at most 512, got " + fmt_num(b.particles_per_cell));
+    if (!b.mesh.empty()) continue;  // a mesh body's extent is checked when the mesh is read
     Eigen::Vector3d lo = b.min, hi = b.max;
     for (std::size_t j = 0; j < i; ++j)
       if (bodies[j].mesh.empty() && overlap(b, bodies[j], dim))
@@ -639,6 +656,8 @@ void Scene::validate() const {
         lo[b.axis] = b.center[b.axis] - 0.5 * b.height;
         hi[b.axis] = b.center[b.axis] + 0.5 * b.height;
         break;
+      case Shape::Mesh:
+        break;  // unreachable: a mesh body names its file
     }
     for (int d = 0; d < dim; ++d)
       if (lo[d] < domain.min[d] || hi[d] > domain.max[d])
@@ -679,7 +698,20 @@ void Scene::validate() const {
       case ColliderShape::Sphere:
         c.positive(p + ".radius", k.radius);
         break;
+      case ColliderShape::Mesh:
+        if (k.mesh.empty()) fail(source, p + ".mesh", "missing (expected the path of a closed triangle mesh, .obj or .ply)");
+        if (dim != 3) fail(source, p + ".shape", "\"mesh\" colliders are 3D (solver.dimension is 2)");
+        for (int d = 0; d < 3; ++d)
+          if (!(std::abs(k.scale[d]) > 0))
+            fail(source, p + ".scale[" + std::to_string(d) + "]", "expected a non-zero factor, got " + fmt_num(k.scale[d]));
+        for (std::size_t j = 1; j < k.keyframes.size(); ++j)
+          if (!(k.keyframes[j].time > k.keyframes[j - 1].time))
+            fail(source, p + ".keyframes[" + std::to_string(j) + "].time",
+                 "expected times in increasing order: " + fmt_num(k.keyframes[j].time) + " follows " + fmt_num(k.keyframes[j - 1].time));
+        break;
     }
+    if (k.shape != ColliderShape::Mesh && (!k.mesh.empty() || !k.keyframes.empty()))
+      fail(source, p + (k.mesh.empty() ? ".keyframes" : ".mesh"), "\"mesh\" and \"keyframes\" belong to \"shape\": \"mesh\"");
   }
 
   // Output.
@@ -861,7 +893,11 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     BodyParams b;
     if (quality_ppc > 0) b.particles_per_cell = quality_ppc;
     r.choice("shape", kShape, b.shape);
-    if (b.shape == Shape::Box) {
+    if (b.shape == Shape::Mesh) {
+      r.vector("scale", b.scale);
+      r.vector("rotation", b.rotation);
+      r.vector("translation", b.translation);
+    } else if (b.shape == Shape::Box) {
       if ((!r.has("min") || !r.has("max")) && !r.has("mesh")) fail(source, r.at("min"), "a box needs \"min\" and \"max\"");
       r.vector("min", b.min);
       r.vector("max", b.max);
@@ -897,6 +933,19 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     } else if (k.shape == ColliderShape::Box) {
       r.vector("min", k.min);
       r.vector("max", k.max);
+    } else if (k.shape == ColliderShape::Mesh) {
+      r.string("mesh", k.mesh);
+      r.vector("scale", k.scale);
+      r.vector("rotation", k.rotation);
+      r.vector("translation", k.translation);
+      r.objects("keyframes", [&](ObjectReader& q, std::size_t) {
+        ColliderKeyframe key;
+        if (!q.has("time")) fail(source, q.at("time"), "missing (expected the key's time in s)");
+        q.number("time", key.time);
+        q.vector("translation", key.translation);
+        q.vector("rotation", key.rotation);
+        k.keyframes.push_back(key);
+      });
     } else {
       r.vector("center", k.center);
       r.number("radius", k.radius);
@@ -955,6 +1004,12 @@ Scene parse_scene(std::string_view text, const std::string& source) {
   top.finish();
   s.validate();
   return s;
+}
+
+std::filesystem::path Scene::resolve(const std::string& file) const {
+  const std::filesystem::path p(file);
+  if (p.is_absolute()) return p;
+  return std::filesystem::path(source).parent_path() / p;
 }
 
 Scene load_scene(const std::filesystem::path& path) {

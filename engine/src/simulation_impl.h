@@ -13,6 +13,7 @@
 #include <type_traits>
 
 #include "frame_builder.h"
+#include "geometry/scene_meshes.h"
 #include "implicit_update.h"
 #include "state_io.h"
 #include "slurry/engine/simulation.h"
@@ -36,76 +37,6 @@ bool tracks_J(const Particles<T, Dim>& P, const std::vector<Material<T, Dim>>& m
   return !P.J.empty() && (P.F.empty() || materials[P.material.empty() ? 0 : P.material[p]].fluid);
 }
 
-/// The fraction s in [0, 1] of the straight path y0 -> y1 (in the collider's frame) at which it
-/// enters collider c's solid, and the outward normal there; false if it does not enter (or
-/// starts inside). Slab test for the box, the smaller root of |y0 + s d - c|^2 = r^2 for the
-/// sphere, the sign change of the signed distance for the half-space.
-template <class T, int Dim>
-bool collider_entry(const Collider<T, Dim>& c, const Eigen::Matrix<T, Dim, 1>& y0, const Eigen::Matrix<T, Dim, 1>& y1,
-                    T& s, Eigen::Matrix<T, Dim, 1>& n) {
-  using Vec = Eigen::Matrix<T, Dim, 1>;
-  const Vec d = y1 - y0;
-  switch (c.shape) {
-    case ColliderShape::HalfSpace: {
-      const T phi0 = (y0 - c.point).dot(c.normal), phi1 = (y1 - c.point).dot(c.normal);
-      if (!(phi0 >= T(0) && phi1 < T(0))) return false;
-      s = phi0 / (phi0 - phi1);
-      n = c.normal;
-      return true;
-    }
-    case ColliderShape::Sphere: {
-      const Vec r = y0 - c.center;
-      const T a = d.squaredNorm(), b = r.dot(d), q = r.squaredNorm() - c.radius * c.radius;
-      if (q < T(0) || a <= T(0)) return false;  // starts inside, or does not move
-      const T disc = b * b - a * q;
-      if (disc < T(0)) return false;
-      s = (-b - std::sqrt(disc)) / a;
-      if (!(s >= T(0) && s <= T(1))) return false;
-      const Vec e = r + s * d;
-      n = e.norm() > T(0) ? Vec(e.normalized()) : Vec(Vec::UnitX());
-      return true;
-    }
-    case ColliderShape::Box: {
-      T enter = T(0), leave = T(1);
-      int axis = -1;
-      for (int k = 0; k < Dim; ++k) {
-        if (d[k] == T(0)) {
-          if (y0[k] <= c.lo[k] || y0[k] >= c.hi[k]) return false;
-          continue;
-        }
-        T t0 = (c.lo[k] - y0[k]) / d[k], t1 = (c.hi[k] - y0[k]) / d[k];
-        if (t0 > t1) std::swap(t0, t1);
-        if (t0 > enter) enter = t0, axis = k;
-        leave = std::min(leave, t1);
-        if (enter > leave) return false;
-      }
-      if (axis < 0) return false;  // starts inside (or on) the box: the grid condition holds it
-      s = enter;
-      n = Vec::Zero();
-      n[axis] = d[axis] > T(0) ? T(-1) : T(1);
-      return true;
-    }
-  }
-  return false;
-}
-
-/// Whether collider c is thinner than the widest kernel stencil (4 cells, the cubic B-spline)
-/// along some axis: then particles beside it reach grid nodes on its far side.
-template <class T, int Dim>
-bool thin_collider(const Collider<T, Dim>& c, T dx) {
-  const T reach = T(4) * dx;
-  if (c.shape == ColliderShape::Box) return (c.hi - c.lo).minCoeff() < reach;
-  if (c.shape == ColliderShape::Sphere) return T(2) * c.radius < reach;
-  return false;  // a half-space is never thin
-}
-
-template <class T, int Dim>
-bool any_thin_collider(const std::vector<Collider<T, Dim>>& colliders, T dx) {
-  for (const auto& c : colliders)
-    if (thin_collider(c, dx)) return true;
-  return false;
-}
-
 /// A particle whose path x_before -> x (this substep, t0 to t1) entered a thin collider stops
 /// just outside its surface and loses its velocity into it.
 template <class T, int Dim>
@@ -113,22 +44,17 @@ void keep_out_of_colliders(Particles<T, Dim>& P, const std::vector<Collider<T, D
                            const unsigned char* x_before, T t0, T t1, T dx) {
   const T margin = T(1e-3) * dx;
   using Vec = Eigen::Matrix<T, Dim, 1>;
+  const auto poses0 = collider_poses(colliders, t0), poses1 = collider_poses(colliders, t1);
   parallel::parallel_chunks(0, std::int64_t(P.size()), [&](std::int64_t lo, std::int64_t hi) {
     for (std::int64_t p = lo; p < hi; ++p) {
       Vec x0;
       std::memcpy(static_cast<void*>(x0.data()), x_before + std::size_t(p) * sizeof(Vec), sizeof(Vec));
-      for (const auto& c : colliders) {
+      for (std::size_t k = 0; k < colliders.size(); ++k) {
+        const auto& c = colliders[k];
         if (!thin_collider(c, dx)) continue;
-        // The path in the collider's frame (it translates at c.velocity).
-        const Vec y0 = x0 - c.velocity * t0, y1 = P.x[p] - c.velocity * t1;
-        T s;
         Vec n;
-        if (!collider_entry(c, y0, y1, s, n)) continue;
-        const Vec step = P.x[p] - x0;
-        const T len = step.norm();
-        s = len > T(0) ? std::max(T(0), s - margin / len) : T(0);
-        P.x[p] = x0 + s * step;
-        const T vn = (P.v[p] - c.velocity).dot(n);
+        if (!stop_at_collider(c, x0, t0, poses0[k], P.x[p], t1, poses1[k], margin, n)) continue;
+        const T vn = (P.v[p] - c.velocity_at(P.x[p], t1)).dot(n);
         if (vn < T(0)) P.v[p] -= vn * n;  // no velocity into the solid
       }
     }
@@ -166,7 +92,7 @@ Simulation<T, Dim>::Simulation(const Scene& scene) : scene_(scene) {
   bins_.resize(res);
   gravity_ = scene_.solver.gravity.head<Dim>().template cast<T>();
   for (const auto& m : scene_.materials) materials_.push_back(make_material<T, Dim>(m));
-  for (const auto& c : scene_.colliders) colliders_.emplace_back(c);
+  colliders_ = detail::make_colliders<T, Dim>(scene_);
   for (const auto& m : materials_) {
     max_wave_speed_ = std::max(max_wave_speed_, m.wave_speed);
     fluid_.push_back(m.fluid ? 1 : 0);
@@ -205,6 +131,16 @@ void Simulation<T, Dim>::seed_bodies() {
       const auto& b = scene_.bodies[bi];
       if (scene_.material_index(b.material) != mi) continue;
       const auto& mat = materials_[mi];
+      if (b.shape == Shape::Mesh) {
+        if constexpr (Dim == 3) {
+          double vol = 0;
+          const auto xs = detail::seed_mesh_body(scene_, bi, vol);
+          const Vec vel = b.velocity.template cast<T>();
+          for (const auto& x : xs)
+            P.push_back(x.template cast<T>(), vel, T(mat.density * vol), T(vol), std::uint16_t(mi), mat.initial_plastic_state());
+        }
+        continue;
+      }
       Eigen::Matrix<double, Dim, 1> lo, hi;
       const Eigen::Matrix<double, Dim, 1> c = b.center.head<Dim>();
       if (b.shape == Shape::Box) {
@@ -337,7 +273,7 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
   // positions before the move are kept (in stress_, dead after the scatter) and a particle whose
   // path enters one stops at its surface (detail::keep_out_of_colliders). Thick colliders are
   // left to the grid alone, as before.
-  const bool thin_colliders = detail::any_thin_collider(colliders_, dx_);
+  const bool thin_colliders = any_thin_collider(colliders_, dx_);
   if (thin_colliders) {
     auto* saved = reinterpret_cast<unsigned char*>(static_cast<void*>(stress_.data()));
     static_assert(sizeof(Vec) <= sizeof(Mat));

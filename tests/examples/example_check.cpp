@@ -12,7 +12,8 @@
 //    speed gravity can give it; bodies and emitters start at |v0| at most, and a moving collider
 //    can reflect a particle at up to twice its own speed. Elastic bodies can briefly concentrate
 //    energy at an edge (the jelly cubes reach 1.45 sqrt(v0^2 + 2 g H) as they bounce apart), so
-//    the bound is 2 sqrt(v0^2 + 2 g H) + 2 |v_collider|, which leaves room for the round-off
+//    the bound is 2 sqrt(v0^2 + 2 g H) + 2 |v_collider| (a keyframed mesh collider: its fastest
+//    point, translation plus turn rate times reach), which leaves room for the round-off
 //    differences between instruction sets. An unstable run exceeds it by an order of magnitude
 //    (sand_column_3d before its SVD fix: 47 m/s against a bound of 6.3 m/s). Liquids throw droplets: where a jet or a drop hits, the pressure
 //    impulse flings a handful of particles (2 to 8 of 5 832 to 22 828 in the 2D FLIP examples)
@@ -31,6 +32,9 @@
 #include <string>
 #include <sys/wait.h>
 
+#include <Eigen/Geometry>
+
+#include "slurry/engine/geometry/triangle_mesh.h"
 #include "slurry/engine/ply.h"
 #include "slurry/engine/scene.h"
 
@@ -63,7 +67,26 @@ double speed_bound(const slurry::Scene& s, int dim) {
   double v0 = 0, vc = 0;
   for (const auto& b : s.bodies) v0 = std::max(v0, b.velocity.head(dim).norm());
   for (const auto& e : s.emitters) v0 = std::max(v0, e.velocity.head(dim).norm());
-  for (const auto& c : s.colliders) vc = std::max(vc, c.velocity.head(dim).norm());
+  for (const auto& c : s.colliders) {
+    double v = c.velocity.head(dim).norm();
+    if (c.shape == slurry::ColliderShape::Mesh && c.keyframes.size() > 1) {
+      // A keyframed mesh: its fastest point between two keys moves at |dc/dt| + omega R, R the
+      // largest distance of a (scaled) vertex from the origin of the mesh's frame.
+      double R = 0;
+      for (const auto& x : slurry::geometry::read_triangle_mesh(s.resolve(c.mesh)).vertices)
+        R = std::max(R, c.scale.cwiseProduct(x).norm());
+      double fastest = 0;
+      for (std::size_t k = 1; k < c.keyframes.size(); ++k) {
+        const auto &a = c.keyframes[k - 1], &b = c.keyframes[k];
+        const double span = b.time - a.time;
+        const Eigen::AngleAxisd turn(slurry::geometry::euler_degrees(b.rotation) *
+                                     slurry::geometry::euler_degrees(a.rotation).transpose());
+        fastest = std::max(fastest, (b.translation - a.translation).norm() / span + turn.angle() / span * R);
+      }
+      v += fastest;
+    }
+    vc = std::max(vc, v);
+  }
   return 2 * std::sqrt(v0 * v0 + 2 * gn * H) + 2 * vc;
 }
 

@@ -182,7 +182,10 @@ const BadCase kBad[] = {
      "materials[0].damping: unknown key"},
     {"mesh_on_mpm", R"({"solver": {"dimension": 2}, "materials": [{"name": "a"}],
        "bodies": [{"mesh": "a.node", "material": "a"}]})",
-     "bodies[0].mesh: meshes are read by solver.type \"fem\" only"},
+     "bodies[0].mesh: a triangle mesh is filled with particles by \"shape\": \"mesh\" (TetGen meshes are for solver.type \"fem\")"},
+    {"mesh_shape_on_fem", R"({"solver": {"type": "fem", "dimension": 3}, "materials": [{"name": "a", "model": "corotated_linear"}],
+       "bodies": [{"shape": "mesh", "mesh": "a.obj", "material": "a"}]})",
+     "bodies[0].shape: solver.type \"fem\" reads a TetGen \"mesh\""},
 };
 
 class BadFemScenes : public testing::TestWithParam<BadCase> {};

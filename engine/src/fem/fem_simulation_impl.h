@@ -13,6 +13,7 @@
 #include "../state_io.h"
 #include "slurry/engine/fem/fem_simulation.h"
 #include "slurry/engine/fem/tetgen.h"
+#include "../geometry/scene_meshes.h"
 
 namespace slurry {
 namespace fem_detail {
@@ -41,7 +42,7 @@ struct FemSimulation<T, Dim>::Boundary {
     for (const auto& c : sim.colliders_) {
       Vec n = Vec::Zero();
       if (c.condition == Condition::Sticky && c.inside(x, t, n)) {
-        vb = c.velocity;
+        vb = c.velocity_at(x, t);
         return true;
       }
     }
@@ -57,7 +58,7 @@ struct FemSimulation<T, Dim>::Boundary {
     }
     for (const auto& c : sim.colliders_) {
       Vec n = Vec::Zero();
-      if (c.inside(xp, t + dt, n)) v = apply_condition<T, Dim>(v, c.velocity, n, c.condition, c.friction);
+      if (c.inside(xp, t + dt, n)) v = apply_condition<T, Dim>(v, c.velocity_at(xp, t + dt), n, c.condition, c.friction);
     }
   }
 };
@@ -76,7 +77,7 @@ FemSimulation<T, Dim>::FemSimulation(const Scene& scene) : scene_(scene) {
   lo_ = lo.template cast<T>();
   hi_ = hi.template cast<T>();
   gravity_ = scene_.solver.gravity.head<Dim>().template cast<T>();
-  for (const auto& c : scene_.colliders) colliders_.emplace_back(c);
+  colliders_ = detail::make_colliders<T, Dim>(scene_);
 
   std::vector<fem::FemMaterial<T>> materials;
   for (const auto& m : scene_.materials)

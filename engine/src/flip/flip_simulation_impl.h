@@ -10,6 +10,7 @@
 #include <string>
 
 #include "../frame_builder.h"
+#include "../geometry/scene_meshes.h"
 #include "../state_io.h"
 #include "slurry/engine/flip/advection.h"
 #include "slurry/engine/flip/extrapolate.h"
@@ -47,7 +48,7 @@ FlipSimulation<T, Dim>::FlipSimulation(const Scene& scene) : scene_(scene) {
     case TransferKind::FLIP: scheme_ = FaceScheme::FLIP; break;
     default: scheme_ = FaceScheme::APIC; break;
   }
-  for (const auto& c : scene_.colliders) solids_.colliders.emplace_back(c);
+  solids_.colliders = slurry::detail::make_colliders<T, Dim>(scene_);
   const auto& pp = scene_.solver.pressure;
   projection_options_.preconditioner = pp.preconditioner == PressurePreconditioner::Multigrid ? Preconditioner::Multigrid
                                        : pp.preconditioner == PressurePreconditioner::MIC0   ? Preconditioner::MIC0
@@ -69,7 +70,14 @@ FlipSimulation<T, Dim>::FlipSimulation(const Scene& scene) : scene_(scene) {
   P.has_material = scene_.materials.size() > 1;
   for (std::size_t bi = 0; bi < scene_.bodies.size(); ++bi) {
     const auto& b = scene_.bodies[bi];
-    const auto xs = seed_body<T, Dim>(b, dom.dx);
+    std::vector<Vec> xs;
+    if constexpr (Dim == 3) {
+      if (b.shape == Shape::Mesh) {
+        double cell_volume = 0;
+        for (const auto& x : slurry::detail::seed_mesh_body(scene_, bi, cell_volume)) xs.push_back(x.template cast<T>());
+      }
+    }
+    if (b.shape != Shape::Mesh) xs = seed_body<T, Dim>(b, dom.dx);
     if (xs.empty())
       throw SceneError(scene_.source + ": bodies[" + std::to_string(bi) +
                        "]: seeds no particles (expected a body larger than the particle spacing)");
@@ -248,6 +256,12 @@ void FlipSimulation<T, Dim>::project(T dt) {
       T w = 0;
       int open = 0;
       bool interior = true;
+      // Open share of the cell's faces inside the domain (1 away from colliders): a cell that a
+      // collider has nearly closed passes its target flux through slivers of faces, so the
+      // target shrinks with them. Without this a mesh paddle sweeping through bunched liquid
+      // drove the face velocity up as the substep shrank (the target grows as 1/dt), to 1e9 m/s.
+      double openness = 0;
+      int inner = 0;
       for (int d = 0; d < Dim; ++d)
         for (int side = 0; side < 2; ++side) {
           IVec j = i;
@@ -255,6 +269,7 @@ void FlipSimulation<T, Dim>::project(T dt) {
           if (j[d] >= 0 && j[d] < grid_.res[d] && grid_.label[std::size_t(grid_.cell(j))] == Grid::Air) interior = false;
           IVec f = i;
           f[d] += side;
+          if (f[d] > 0 && f[d] < grid_.res[d]) openness += double(grid_.open_weight(d, f)), ++inner;
           if (grid_.open_weight(d, f) <= T(0)) continue;  // a wall face sees particles on one side only
           w += weight_sum_[d][std::size_t(grid_.face(d, f))];
           ++open;
@@ -264,6 +279,7 @@ void FlipSimulation<T, Dim>::project(T dt) {
         const T shrunk = e > kSlack ? e - kSlack : e < -kSlack ? e + kSlack : T(0);
         const T err = std::clamp(shrunk, interior ? T(-0.5) : T(0), T(0.5));
         target = flux_per_error * double(err);
+        if (inner > 0 && openness < inner) target *= openness / inner;
       }
     }
     target_flux_[std::size_t(c)] = target;
@@ -330,9 +346,24 @@ void FlipSimulation<T, Dim>::advect(T dt) {
   };
   auto& P = particles_;
   const bool solids = !solids_.empty();
+  // A collider thinner than the stencil (or any mesh) can be stepped over in one substep, or
+  // its faces left open between grid nodes: a path that enters one stops at its surface.
+  const auto& colliders = solids_.colliders;
+  const bool thin = any_thin_collider(colliders, grid_.dx);
+  const T t0 = T(time_);
+  const auto poses0 = collider_poses(colliders, t0), poses1 = collider_poses(colliders, t_end);
   parallel::parallel_chunks(0, std::int64_t(P.size()), [&](std::int64_t lo, std::int64_t hi) {
     for (std::int64_t p = lo; p < hi; ++p) {
-      const Vec x = advect_point(scheme, P.x[p], dt, velocity);
+      Vec x = advect_point(scheme, P.x[p], dt, velocity);
+      if (thin) {
+        for (std::size_t k = 0; k < colliders.size(); ++k) {
+          const auto& c = colliders[k];
+          Vec n;
+          if (!thin_collider(c, grid_.dx) || !stop_at_collider(c, P.x[p], t0, poses0[k], x, t_end, poses1[k], margin, n)) continue;
+          const T vn = (P.v[p] - c.velocity_at(x, t_end)).dot(n);
+          if (vn < T(0)) P.v[p] -= vn * n;
+        }
+      }
       P.x[p] = solids ? solids_.push_out(x, t_end, x_lo_, x_hi_, margin) : Vec(x.cwiseMax(x_lo_).cwiseMin(x_hi_));
     }
   });

@@ -31,9 +31,9 @@ enum class Integrator { Explicit, Implicit };
 enum class ImplicitPreconditioner { Jacobi, BlockJacobi, IC0 };
 enum class ElasticModel { CorotatedLinear, FixedCorotated, NeoHookean, StVK, HenckyStVK, Fluid };
 enum class PlasticModel { None, Snow, DruckerPrager, VonMises };
-enum class Shape { Box, Sphere, Cylinder };
+enum class Shape { Box, Sphere, Cylinder, Mesh };
 enum class Sampling { Regular, Jittered };
-enum class ColliderShape { HalfSpace, Box, Sphere };
+enum class ColliderShape { HalfSpace, Box, Sphere, Mesh };
 /// Boundary conditions on grid velocity relative to the boundary's velocity:
 /// sticky (v = v_b), slip (normal part removed), separate (normal part removed only when
 /// approaching, tangential part reduced by Coulomb friction mu |v_n|).
@@ -138,9 +138,15 @@ struct BodyParams {
   double particles_per_cell = 8;  ///< seeding density; spacing dx / ppc^(1/dimension)
   Sampling sampling = Sampling::Regular;
   std::uint64_t seed = 1;  ///< jittered sampling only
-  /// FEM only: TetGen mesh (path of the .node file, or of its stem; the .ele file sits beside
-  /// it), relative to the scene file. Empty: the body's shape is meshed by the solver.
+  /// FEM: TetGen mesh (path of the .node file, or of its stem; the .ele file sits beside it),
+  /// relative to the scene file; empty: the body's shape is meshed by the solver. MPM and FLIP,
+  /// shape "mesh" (3D): a closed triangle mesh (.obj or .ply) whose inside is filled.
   std::string mesh;
+  /// Shape "mesh": placement of the mesh file's coordinates, x -> R (scale .* x) + translation,
+  /// R from Euler angles in degrees about x, then y, then z (geometry/triangle_mesh.h).
+  Eigen::Vector3d scale{1, 1, 1};
+  Eigen::Vector3d rotation{0, 0, 0};
+  Eigen::Vector3d translation{0, 0, 0};
 };
 
 struct BoundaryParams {
@@ -149,8 +155,24 @@ struct BoundaryParams {
   int thickness = 2;  ///< cells next to each face whose nodes the wall condition holds
 };
 
+/// One key of a mesh collider's rigid motion: its pose at `time` (translation, Euler degrees).
+struct ColliderKeyframe {
+  double time = 0;  ///< s; keys in increasing time
+  Eigen::Vector3d translation{0, 0, 0};
+  Eigen::Vector3d rotation{0, 0, 0};
+};
+
 struct ColliderParams {
   ColliderShape shape = ColliderShape::HalfSpace;
+  /// "mesh" (3D): a closed triangle mesh (.obj or .ply, relative to the scene file), placed by
+  /// scale, rotation (Euler degrees about x, y, z) and translation like a mesh body, and moved
+  /// by `keyframes` (linear translation, slerp rotation; held before the first and after the
+  /// last key; they replace translation and rotation) plus `velocity` times t.
+  std::string mesh;
+  Eigen::Vector3d scale{1, 1, 1};
+  Eigen::Vector3d rotation{0, 0, 0};
+  Eigen::Vector3d translation{0, 0, 0};
+  std::vector<ColliderKeyframe> keyframes;
   Eigen::Vector3d point{0, 0, 0}, normal{0, 1, 0};  ///< half_space: solid where (x-point).n < 0
   Eigen::Vector3d min{0, 0, 0}, max{0, 0, 0};       ///< box
   Eigen::Vector3d center{0, 0, 0};                  ///< sphere
@@ -246,6 +268,8 @@ struct Scene {
   double frame_dt() const { return 1.0 / output.fps; }
   /// The allocation the scene will make (see ResourceEstimate).
   ResourceEstimate estimate() const;
+  /// A mesh file named in the scene, relative to the scene file's directory unless absolute.
+  std::filesystem::path resolve(const std::string& file) const;
   /// The smallest explicit elastic substep elastic_cfl dx / c over the materials (c the wave
   /// speed), or +infinity where no elastic limit applies (implicit, FLIP, FEM).
   double elastic_dt() const;

@@ -1,7 +1,7 @@
 #pragma once
 /// \file solids.h
-/// Solids of the FLIP liquid solver: the scene's analytic colliders (colliders.h, moving ones
-/// included) as signed distances, and from them the open fraction of every face and the solid
+/// Solids of the FLIP liquid solver: the scene's colliders (colliders.h: analytic shapes and
+/// meshes, moving ones included) as signed distances, and from them the open fraction of every face and the solid
 /// velocity there. The domain walls close the faces on the domain boundary.
 ///
 /// Face fractions follow the variational treatment of Batty, Bertails & Bridson 2007 ("A fast
@@ -26,8 +26,13 @@ namespace slurry::flip {
 template <class T, int Dim>
 T signed_distance(const Collider<T, Dim>& k, const Eigen::Matrix<T, Dim, 1>& x, T t) {
   using Vec = Eigen::Matrix<T, Dim, 1>;
+  if constexpr (Dim == 3) {
+    if (k.shape == ColliderShape::Mesh)  // a rigid motion keeps distances
+      return T(k.sdf->phi(k.motion->at(double(t)).to_body(x.template cast<double>())));
+  }
   const Vec y = x - k.velocity * t;
   switch (k.shape) {
+    case ColliderShape::Mesh: break;  // 3D only
     case ColliderShape::HalfSpace: return (y - k.point).dot(k.normal);
     case ColliderShape::Sphere: return (y - k.center).norm() - k.radius;
     case ColliderShape::Box: {
@@ -137,9 +142,16 @@ struct Solids {
                          open_fraction(p01, p00, pc));
         }
         g.weight[d][f] = w;
+        // The solid velocity enters the projection as (1 - w) u_solid and closed faces take it:
+        // a fully open face never reads it.
+        if (w >= T(1)) {
+          g.u_solid[d][f] = T(0);
+          return;
+        }
         int which = 0;
-        distance(g.face_position(d, i), t, &which);
-        g.u_solid[d][f] = colliders[which].velocity[d];
+        const Vec xf = g.face_position(d, i);
+        if (colliders.size() > 1) distance(xf, t, &which);
+        g.u_solid[d][f] = colliders[which].velocity_at(xf, t)[d];
       });
     }
   }
