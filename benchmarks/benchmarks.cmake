@@ -1,4 +1,4 @@
-foreach(b bench_svd bench_mpm_step bench_implicit bench_fem)
+foreach(b bench_svd bench_mpm_step bench_implicit bench_fem bench_sleep)
   if(EXISTS ${CMAKE_CURRENT_SOURCE_DIR}/${b}.cpp)
     slurry_add_benchmark(${b} ${b}.cpp)
   endif()

@@ -616,6 +616,19 @@ void Scene::validate() const {
     }
   }
 
+  // Sleeping material.
+  c.non_negative("solver.sleep.speed", solver.sleep.speed);
+  c.non_negative("solver.sleep.wake_speed", solver.sleep.wake_speed);
+  if (solver.sleep.speed > 0) {
+    c.positive("solver.sleep.strain_rate", solver.sleep.strain_rate);
+    if (solver.sleep.substeps < 1 || solver.sleep.substeps > 65535)
+      fail(source, "solver.sleep.substeps", "expected an integer in [1, 65535], got " + std::to_string(solver.sleep.substeps));
+    if (solver.type != SolverType::MPM)
+      fail(source, "solver.sleep.speed", "sleeping material is for solver.type \"mpm\" (expected 0)");
+    if (solver.integrator == Integrator::Implicit)
+      fail(source, "solver.sleep.speed", "sleeping material is for the \"explicit\" integrator (expected 0 with \"implicit\")");
+  }
+
   // Bodies.
   if (bodies.empty() && emitters.empty())
     fail(source, "bodies", flip ? "expected at least one body or emitter" : "expected at least one body");
@@ -857,6 +870,13 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.choice("implicit_preconditioner", kImplicitPreconditioner, s.solver.implicit_preconditioner);
     r.choice("on_instability", kOnInstability, s.solver.on_instability);
     r.integer("max_retries", s.solver.max_retries, 1, 30);
+    if (s.solver.type == SolverType::MPM)
+      r.object("sleep", [&](ObjectReader& q) {
+        q.number("speed", s.solver.sleep.speed);
+        q.number("strain_rate", s.solver.sleep.strain_rate);
+        q.integer("substeps", s.solver.sleep.substeps, 1, 65535);
+        q.number("wake_speed", s.solver.sleep.wake_speed);
+      });
   });
   if (!top.has("materials")) fail(source, "materials", "missing (expected an array of materials)");
   top.objects("materials", [&](ObjectReader& r, std::size_t) {

@@ -11,6 +11,7 @@
 #include <cstring>
 #include <sstream>
 #include <type_traits>
+#include <unordered_map>
 
 #include "frame_builder.h"
 #include "geometry/scene_meshes.h"
@@ -63,6 +64,38 @@ void keep_out_of_colliders(Particles<T, Dim>& P, const std::vector<Collider<T, D
 
 }  // namespace detail
 
+/// State of sleeping material (solver.sleep). Blocks are keyed by their linear index in the
+/// bins' block lattice. A sleeping block keeps the grid contribution its particles made when it
+/// fell asleep, split into the part that does not scale with the substep (mass; momentum is zero,
+/// since its particles were stopped) and the stress impulse per second of substep, so that the
+/// contribution of a substep dt is (dt * impulse, mass): the same sums the particles would
+/// scatter, since at rest nothing else changes.
+template <class T, int Dim>
+struct Simulation<T, Dim>::SleepState {
+  using Node = Eigen::Matrix<T, Dim + 1, 1>;
+  struct Block {
+    std::uint32_t count = 0;  ///< particles in the block when it fell asleep
+    T hardening = T(1);       ///< largest snow hardening factor of its particles (time-step limit)
+    bool cached = false;      ///< `nodes` holds the block's patch (rebuilt after a resume)
+    std::vector<Node> nodes;  ///< (momentum per unit dt, mass) per patch node
+  };
+  T speed = 0, rate = 0, wake = 0;
+  int substeps = 0;
+  std::vector<std::uint16_t> calm;  ///< per block: calm substeps in a row...
+  std::vector<std::int64_t> seen;   ///< ...counted up to this step (older counts are void)
+  std::unordered_map<std::int64_t, Block> asleep;
+  std::vector<std::uint8_t> group_asleep;  ///< per occupied block of the current bins
+  std::vector<std::uint8_t> bin_asleep;    ///< per bin
+  std::vector<std::uint8_t> group_calm;    ///< scratch of sleep_update
+  std::int64_t woken = 0, slept = 0;       ///< blocks woken / put to sleep so far
+
+  std::int64_t key(const Eigen::Matrix<int, Dim, 1>& block, const Eigen::Matrix<int, Dim, 1>& res) const {
+    std::int64_t k = 0;
+    for (int d = 0; d < Dim; ++d) k = k * res[d] + block[d];
+    return k;
+  }
+};
+
 template <class T, int Dim>
 Simulation<T, Dim>::Simulation(const Scene& scene) : scene_(scene) {
   scene_.validate();
@@ -109,6 +142,18 @@ Simulation<T, Dim>::Simulation(const Scene& scene) : scene_(scene) {
                        : scene_.solver.implicit_preconditioner == ImplicitPreconditioner::BlockJacobi ? Pre::BlockJacobi
                                                                                                       : Pre::IC0;
     implicit_ = std::make_unique<ImplicitUpdate<T, Dim>>(scene_.solver.kernel, scene_.solver.transfer, o);
+  }
+  if (scene_.solver.sleep.speed > 0) {
+    const auto& sp = scene_.solver.sleep;
+    sleep_ = std::make_unique<SleepState>();
+    sleep_->speed = T(sp.speed);
+    sleep_->rate = T(sp.strain_rate);
+    sleep_->wake = T(sp.wake_speed > 0 ? sp.wake_speed : 2 * sp.speed);
+    sleep_->substeps = sp.substeps;
+    std::size_t blocks = 1;
+    for (int d = 0; d < Dim; ++d) blocks *= std::size_t(bins_.block_res()[d]);
+    sleep_->calm.assign(blocks, 0);
+    sleep_->seen.assign(blocks, -2);
   }
 }
 
@@ -200,8 +245,13 @@ void Simulation<T, Dim>::seed_bodies() {
 
 template <class T, int Dim>
 std::size_t Simulation<T, Dim>::bytes() const {
+  std::size_t sleeping = 0;
+  if (sleep_) {
+    sleeping = sleep_->calm.capacity() * sizeof(std::uint16_t) + sleep_->seen.capacity() * sizeof(std::int64_t);
+    for (const auto& [k, blk] : sleep_->asleep) sleeping += sizeof(blk) + blk.nodes.capacity() * sizeof(blk.nodes[0]);
+  }
   return particles_.bytes() + stress_.capacity() * sizeof(Mat) + bins_.bytes() + dense_.bytes() + sparse_.bytes() +
-         (implicit_ ? implicit_->bytes() : 0);
+         (implicit_ ? implicit_->bytes() : 0) + sleeping;
 }
 
 template <class T, int Dim>
@@ -224,7 +274,23 @@ std::int64_t Simulation<T, Dim>::advance_to(double t_end) {
 }
 
 template <class T, int Dim>
+std::size_t Simulation<T, Dim>::sleeping_blocks() const {
+  return sleep_ ? sleep_->asleep.size() : 0;
+}
+
+template <class T, int Dim>
+std::int64_t Simulation<T, Dim>::blocks_fallen_asleep() const {
+  return sleep_ ? sleep_->slept : 0;
+}
+
+template <class T, int Dim>
 std::string Simulation<T, Dim>::solver_status() const {
+  if (sleep_) {
+    char buf[160];
+    std::snprintf(buf, sizeof buf, "sleeping %zu blocks (%lld fell asleep, %lld woke so far)", sleep_->asleep.size(),
+                  (long long)sleep_->slept, (long long)sleep_->woken);
+    return buf;
+  }
   if (!implicit_ || cg_.solves == 0) return {};
   char buf[160];
   std::snprintf(buf, sizeof buf, "implicit CG %d iterations, residual %.2g (%lld unconverged so far)",
@@ -256,6 +322,7 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
   lap(phase_times_.binning);
   if (implicit_ || steps_ % kReorderInterval == 0) reorder_particles();
   lap(phase_times_.reorder);
+  if (sleep_) sleep_prepare();
   particles_to_grid(grid, dt);
   lap(phase_times_.p2g);
   if constexpr (std::is_same_v<G, DenseGrid>) {
@@ -265,6 +332,13 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
       update_grid(grid, dt);
   } else {
     update_grid(grid, dt);
+  }
+  if (sleep_) {
+    switch (scene_.solver.kernel) {
+      case KernelKind::Linear: sleep_wake<1>(grid); break;
+      case KernelKind::Quadratic: sleep_wake<2>(grid); break;
+      case KernelKind::Cubic: sleep_wake<3>(grid); break;
+    }
   }
   lap(phase_times_.grid);
   // Colliders act on grid nodes inside them, and a particle takes the velocity of every node
@@ -285,6 +359,7 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
                                   T(time_), T(time_) + dt, dx_);
   lap(phase_times_.g2p);
   return_mapping();
+  if (sleep_) sleep_update();
   lap(phase_times_.plasticity);
 }
 
@@ -437,6 +512,27 @@ void Simulation<T, Dim>::particles_to_grid_order(G& grid, T dt) {
           const auto first = bins_.group_begin(g), last = bins_.group_begin(g + 1);
           transfer::Patch<T, Dim, Order> patch(bins[first].block, origin_, dx_, inv_dx);
           patch.zero();
+          if (sleep_ && sleep_->group_asleep[g]) {
+            // A sleeping block adds the contribution its particles made when they stopped; the
+            // first substep after it fell asleep (or a resume) scatters them once, with the
+            // stress impulse of a unit substep, to keep it.
+            auto& blk = sleep_->asleep.find(sleep_->key(bins[first].block, bins_.block_res()))->second;
+            if (!blk.cached) {
+              for (auto b = first; b < last; ++b) {
+                compute_stress(int(bins[b].material), bins[b].begin, bins[b].end, T(1));
+                transfer::scatter_particles<Order, S>(patch, P.x.data(), P.v.data(), P.m.data(), C, stress_.data(),
+                                                      order, bins[b].begin, bins[b].end);
+              }
+              blk.nodes.assign(patch.nodes.begin(), patch.nodes.end());
+              blk.cached = true;
+            }
+            for (std::size_t k = 0; k < blk.nodes.size(); ++k) {
+              patch.nodes[k].template head<Dim>() = dt * blk.nodes[k].template head<Dim>();
+              patch.nodes[k][Dim] = blk.nodes[k][Dim];
+            }
+            grid.add_patch(patch);
+            return;
+          }
           for (auto b = first; b < last; ++b) {
             // The stress of a bin's particles is computed just before they are scattered: K_p is
             // still in cache when the scatter reads it, and the step makes one parallel pass
@@ -527,6 +623,7 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
           [&](std::int64_t lo, std::int64_t hi) {
             T r2 = 0;
             for (std::int64_t b = lo; b < hi; ++b) {
+              if (sleep_ && sleep_->bin_asleep[std::size_t(b)]) continue;
               const auto& bin = bins[std::size_t(b)];
               transfer::Patch<T, Dim, Order> patch(bin.block, origin_, dx_, inv_dx);
               grid.read_patch(patch);
@@ -573,6 +670,10 @@ void Simulation<T, Dim>::return_mapping() {
     const auto& bin = bins[std::size_t(bi)];
     const auto& mat = materials_[bin.material];
     if (mat.plastic_kind == PlasticModel::None) return;
+    if (sleep_ && sleep_->bin_asleep[std::size_t(bi)]) {  // unchanged since it fell asleep
+      if (snow) hmax[std::size_t(bi)] = sleep_->asleep.find(sleep_->key(bin.block, bins_.block_res()))->second.hardening;
+      return;
+    }
     T h = T(1);
     std::int64_t yielded = 0;
     for (auto i = bin.begin; i < bin.end; ++i) {
@@ -595,6 +696,106 @@ void Simulation<T, Dim>::return_mapping() {
   }
   max_wave_speed_ = 0;
   for (const auto& m : materials_) max_wave_speed_ = std::max(max_wave_speed_, m.wave_speed);
+}
+
+template <class T, int Dim>
+void Simulation<T, Dim>::sleep_prepare() {
+  auto& S = *sleep_;
+  const auto& bins = bins_.bins();
+  const std::size_t groups = bins_.groups();
+  S.group_asleep.assign(groups, 0);
+  S.bin_asleep.assign(bins.size(), 0);
+  for (std::size_t g = 0; g < groups; ++g) {
+    const auto first = bins_.group_begin(g), last = bins_.group_begin(g + 1);
+    const auto it = S.asleep.find(S.key(bins[first].block, bins_.block_res()));
+    if (it == S.asleep.end()) continue;
+    std::uint32_t count = 0;
+    for (auto b = first; b < last; ++b) count += bins[b].end - bins[b].begin;
+    if (count != it->second.count) {  // a particle came in (or went): the block is not at rest
+      S.asleep.erase(it);
+      ++S.woken;
+      continue;
+    }
+    S.group_asleep[g] = 1;
+    for (auto b = first; b < last; ++b) S.bin_asleep[b] = 1;
+  }
+}
+
+template <class T, int Dim>
+template <int Order, class G>
+void Simulation<T, Dim>::sleep_wake(G& grid) {
+  auto& S = *sleep_;
+  if (S.asleep.empty()) return;
+  const auto& bins = bins_.bins();
+  const std::size_t groups = bins_.groups();
+  const T wake2 = S.wake * S.wake;
+  // A sleeping block wakes when a node its particles reach moves faster than the wake speed
+  // after the grid update: something hit it, a collider came near, or its support moved.
+  std::vector<std::uint8_t> wake(groups, 0);
+  parallel::parallel_tasks(0, std::int64_t(groups), [&](std::int64_t g) {
+    if (!S.group_asleep[std::size_t(g)]) return;
+    transfer::Patch<T, Dim, Order> patch(bins[bins_.group_begin(std::size_t(g))].block, origin_, dx_, T(1) / dx_);
+    grid.read_patch(patch);
+    for (const auto& node : patch.nodes)
+      if (node[Dim] > T(0) && node.template head<Dim>().squaredNorm() > wake2) {
+        wake[std::size_t(g)] = 1;
+        return;
+      }
+  });
+  for (std::size_t g = 0; g < groups; ++g) {
+    if (!wake[g]) continue;
+    const auto first = bins_.group_begin(g), last = bins_.group_begin(g + 1);
+    S.asleep.erase(S.key(bins[first].block, bins_.block_res()));
+    ++S.woken;
+    S.group_asleep[g] = 0;
+    for (auto b = first; b < last; ++b) S.bin_asleep[b] = 0;
+  }
+}
+
+template <class T, int Dim>
+void Simulation<T, Dim>::sleep_update() {
+  auto& S = *sleep_;
+  auto& P = particles_;
+  const auto& bins = bins_.bins();
+  const std::uint32_t* order = bins_.order();
+  const std::size_t groups = bins_.groups();
+  const T speed2 = S.speed * S.speed, rate2 = S.rate * S.rate;
+  // Calm: every particle of the block slower than `speed` and deforming slower than `rate`.
+  S.group_calm.assign(groups, 0);
+  parallel::parallel_tasks(0, std::int64_t(groups), [&](std::int64_t g) {
+    if (S.group_asleep[std::size_t(g)]) return;
+    for (auto b = bins_.group_begin(std::size_t(g)); b < bins_.group_begin(std::size_t(g) + 1); ++b)
+      for (auto i = bins[b].begin; i < bins[b].end; ++i) {
+        const auto p = order[i];
+        if (P.v[p].squaredNorm() > speed2 || (!P.C.empty() && P.C[p].squaredNorm() > rate2)) return;
+      }
+    S.group_calm[std::size_t(g)] = 1;
+  });
+  for (std::size_t g = 0; g < groups; ++g) {
+    if (S.group_asleep[g]) continue;
+    const auto first = bins_.group_begin(g), last = bins_.group_begin(g + 1);
+    const std::int64_t k = S.key(bins[first].block, bins_.block_res());
+    const std::size_t ks = std::size_t(k);
+    const int before = S.seen[ks] == steps_ - 1 ? int(S.calm[ks]) : 0;  // steps_ is this substep's index
+    S.seen[ks] = steps_;
+    S.calm[ks] = std::uint16_t(S.group_calm[g] ? std::min(before + 1, 65535) : 0);
+    if (S.calm[ks] < S.substeps) continue;
+    // Fall asleep: the particles stop where they are.
+    typename SleepState::Block blk;
+    for (auto b = first; b < last; ++b) {
+      const auto& mat = materials_[bins[b].material];
+      for (auto i = bins[b].begin; i < bins[b].end; ++i) {
+        const auto p = order[i];
+        P.v[p].setZero();
+        if (!P.C.empty()) P.C[p].setZero();
+        if (mat.plastic_kind == PlasticModel::Snow) blk.hardening = std::max(blk.hardening, mat.hardening_factor(P.plastic[p]));
+      }
+      blk.count += bins[b].end - bins[b].begin;
+    }
+    S.asleep.emplace(k, std::move(blk));
+    S.calm[ks] = 0;
+    ++S.slept;
+  }
 }
 
 template <class T, int Dim>
@@ -703,6 +904,23 @@ void Simulation<T, Dim>::save_state(std::string& out) const {
   w.pod(cg_.solves);
   w.pod(cg_.iterations);
   w.pod(cg_.unconverged);
+  if (sleep_) {  // only scenes with solver.sleep carry it (same scene hash on resume)
+    const auto& S = *sleep_;
+    w.vec(S.calm);
+    w.vec(S.seen);
+    std::vector<std::int64_t> keys;
+    for (const auto& [k, blk] : S.asleep) keys.push_back(k);
+    std::sort(keys.begin(), keys.end());
+    w.pod(std::uint64_t(keys.size()));
+    for (const auto k : keys) {
+      const auto& blk = S.asleep.at(k);
+      w.pod(k);
+      w.pod(blk.count);
+      w.pod(blk.hardening);
+    }
+    w.pod(S.woken);
+    w.pod(S.slept);
+  }
   w.tag(detail::kTagEnd);
 }
 
@@ -741,6 +959,24 @@ void Simulation<T, Dim>::load_state(std::string_view in, const std::string& what
   r.pod(cg_.solves);
   r.pod(cg_.iterations);
   r.pod(cg_.unconverged);
+  if (sleep_) {
+    auto& S = *sleep_;
+    r.vec(S.calm, std::int64_t(S.calm.size()), "sleep calm counts");
+    r.vec(S.seen, std::int64_t(S.seen.size()), "sleep steps");
+    S.asleep.clear();
+    const auto blocks = r.get<std::uint64_t>();
+    if (blocks > S.calm.size()) r.fail("it has more sleeping blocks than the grid has blocks");
+    for (std::uint64_t i = 0; i < blocks; ++i) {
+      const auto k = r.get<std::int64_t>();
+      if (k < 0 || std::uint64_t(k) >= S.calm.size()) r.fail("a sleeping block lies outside the grid");
+      typename SleepState::Block blk;
+      r.pod(blk.count);
+      r.pod(blk.hardening);
+      S.asleep.emplace(k, std::move(blk));  // its grid contribution is scattered again (cached = false)
+    }
+    r.pod(S.woken);
+    r.pod(S.slept);
+  }
   r.tag(detail::kTagEnd, "end");
   r.finish();
   stress_.resize(P.size());

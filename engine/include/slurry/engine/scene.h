@@ -79,6 +79,20 @@ struct ReseedParams {
   int max_per_cell = 0;
 };
 
+/// MPM sleeping material ("model only what moves"): the particles of a grid block that have all
+/// moved slower than `speed` and deformed slower than `strain_rate` (the norm of their velocity
+/// gradient C) for `substeps` substeps in a row go to sleep: their velocity is set to zero, their
+/// contribution to the grid is kept from their last scatter, and the stress update, the gather
+/// and the plastic projection skip them. A sleeping block wakes when a node it reaches moves
+/// faster than `wake_speed` after the grid update (something hit it or the ground moved) or a
+/// particle enters or leaves it. Off (speed 0) by default; explicit MPM only.
+struct SleepParams {
+  double speed = 0;           ///< m/s; 0 turns sleeping off
+  double strain_rate = 0.5;   ///< 1/s, > 0
+  int substeps = 100;         ///< calm substeps in a row before a block sleeps, [1, 65535]
+  double wake_speed = 0;      ///< m/s; 0 = 2 x speed
+};
+
 struct SolverParams {
   SolverType type = SolverType::MPM;     ///< "mpm", "flip" or "fem"
   int dimension = 3;                     ///< 2 or 3
@@ -106,6 +120,7 @@ struct SolverParams {
   /// redone from its start with the substep halved, up to max_retries halvings (run.h).
   OnInstability on_instability = OnInstability::Stop;
   int max_retries = 3;  ///< halvings per frame for on_instability "retry", [1, 30]
+  SleepParams sleep;     ///< MPM only
 };
 
 struct MaterialParams {

@@ -10,6 +10,8 @@
 ///   update_grid     v_i = p_i / m_i + dt g; walls and colliders
 ///   grid_to_particles  v_p, C_p, F_p <- (I + dt grad v) F_p (or J_p), x_p += dt v_p
 ///   return_mapping  plastic projection of F_p (per plastic material)
+///   (solver.sleep) blocks of particles at rest skip the stress, the scatter (their last
+///                   contribution is reused), the gather and the projection until something moves
 ///   check_health    non-finite state, CFL violation, particle outside the domain -> SimulationError
 ///
 /// following Stomakhin et al. 2013 ("A material point method for snow simulation") for the
@@ -138,6 +140,10 @@ class Simulation final : public SimulationBase {
   /// CG iterations of the last substep's implicit solve (0 for "explicit").
   int last_cg_iterations() const { return cg_.last_iterations; }
   const CgStats& cg_stats() const { return cg_; }
+  /// Grid blocks whose particles sleep now (solver.sleep; 0 when off), and how many times a
+  /// block fell asleep since the start.
+  std::size_t sleeping_blocks() const;
+  std::int64_t blocks_fallen_asleep() const;
   std::string solver_status() const override;
   RunStats take_stats() override;
   ParticleStorage particle_storage() const override;
@@ -167,6 +173,14 @@ class Simulation final : public SimulationBase {
   GridBoundaries<T, Dim> grid_boundaries(T t) const;
   void return_mapping();
   [[noreturn]] void diagnose(T dt) const;
+  // Sleeping material (solver.sleep, scene.h): which blocks sleep this substep and their cached
+  // grid contributions (sleep_prepare, after binning); blocks whose nodes moved wake
+  // (sleep_wake, after the grid update); calm blocks fall asleep (sleep_update, at the end).
+  struct SleepState;
+  void sleep_prepare();
+  template <int Order, class G>
+  void sleep_wake(G& grid);
+  void sleep_update();
 
   template <int Order>
   void bin_particles_order();
@@ -201,6 +215,7 @@ class Simulation final : public SimulationBase {
   T max_wave_speed_ = 0;
   std::unique_ptr<ImplicitUpdate<T, Dim>> implicit_;  // null for "explicit"
   CgStats cg_;
+  std::unique_ptr<SleepState> sleep_;  // null unless solver.sleep.speed > 0
 };
 
 extern template class Simulation<float, 2>;
