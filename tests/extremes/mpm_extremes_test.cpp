@@ -366,3 +366,26 @@ TEST(Extremes, EveryTransferKernelPair2D) { transfer_kernel_pairs(2); }
 TEST(Extremes, EveryTransferKernelPair3D) { transfer_kernel_pairs(3); }
 
 }  // namespace
+
+// A CFL-limited substep that collapsed below the floor because velocities blew up (a FLIP
+// liquid squeezed by a mesh paddle against the floor reached 1e9 m/s) is an instability
+// (SimulationError: exit 1, retried with solver.on_instability "retry"), with a diagnosis that
+// says so, not a setting to raise. A tiny cfl at ordinary speeds is still the setting's error.
+TEST(Extremes, CollapsedStepFromABlowUpIsAnInstability) {
+  Scene s = block_2d(1e5, 0.3, 1000);  // at rest, dx = 1/32 m, cfl 0.5
+  try {
+    slurry::substep_limit_error(s, 1e-11, 1.0 / 40, 3, 0.45);
+    FAIL() << "no error";
+  } catch (const slurry::SimulationError& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("simulation unstable at t = 0.45 s: particles reached 1.56e+09 m/s"), std::string::npos) << m;
+    EXPECT_NE(m.find("the state blew up"), std::string::npos) << m;
+  }
+  s.solver.cfl = 1e-12;  // the same substep at 0.0031 m/s: the setting is what makes it small
+  try {
+    slurry::substep_limit_error(s, 1e-11, 1.0 / 40, 3, 0.45);
+    FAIL() << "no error";
+  } catch (const slurry::SceneError& e) {
+    EXPECT_NE(std::string(e.what()).find("solver.cfl: the substep fell to"), std::string::npos) << e.what();
+  }
+}
