@@ -65,7 +65,7 @@ void keep_out_of_colliders(Particles<T, Dim>& P, const std::vector<Collider<T, D
 }  // namespace detail
 
 /// State of sleeping material (solver.sleep). Blocks are keyed by their linear index in the
-/// bins' block lattice. A sleeping block keeps the grid contribution its particles made when it
+/// bins' block lattice (ParticleBins::group_key). A sleeping block keeps the grid contribution its particles made when it
 /// fell asleep, split into the part that does not scale with the substep (mass; momentum is zero,
 /// since its particles were stopped) and the stress impulse per second of substep, so that the
 /// contribution of a substep dt is (dt * impulse, mass): the same sums the particles would
@@ -84,16 +84,11 @@ struct Simulation<T, Dim>::SleepState {
   std::vector<std::uint16_t> calm;  ///< per block: calm substeps in a row...
   std::vector<std::int64_t> seen;   ///< ...counted up to this step (older counts are void)
   std::unordered_map<std::int64_t, Block> asleep;
-  std::vector<std::uint8_t> group_asleep;  ///< per occupied block of the current bins
-  std::vector<std::uint8_t> bin_asleep;    ///< per bin
-  std::vector<std::uint8_t> group_calm;    ///< scratch of sleep_update
-  std::int64_t woken = 0, slept = 0;       ///< blocks woken / put to sleep so far
-
-  std::int64_t key(const Eigen::Matrix<int, Dim, 1>& block, const Eigen::Matrix<int, Dim, 1>& res) const {
-    std::int64_t k = 0;
-    for (int d = 0; d < Dim; ++d) k = k * res[d] + block[d];
-    return k;
-  }
+  /// The sleeping block of each occupied block (group) and of each bin of the current bins, or
+  /// null where awake (node pointers of the map stay valid while others are added or erased).
+  std::vector<Block*> group_block, bin_block;
+  std::vector<std::uint8_t> group_calm;  ///< scratch of sleep_update
+  std::int64_t woken = 0, slept = 0;     ///< blocks woken / put to sleep so far
 };
 
 template <class T, int Dim>
@@ -512,11 +507,11 @@ void Simulation<T, Dim>::particles_to_grid_order(G& grid, T dt) {
           const auto first = bins_.group_begin(g), last = bins_.group_begin(g + 1);
           transfer::Patch<T, Dim, Order> patch(bins[first].block, origin_, dx_, inv_dx);
           patch.zero();
-          if (sleep_ && sleep_->group_asleep[g]) {
+          if (sleep_ && sleep_->group_block[g]) {
             // A sleeping block adds the contribution its particles made when they stopped; the
             // first substep after it fell asleep (or a resume) scatters them once, with the
             // stress impulse of a unit substep, to keep it.
-            auto& blk = sleep_->asleep.find(sleep_->key(bins[first].block, bins_.block_res()))->second;
+            auto& blk = *sleep_->group_block[g];
             if (!blk.cached) {
               for (auto b = first; b < last; ++b) {
                 compute_stress(int(bins[b].material), bins[b].begin, bins[b].end, T(1));
@@ -623,7 +618,7 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
           [&](std::int64_t lo, std::int64_t hi) {
             T r2 = 0;
             for (std::int64_t b = lo; b < hi; ++b) {
-              if (sleep_ && sleep_->bin_asleep[std::size_t(b)]) continue;
+              if (sleep_ && sleep_->bin_block[std::size_t(b)]) continue;
               const auto& bin = bins[std::size_t(b)];
               transfer::Patch<T, Dim, Order> patch(bin.block, origin_, dx_, inv_dx);
               grid.read_patch(patch);
@@ -670,8 +665,8 @@ void Simulation<T, Dim>::return_mapping() {
     const auto& bin = bins[std::size_t(bi)];
     const auto& mat = materials_[bin.material];
     if (mat.plastic_kind == PlasticModel::None) return;
-    if (sleep_ && sleep_->bin_asleep[std::size_t(bi)]) {  // unchanged since it fell asleep
-      if (snow) hmax[std::size_t(bi)] = sleep_->asleep.find(sleep_->key(bin.block, bins_.block_res()))->second.hardening;
+    if (sleep_ && sleep_->bin_block[std::size_t(bi)]) {  // unchanged since it fell asleep
+      if (snow) hmax[std::size_t(bi)] = sleep_->bin_block[std::size_t(bi)]->hardening;
       return;
     }
     T h = T(1);
@@ -703,11 +698,11 @@ void Simulation<T, Dim>::sleep_prepare() {
   auto& S = *sleep_;
   const auto& bins = bins_.bins();
   const std::size_t groups = bins_.groups();
-  S.group_asleep.assign(groups, 0);
-  S.bin_asleep.assign(bins.size(), 0);
+  S.group_block.assign(groups, nullptr);
+  S.bin_block.assign(bins.size(), nullptr);
   for (std::size_t g = 0; g < groups; ++g) {
     const auto first = bins_.group_begin(g), last = bins_.group_begin(g + 1);
-    const auto it = S.asleep.find(S.key(bins[first].block, bins_.block_res()));
+    const auto it = S.asleep.find(bins_.group_key(g));
     if (it == S.asleep.end()) continue;
     std::uint32_t count = 0;
     for (auto b = first; b < last; ++b) count += bins[b].end - bins[b].begin;
@@ -716,8 +711,8 @@ void Simulation<T, Dim>::sleep_prepare() {
       ++S.woken;
       continue;
     }
-    S.group_asleep[g] = 1;
-    for (auto b = first; b < last; ++b) S.bin_asleep[b] = 1;
+    S.group_block[g] = &it->second;
+    for (auto b = first; b < last; ++b) S.bin_block[b] = &it->second;
   }
 }
 
@@ -733,7 +728,7 @@ void Simulation<T, Dim>::sleep_wake(G& grid) {
   // after the grid update: something hit it, a collider came near, or its support moved.
   std::vector<std::uint8_t> wake(groups, 0);
   parallel::parallel_tasks(0, std::int64_t(groups), [&](std::int64_t g) {
-    if (!S.group_asleep[std::size_t(g)]) return;
+    if (!S.group_block[std::size_t(g)]) return;
     transfer::Patch<T, Dim, Order> patch(bins[bins_.group_begin(std::size_t(g))].block, origin_, dx_, T(1) / dx_);
     grid.read_patch(patch);
     for (const auto& node : patch.nodes)
@@ -744,11 +739,10 @@ void Simulation<T, Dim>::sleep_wake(G& grid) {
   });
   for (std::size_t g = 0; g < groups; ++g) {
     if (!wake[g]) continue;
-    const auto first = bins_.group_begin(g), last = bins_.group_begin(g + 1);
-    S.asleep.erase(S.key(bins[first].block, bins_.block_res()));
+    S.asleep.erase(bins_.group_key(g));
     ++S.woken;
-    S.group_asleep[g] = 0;
-    for (auto b = first; b < last; ++b) S.bin_asleep[b] = 0;
+    S.group_block[g] = nullptr;
+    for (auto b = bins_.group_begin(g); b < bins_.group_begin(g + 1); ++b) S.bin_block[b] = nullptr;
   }
 }
 
@@ -763,7 +757,7 @@ void Simulation<T, Dim>::sleep_update() {
   // Calm: every particle of the block slower than `speed` and deforming slower than `rate`.
   S.group_calm.assign(groups, 0);
   parallel::parallel_tasks(0, std::int64_t(groups), [&](std::int64_t g) {
-    if (S.group_asleep[std::size_t(g)]) return;
+    if (S.group_block[std::size_t(g)]) return;
     for (auto b = bins_.group_begin(std::size_t(g)); b < bins_.group_begin(std::size_t(g) + 1); ++b)
       for (auto i = bins[b].begin; i < bins[b].end; ++i) {
         const auto p = order[i];
@@ -772,9 +766,9 @@ void Simulation<T, Dim>::sleep_update() {
     S.group_calm[std::size_t(g)] = 1;
   });
   for (std::size_t g = 0; g < groups; ++g) {
-    if (S.group_asleep[g]) continue;
+    if (S.group_block[g]) continue;
     const auto first = bins_.group_begin(g), last = bins_.group_begin(g + 1);
-    const std::int64_t k = S.key(bins[first].block, bins_.block_res());
+    const std::int64_t k = bins_.group_key(g);
     const std::size_t ks = std::size_t(k);
     const int before = S.seen[ks] == steps_ - 1 ? int(S.calm[ks]) : 0;  // steps_ is this substep's index
     S.seen[ks] = steps_;

@@ -74,9 +74,6 @@ struct Collider {
     friction = T(p.friction);
   }
 
-  /// Whether the collider moves at all (a drift velocity or keyframes).
-  bool moves() const { return shape == ColliderShape::Mesh ? motion->moves() : !velocity.isZero(); }
-
   /// Velocity of the collider's material at x at time t.
   Vec velocity_at(const Vec& x, T t) const {
     if constexpr (Dim == 3) {

@@ -205,6 +205,8 @@ class ParticleBins {
   /// Number of occupied blocks; block g's bins are bins()[group_begin(g), group_begin(g + 1)).
   std::size_t groups() const { return groups_.empty() ? 0 : groups_.size() - 1; }
   std::uint32_t group_begin(std::size_t g) const { return groups_[g]; }
+  /// Block g's linear index in the block lattice (block_res()), stable across rebuilds.
+  std::int32_t group_key(std::size_t g) const { return distinct_[g]; }
   /// The occupied blocks (group indices) of colour c in [0, 2^Dim).
   const std::vector<std::uint32_t>& colour(int c) const { return colour_[std::size_t(c)]; }
 
