@@ -23,3 +23,8 @@ if(EXISTS ${CMAKE_CURRENT_SOURCE_DIR}/tradeoff/tradeoff.cpp)
                          ENVIRONMENT "OMP_NUM_THREADS=1")
   endif()
 endif()
+# Scaling over MPI processes (run under mpirun; issue 14).
+if(SLURRY_BUILD_MPI AND EXISTS ${CMAKE_CURRENT_SOURCE_DIR}/bench_mpi.cpp)
+  slurry_add_benchmark(bench_mpi bench_mpi.cpp)
+  target_link_libraries(bench_mpi PRIVATE slurry::mpi)
+endif()

@@ -6,6 +6,8 @@
 //   slurry validate SCENE.json [--memory-limit GB]
 //   slurry surface DIR [--scene S] [--voxel-size H] [--spacing S] [--smoothing N] [--formats vdb,ply,obj] [--points]
 //                      (built with slurry::io, SLURRY_BUILD_IO=ON)
+//   mpirun -np N slurry run SCENE.json ...   (built with slurry::mpi, SLURRY_BUILD_MPI=ON): the MPM
+//                      domain split over N processes; rank 0 writes the frames and prints the log
 //
 // Exit codes: 0 success, 1 the simulation became unstable, 2 invalid scene or usage, 3 file or
 // resource error, 130 / 143 stopped by SIGINT / SIGTERM after the last complete frame.
@@ -16,7 +18,9 @@
 #include <cmath>
 #include <csignal>
 #include <cstdio>
+#include <cstdlib>
 #include <iostream>
+#include <memory>
 #include <new>
 #include <string>
 #include <thread>
@@ -27,6 +31,9 @@
 #include "slurry/transfer/parallel.h"
 #ifdef SLURRY_WITH_IO
 #include "pipeline.h"
+#endif
+#ifdef SLURRY_WITH_MPI
+#include "slurry/mpi/mpi.h"
 #endif
 
 namespace {
@@ -136,6 +143,27 @@ void print_summary(const slurry::RunSummary& s) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // Started by mpirun (or another MPI launcher): MPI first, since it may take its own arguments.
+  int rank = 0, ranks = 1;
+#ifdef SLURRY_WITH_MPI
+  std::unique_ptr<slurry::mpi::Session> mpi;
+  if (slurry::mpi::launched()) {
+    try {
+      mpi = std::make_unique<slurry::mpi::Session>(argc, argv);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "slurry: error: %s\n", e.what());
+      return 3;
+    }
+    rank = mpi->rank();
+    ranks = mpi->size();
+  }
+#else
+  if (const char* n = std::getenv("OMPI_COMM_WORLD_SIZE"); n && std::atoi(n) > 1) {
+    std::fprintf(stderr, "slurry: error: started by mpirun with %s processes, but this slurry was built without MPI "
+                 "(SLURRY_BUILD_MPI=OFF); expected one process, or a build with slurry::mpi\n", n);
+    return 2;
+  }
+#endif
   CLI::App app{"slurry: hybrid particle-grid simulation (MPM solids and liquids)"};
   app.require_subcommand(1);
 
@@ -187,13 +215,27 @@ int main(int argc, char** argv) {
     if (force && run->parsed() && !resume) throw UsageError("--force: only with --resume");
     if (resume && overwrite) throw UsageError("--resume and --overwrite: expected one of them (--overwrite starts afresh)");
   } catch (const CLI::ParseError& e) {
-    if (e.get_exit_code() == 0) return app.exit(e);  // --help
-    std::fprintf(stderr, "slurry: error: %s (usage: slurry --help)\n", e.what());
+    if (e.get_exit_code() == 0) return rank == 0 ? app.exit(e) : 0;  // --help
+    if (rank == 0) std::fprintf(stderr, "slurry: error: %s (usage: slurry --help)\n", e.what());
     return 2;
   } catch (const UsageError& e) {
-    std::fprintf(stderr, "slurry: error: %s\n", e.what());
+    if (rank == 0) std::fprintf(stderr, "slurry: error: %s\n", e.what());
     return 2;
   }
+  // The log, the summary and the pipeline outputs are rank 0's; every rank reports an error
+  // that only it met (a file it could not read), and such an error ends the whole job.
+  if (rank != 0) quiet = true;
+  const auto report = [&](bool collective, int code, const char* what) {
+    if (rank == 0 || !collective)
+      std::fprintf(stderr, "%sslurry: error: %s%s\n", code == 1 ? "\n" : "",
+                   ranks > 1 ? ("[rank " + std::to_string(rank) + "] ").c_str() : "", what);
+#ifdef SLURRY_WITH_MPI
+    if (!collective && ranks > 1) mpi->abort(code);
+#else
+    (void)collective;
+#endif
+    return code;
+  };
 
 #ifdef SLURRY_WITH_IO
   if (surface.app->parsed()) return slurry::cli::run_surface_command(surface);
@@ -208,7 +250,8 @@ int main(int argc, char** argv) {
     const slurry::Scene scene = slurry::load_scene(scene_path);
     if (validate->parsed()) {
       slurry::check_scene(scene, memory_gb);
-      std::printf("%s: valid (%dD, %zu materials, %zu bodies)\n", scene_path.c_str(), scene.solver.dimension,
+      if (rank == 0)
+        std::printf("%s: valid (%dD, %zu materials, %zu bodies)\n", scene_path.c_str(), scene.solver.dimension,
                   scene.materials.size(), scene.bodies.size());
       return 0;
     }
@@ -216,24 +259,31 @@ int main(int argc, char** argv) {
     if (!out_dir.empty()) opt.directory = out_dir;
     if (frames >= 0) opt.frames = frames;
     if (ascii) opt.format = slurry::PlyEncoding::Ascii;
+#ifdef SLURRY_WITH_MPI
+    // The machine's cores shared among the ranks on it (one thread each for mpirun -np 2 here).
+    if (mpi && threads == 0)
+      threads = std::max(1, int(std::max(1u, std::thread::hardware_concurrency())) / mpi->local_size());
+    opt.communicator = mpi.get();
+#endif
     opt.threads = threads;
     opt.memory_gb = memory_gb;
     opt.overwrite = overwrite;
     opt.resume = resume;
     opt.force = force;
     opt.stop = &g_stop;
-    opt.notice = [](const std::string& line) { std::fprintf(stderr, "slurry: %s\n", line.c_str()); };
+    if (rank == 0) opt.notice = [](const std::string& line) { std::fprintf(stderr, "slurry: %s\n", line.c_str()); };
     if (!quiet && scene.solver.type == slurry::SolverType::FEM)
       std::fprintf(stderr, "slurry: %s (%dD %s, fem, %s), %s backend, %d threads\n", scene_path.c_str(),
                    scene.solver.dimension, scene.solver.precision == slurry::Precision::Float ? "float" : "double",
                    std::string(slurry::to_string(scene.solver.integrator)).c_str(), slurry::parallel::backend(),
                    threads > 0 ? threads : slurry::parallel::max_threads());
     else if (!quiet)
-      std::fprintf(stderr, "slurry: %s (%dD %s, %s, %s kernel), %s backend, %d threads\n", scene_path.c_str(),
+      std::fprintf(stderr, "slurry: %s (%dD %s, %s, %s kernel), %s backend, %d threads%s\n", scene_path.c_str(),
                    scene.solver.dimension, scene.solver.precision == slurry::Precision::Float ? "float" : "double",
                    std::string(slurry::to_string(scene.solver.transfer)).c_str(),
                    std::string(slurry::to_string(scene.solver.kernel)).c_str(), slurry::parallel::backend(),
-                   threads > 0 ? threads : slurry::parallel::max_threads());
+                   threads > 0 ? threads : slurry::parallel::max_threads(),
+                   ranks > 1 ? (" per process, " + std::to_string(ranks) + " MPI processes").c_str() : "");
 #ifdef SLURRY_WITH_IO
     const slurry::cli::FrameOutputWriter pipeline(scene);
 #else
@@ -245,33 +295,33 @@ int main(int argc, char** argv) {
     Progress progress(quiet);
     const auto on_frame = [&](const slurry::FrameReport& r) {
 #ifdef SLURRY_WITH_IO
-      const std::string line = pipeline(r);
-      if (!quiet && !line.empty() && !isatty(fileno(stderr))) std::fprintf(stderr, "frame %d: %s\n", r.frame, line.c_str());
+      if (rank == 0) {  // a split run's rank 0 holds every particle of the frame (simulation.h)
+        const std::string line = pipeline(r);
+        if (!quiet && !line.empty() && !isatty(fileno(stderr))) std::fprintf(stderr, "frame %d: %s\n", r.frame, line.c_str());
+      }
 #endif
       progress(r);
     };
     const auto s = slurry::run_scene(scene, opt, on_frame);
     if (s.interrupted) {
+      if (rank != 0) return 128 + s.interrupted;
       std::fprintf(stderr, "\nslurry: stopped by %s after frame %d (frames 0-%d are complete%s)\n",
                    s.interrupted == SIGINT ? "SIGINT" : "SIGTERM", s.frames_written - 1, s.frames_written - 1,
                    s.checkpoints_written > 0 ? "; continue with slurry run SCENE --resume" : "");
       print_summary(s);
       return 128 + s.interrupted;
     }
-    print_summary(s);
+    if (rank == 0) print_summary(s);
     return 0;
   } catch (const slurry::SimulationError& e) {
-    std::fprintf(stderr, "\nslurry: error: %s\n", e.what());
-    return 1;
+    return report(true, 1, e.what());  // the health check is global: every rank stops here
   } catch (const slurry::SceneError& e) {
-    std::fprintf(stderr, "slurry: error: %s\n", e.what());
-    return 2;
+    return report(true, 2, e.what());  // every rank reads the same scene
   } catch (const slurry::IoError& e) {
-    std::fprintf(stderr, "slurry: error: %s\n", e.what());
-    return 3;
+    return report(false, 3, e.what());
   } catch (const std::bad_alloc&) {
-    std::fprintf(stderr, "slurry: error: %s: out of memory (the estimate before the run was too low; lower the scene's "
-                 "resolution or limits.memory_gb)\n", scene_path.c_str());
-    return 3;
+    const std::string what = scene_path + ": out of memory (the estimate before the run was too low; lower the scene's "
+                             "resolution or limits.memory_gb)";
+    return report(false, 3, what.c_str());
   }
 }

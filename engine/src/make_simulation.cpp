@@ -23,10 +23,18 @@ std::vector<std::uint32_t> SimulationBase::id_order(const std::uint32_t* ids, st
   return order;
 }
 
-std::unique_ptr<SimulationBase> make_simulation(const Scene& scene) {
+std::unique_ptr<SimulationBase> make_simulation(const Scene& scene, Communicator* communicator) {
   scene.validate();
   check_resources(scene);  // before any allocation
   const bool dbl = scene.solver.precision == Precision::Double;
+  if (communicator && communicator->size() > 1 && scene.solver.type != SolverType::MPM) {
+    // FLIP's pressure solve and FEM's implicit solve are global linear systems: split, they need
+    // a distributed Krylov solver and preconditioner, which Slurry does not have yet.
+    const std::string n = std::to_string(communicator->size());
+    throw SceneError(scene.source + ": solver.type \"" + std::string(to_string(scene.solver.type)) +
+                     "\": runs in one process only (its pressure or implicit solve is not distributed); expected an MPM "
+                     "scene for a run split over " + n + " processes (mpirun -np " + n + "), or mpirun -np 1");
+  }
   if (scene.solver.type == SolverType::FLIP) {
     if (scene.solver.dimension == 2) {
       if (dbl) return std::make_unique<flip::FlipSimulation<double, 2>>(scene);
@@ -44,11 +52,11 @@ std::unique_ptr<SimulationBase> make_simulation(const Scene& scene) {
     return std::make_unique<FemSimulation<float, 3>>(scene);
   }
   if (scene.solver.dimension == 2) {
-    if (dbl) return std::make_unique<Simulation<double, 2>>(scene);
-    return std::make_unique<Simulation<float, 2>>(scene);
+    if (dbl) return std::make_unique<Simulation<double, 2>>(scene, communicator);
+    return std::make_unique<Simulation<float, 2>>(scene, communicator);
   }
-  if (dbl) return std::make_unique<Simulation<double, 3>>(scene);
-  return std::make_unique<Simulation<float, 3>>(scene);
+  if (dbl) return std::make_unique<Simulation<double, 3>>(scene, communicator);
+  return std::make_unique<Simulation<float, 3>>(scene, communicator);
 }
 
 }  // namespace slurry

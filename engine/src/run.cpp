@@ -272,6 +272,9 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   check_scene(limited);
   const std::filesystem::path dir = options.directory.value_or(scene.output.directory);
   const bool files = options.write_files;
+  // A split run: every rank simulates and takes part in the gathers; rank 0 writes.
+  Communicator* const comm = options.communicator;
+  const bool writer = files && (!comm || comm->rank() == 0);
   if (files && dir.empty()) throw SceneError(scene.source + ": output directory: expected a non-empty path");
   const int frames = options.frames.value_or(scene.output.frames);
   if (frames < 0) throw SceneError(scene.source + ": frames: expected an integer >= 0, got " + std::to_string(frames));
@@ -291,7 +294,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
 
   parallel::ThreadLimit limit(options.threads);
   const auto start = Clock::now();
-  auto sim = make_simulation(limited);
+  auto sim = make_simulation(limited, comm);
   std::ofstream csv;  // stats.csv, opened once frame 0 is written (the directory exists then)
   DriftTolerances tol;
   tol.mass = scene.output.mass_drift;
@@ -367,7 +370,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
         first_frame = c.frame + 1;
       } catch (const IoError& e) {
         refused.push_back(e.what());
-        sim = make_simulation(limited);  // a failed load_state may have left part of the state
+        sim = make_simulation(limited, comm);  // a failed load_state may have left part of the state
       }
     }
     for (const auto& r : refused)
@@ -389,9 +392,10 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
                                         [&](const fs::path& f) { return frame_index(f) <= summary.resumed_from; }),
                          removed_frames.end());
   }
-  summary.removed_temporaries = remove_all(before.stale);
-  summary.removed_frames = remove_all(removed_frames);  // a sequence is never mixed with an earlier run's
-  {
+  if (comm) comm->barrier();  // every rank has read the directory before rank 0 changes it
+  if (writer) {
+    summary.removed_temporaries = remove_all(before.stale);
+    summary.removed_frames = remove_all(removed_frames);  // a sequence is never mixed with an earlier run's
     std::vector<fs::path> old;  // checkpoints the run will not continue from
     for (const auto& [f, file] : before.checkpoints)
       if (f > summary.resumed_from) old.push_back(file);
@@ -410,16 +414,16 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   double sim_seconds = 0, particle_steps = 0;
 
   std::error_code ec;
-  const bool created = files && !fs::exists(dir, ec);
-  if (files) fs::create_directories(dir, ec);
+  const bool created = writer && !fs::exists(dir, ec);
+  if (writer) fs::create_directories(dir, ec);
   if (ec) throw IoError(dir.string() + ": cannot create the output directory: " + ec.message());
-  if (first_frame > 0) {
+  if (first_frame > 0) summary.frames_written = first_frame;
+  if (first_frame > 0 && writer) {
     truncate_stats(dir / "stats.csv", first_frame - 1);
     const bool had = fs::exists(dir / "stats.csv");
     csv.open(dir / "stats.csv", std::ios::app);
     if (!csv) throw IoError((dir / "stats.csv").string() + ": cannot write the run statistics");
     if (!had) csv << stats_csv_header() << '\n';
-    summary.frames_written = first_frame;
   }
   const int every = scene.output.checkpoint_every;
   const bool retry = scene.solver.on_instability == OnInstability::Retry;
@@ -433,8 +437,10 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     run.substeps = summary.substeps;
     run.drift_warnings = summary.drift_warnings;
     run.largest_cfl = summary.largest_cfl;
-    detail::write_checkpoint(detail::checkpoint_file(dir, f), scene.source_hash, f, checkpoint_payload(run, *sim));
+    const std::string payload = checkpoint_payload(run, *sim);  // collective in a split run
     ++summary.checkpoints_written;
+    if (!writer) return;
+    detail::write_checkpoint(detail::checkpoint_file(dir, f), scene.source_hash, f, payload);
     // Keep the last two.
     auto list = detail::list_checkpoints(dir);
     std::vector<fs::path> old;
@@ -475,7 +481,10 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     }
     const auto file = files ? frame_file(dir, f) : fs::path();
     try {
-      if (files) io::write_ply(file, sim->frame(scene.output.attributes), format);
+      if (files) {
+        const io::PlyData frame = sim->frame(scene.output.attributes);  // gathered to rank 0 in a split run
+        if (writer) io::write_ply(file, frame, format);
+      }
     } catch (...) {
       if (f == 0 && created) fs::remove(dir, ec);  // nothing is left of a run without a frame
       throw;
@@ -487,16 +496,16 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     if (f == 0) {
       summary.first = stats;
       energy_scale = energy_scale_of(stats);
-      if (files) csv.open(dir / "stats.csv");
-      if (files && !csv) throw IoError((dir / "stats.csv").string() + ": cannot write the run statistics");
-      if (files) csv << stats_csv_header() << '\n';
+      if (writer) csv.open(dir / "stats.csv");
+      if (writer && !csv) throw IoError((dir / "stats.csv").string() + ": cannot write the run statistics");
+      if (writer) csv << stats_csv_header() << '\n';
     } else {
       warnings = drift_warnings(summary.first, stats, tol, energy_scale);
       summary.drift_warnings += !warnings.empty();
     }
     summary.last = stats;
     summary.largest_cfl = std::max(summary.largest_cfl, stats.cfl);
-    if (files) {
+    if (writer) {
       csv << stats_csv_row(stats) << '\n';
       csv.flush();
     }
@@ -517,11 +526,13 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
       r.warnings = std::move(warnings);
       on_frame(r);
     }
-    const bool stopping = options.stop && *options.stop;
+    double signal = options.stop ? double(*options.stop) : 0.0;
+    if (comm) comm->max(&signal, 1);  // the ranks of a split run stop together, after the same frame
+    const bool stopping = signal != 0;
     // A stopped run also leaves a checkpoint of the frame it stopped after.
     if (files && every > 0 && f > 0 && (f % every == 0 || (stopping && f < frames))) write_checkpoint(f);
     if (stopping) {  // the frame just written is complete; stop here
-      summary.interrupted = int(*options.stop);
+      summary.interrupted = int(signal);
       break;
     }
   }

@@ -13,6 +13,7 @@
 #include <type_traits>
 #include <unordered_map>
 
+#include "domain_split.h"
 #include "frame_builder.h"
 #include "geometry/scene_meshes.h"
 #include "implicit_update.h"
@@ -91,8 +92,22 @@ struct Simulation<T, Dim>::SleepState {
   std::int64_t woken = 0, slept = 0;     ///< blocks woken / put to sleep so far
 };
 
+/// The split over processes (simulation.h, domain_split.h).
 template <class T, int Dim>
-Simulation<T, Dim>::Simulation(const Scene& scene) : scene_(scene) {
+struct Simulation<T, Dim>::Split {
+  Communicator* comm = nullptr;
+  int axis = 0;            ///< the split axis: the block lattice's longest
+  std::vector<int> cuts;   ///< rank r owns block columns [cuts[r], cuts[r + 1]) along `axis`
+  int lo = 0, hi = 0;      ///< this rank's columns
+  std::size_t owned = 0;   ///< particles [0, owned) are this rank's; a substep's ghosts follow them
+  std::size_t total = 0;   ///< particles of all ranks (MPM keeps every particle)
+  double fewest = 0, most = 0;  ///< particles of the emptiest and the fullest rank at the last rebalance
+  double bytes_per_substep = 0;  ///< this rank's halo and migration bytes per substep over the last advance_to
+  Particles<T, Dim> gathered;    ///< rank 0: every particle, as of the last frame()
+};
+
+template <class T, int Dim>
+Simulation<T, Dim>::Simulation(const Scene& scene, Communicator* communicator) : scene_(scene) {
   scene_.validate();
   const auto& dom = scene_.domain;
   const T dx = T(dom.dx);
@@ -149,6 +164,24 @@ Simulation<T, Dim>::Simulation(const Scene& scene) : scene_(scene) {
     for (int d = 0; d < Dim; ++d) blocks *= std::size_t(bins_.block_res()[d]);
     sleep_->calm.assign(blocks, 0);
     sleep_->seen.assign(blocks, -2);
+  }
+  if (communicator && communicator->size() > 1) {
+    const int ranks = communicator->size();
+    if (implicit_ || sleep_)
+      throw SceneError(scene_.source + ": " + (implicit_ ? "solver.integrator \"implicit\"" : "solver.sleep") +
+                       ": runs in one process only; expected an explicit scene without solver.sleep for a run split over " +
+                       std::to_string(ranks) + " processes (mpirun -np " + std::to_string(ranks) + "), or mpirun -np 1");
+    split_ = std::make_unique<Split>();
+    split_->comm = communicator;
+    const auto& br = bins_.block_res();
+    for (int d = 1; d < Dim; ++d)
+      if (br[d] > br[split_->axis]) split_->axis = d;
+    if (br[split_->axis] < ranks)
+      throw SceneError(scene_.source + ": domain: split over " + std::to_string(ranks) + " processes, but the grid has " +
+                       std::to_string(br[split_->axis]) + " block columns (" + std::to_string(transfer::BlockShape<Dim>::size) +
+                       " nodes each) along its longest axis; expected at most that many processes (mpirun -np)");
+    split_->total = particles_.size();
+    split_particles();
   }
 }
 
@@ -239,14 +272,21 @@ void Simulation<T, Dim>::seed_bodies() {
 }
 
 template <class T, int Dim>
+std::size_t Simulation<T, Dim>::particle_count() const {
+  return split_ ? split_->total : particles_.size();
+}
+
+template <class T, int Dim>
 std::size_t Simulation<T, Dim>::bytes() const {
   std::size_t sleeping = 0;
   if (sleep_) {
     sleeping = sleep_->calm.capacity() * sizeof(std::uint16_t) + sleep_->seen.capacity() * sizeof(std::int64_t);
     for (const auto& [k, blk] : sleep_->asleep) sleeping += sizeof(blk) + blk.nodes.capacity() * sizeof(blk.nodes[0]);
   }
-  return particles_.bytes() + stress_.capacity() * sizeof(Mat) + bins_.bytes() + dense_.bytes() + sparse_.bytes() +
-         (implicit_ ? implicit_->bytes() : 0) + sleeping;
+  double b = double(particles_.bytes() + stress_.capacity() * sizeof(Mat) + bins_.bytes() + dense_.bytes() +
+                    sparse_.bytes() + (implicit_ ? implicit_->bytes() : 0) + sleeping);
+  if (split_) split_->comm->sum(&b, 1);
+  return std::size_t(b);
 }
 
 template <class T, int Dim>
@@ -265,7 +305,14 @@ T Simulation<T, Dim>::stable_dt() const {
 
 template <class T, int Dim>
 std::int64_t Simulation<T, Dim>::advance_to(double t_end) {
-  return substep_to(time_, t_end, [&] { return dt_scale_ * double(stable_dt()); }, [&](double dt) { step(T(dt)); }, scene_);
+  if (!split_)
+    return substep_to(time_, t_end, [&] { return dt_scale_ * double(stable_dt()); }, [&](double dt) { step(T(dt)); }, scene_);
+  auto& S = *split_;
+  const std::uint64_t sent = S.comm->exchanged_bytes();
+  rebalance();
+  const auto n = substep_to(time_, t_end, [&] { return dt_scale_ * double(stable_dt()); }, [&](double dt) { step(T(dt)); }, scene_);
+  if (n > 0) S.bytes_per_substep = double(S.comm->exchanged_bytes() - sent) / double(n);
+  return n;
 }
 
 template <class T, int Dim>
@@ -280,6 +327,16 @@ std::int64_t Simulation<T, Dim>::blocks_fallen_asleep() const {
 
 template <class T, int Dim>
 std::string Simulation<T, Dim>::solver_status() const {
+  if (split_) {
+    const auto& S = *split_;
+    const double mean = double(S.total) / S.comm->size();
+    char buf[200];
+    std::snprintf(buf, sizeof buf,
+                  "%d ranks along %c: %.0f-%.0f particles per rank (imbalance %.3f), rank %d sent %.3g kB per substep",
+                  S.comm->size(), "xyz"[S.axis], S.fewest, S.most, mean > 0 ? S.most / mean : 1.0, S.comm->rank(),
+                  S.bytes_per_substep / 1e3);
+    return buf;
+  }
   if (sleep_) {
     char buf[160];
     std::snprintf(buf, sizeof buf, "sleeping %zu blocks (%lld fell asleep, %lld woke so far)", sleep_->asleep.size(),
@@ -313,9 +370,17 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
     phase += std::chrono::duration<double>(now - t).count();
     t = now;
   };
+  if (split_) {
+    // Re-sorted before the ghosts join (they are dropped at the end of the substep).
+    if (steps_ % kReorderInterval == 0) {
+      bin_particles();
+      reorder_particles();
+    }
+    add_ghosts();
+  }
   bin_particles();
   lap(phase_times_.binning);
-  if (implicit_ || steps_ % kReorderInterval == 0) reorder_particles();
+  if (!split_ && (implicit_ || steps_ % kReorderInterval == 0)) reorder_particles();
   lap(phase_times_.reorder);
   if (sleep_) sleep_prepare();
   particles_to_grid(grid, dt);
@@ -349,6 +414,7 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
     std::memcpy(saved, static_cast<const void*>(particles_.x.data()), particles_.size() * sizeof(Vec));
   }
   grid_to_particles(grid, dt);
+  if (split_) detail::truncate_particles(particles_, split_->owned);  // the ghosts have served
   if (thin_colliders)
     detail::keep_out_of_colliders(particles_, colliders_, reinterpret_cast<const unsigned char*>(stress_.data()),
                                   T(time_), T(time_) + dt, dx_);
@@ -356,6 +422,7 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
   return_mapping();
   if (sleep_) sleep_update();
   lap(phase_times_.plasticity);
+  if (split_) migrate();
 }
 
 template <class T, int Dim>
@@ -437,6 +504,149 @@ void Simulation<T, Dim>::bin_particles_order() {
         return b;
       },
       [&](std::int64_t p) { return material ? int(material[p]) : 0; }, int(materials_.size()));
+  // Within a bin by persistent id: every patch sum then depends on which particles a block holds,
+  // not on the storage's history (re-sorts, particles that came from another rank).
+  const std::uint32_t* id = particles_.id.data();
+  bins_.sort_within_bins([id](std::uint32_t p) { return id[p]; });
+}
+
+template <class T, int Dim>
+template <int Order>
+int Simulation<T, Dim>::column_order(const Vec& x) const {
+  // The expression of bin_particles_order, so that a particle's column is its bin's.
+  const int d = split_->axis;
+  const T inv_dx = T(1) / dx_;
+  return transfer::BSpline<Order>::base((x[d] - origin_[d]) * inv_dx) >> transfer::BlockShape<Dim>::log2;
+}
+
+template <class T, int Dim>
+int Simulation<T, Dim>::column(const Vec& x) const {
+  switch (scene_.solver.kernel) {
+    case KernelKind::Linear: return column_order<1>(x);
+    case KernelKind::Quadratic: return column_order<2>(x);
+    case KernelKind::Cubic: break;
+  }
+  return column_order<3>(x);
+}
+
+template <class T, int Dim>
+bool Simulation<T, Dim>::owned_block(const Eigen::Matrix<int, Dim, 1>& block) const {
+  return !split_ || (block[split_->axis] >= split_->lo && block[split_->axis] < split_->hi);
+}
+
+template <class T, int Dim>
+void Simulation<T, Dim>::split_particles() {
+  // Every rank holds the same full set here, so every rank computes the same borders.
+  auto& S = *split_;
+  const int ranks = S.comm->size(), rank = S.comm->rank();
+  std::vector<double> counts(std::size_t(bins_.block_res()[S.axis]), 0.0);
+  for (const auto& x : particles_.x) counts[std::size_t(column(x))] += 1;
+  S.cuts = detail::balanced_cuts(counts, ranks);
+  S.lo = S.cuts[std::size_t(rank)];
+  S.hi = S.cuts[std::size_t(rank) + 1];
+  std::vector<std::uint8_t> drop(particles_.size());
+  for (std::size_t p = 0; p < drop.size(); ++p) {
+    const int c = column(particles_.x[p]);
+    drop[p] = c < S.lo || c >= S.hi;
+  }
+  detail::drop_particles(particles_, drop);
+  S.owned = particles_.size();
+  stress_.resize(particles_.size());
+  S.fewest = S.total, S.most = 0;
+  for (int r = 0; r < ranks; ++r) {
+    double n = 0;
+    for (int c = S.cuts[std::size_t(r)]; c < S.cuts[std::size_t(r) + 1]; ++c) n += counts[std::size_t(c)];
+    S.fewest = std::min(S.fewest, n), S.most = std::max(S.most, n);
+  }
+}
+
+template <class T, int Dim>
+void Simulation<T, Dim>::rebalance() {
+  auto& S = *split_;
+  const int ranks = S.comm->size(), rank = S.comm->rank();
+  std::vector<double> counts(std::size_t(bins_.block_res()[S.axis]), 0.0);
+  for (const auto& x : particles_.x) counts[std::size_t(column(x))] += 1;
+  S.comm->sum(counts.data(), int(counts.size()));
+  const auto cuts = detail::balanced_cuts(counts, ranks);
+  if (cuts != S.cuts) {
+    S.cuts = cuts;
+    S.lo = S.cuts[std::size_t(rank)];
+    S.hi = S.cuts[std::size_t(rank) + 1];
+    migrate();
+  }
+  S.fewest = double(S.total), S.most = 0;
+  for (int r = 0; r < ranks; ++r) {
+    double n = 0;
+    for (int c = S.cuts[std::size_t(r)]; c < S.cuts[std::size_t(r) + 1]; ++c) n += counts[std::size_t(c)];
+    S.fewest = std::min(S.fewest, n), S.most = std::max(S.most, n);
+  }
+}
+
+template <class T, int Dim>
+void Simulation<T, Dim>::migrate() {
+  auto& S = *split_;
+  auto& P = particles_;
+  for (;;) {
+    std::vector<std::uint32_t> down, up;
+    std::vector<std::uint8_t> drop(P.size(), 0);
+    for (std::size_t p = 0; p < P.size(); ++p) {
+      const int c = column(P.x[p]);
+      if (c < S.lo) down.push_back(std::uint32_t(p)), drop[p] = 1;
+      if (c >= S.hi) up.push_back(std::uint32_t(p)), drop[p] = 1;
+    }
+    std::string to_lower, to_upper;
+    if (!down.empty()) detail::pack_particles(P, down, to_lower);
+    if (!up.empty()) detail::pack_particles(P, up, to_upper);
+    if (!down.empty() || !up.empty()) detail::drop_particles(P, drop);
+    const auto [from_lower, from_upper] = S.comm->exchange(to_lower, to_upper);
+    detail::unpack_particles(from_lower, P);
+    detail::unpack_particles(from_upper, P);
+    // After a substep one round settles every particle (each moved less than a column, and every
+    // slab is a column wide at least); after new borders, particles pass one rank per round.
+    double stray = 0;
+    for (const auto& x : P.x) {
+      const int c = column(x);
+      stray += c < S.lo || c >= S.hi;
+    }
+    S.comm->max(&stray, 1);
+    if (stray == 0) break;
+  }
+  S.owned = P.size();
+  stress_.resize(P.size());
+}
+
+template <class T, int Dim>
+void Simulation<T, Dim>::add_ghosts() {
+  auto& S = *split_;
+  auto& P = particles_;
+  const int rank = S.comm->rank(), ranks = S.comm->size();
+  S.owned = P.size();
+  std::vector<std::uint32_t> down, up;
+  for (std::size_t p = 0; p < P.size(); ++p) {
+    const int c = column(P.x[p]);
+    if (rank > 0 && c == S.lo) down.push_back(std::uint32_t(p));
+    if (rank + 1 < ranks && c == S.hi - 1) up.push_back(std::uint32_t(p));
+  }
+  std::string to_lower, to_upper;
+  if (!down.empty()) detail::pack_particles(P, down, to_lower);
+  if (!up.empty()) detail::pack_particles(P, up, to_upper);
+  const auto [from_lower, from_upper] = S.comm->exchange(to_lower, to_upper);
+  detail::unpack_particles(from_lower, P);
+  detail::unpack_particles(from_upper, P);
+  stress_.resize(P.size());
+}
+
+template <class T, int Dim>
+Particles<T, Dim> Simulation<T, Dim>::all_particles(bool on_every_rank) const {
+  std::vector<std::uint32_t> mine(particles_.size());
+  for (std::size_t p = 0; p < mine.size(); ++p) mine[p] = std::uint32_t(p);
+  std::string packed;
+  detail::pack_particles(particles_, mine, packed);
+  Particles<T, Dim> all;
+  all.channels = particles_.channels;
+  const auto parts = on_every_rank ? split_->comm->all_gather(packed) : split_->comm->gather(packed);
+  for (const auto& part : parts) detail::unpack_particles(part, all);
+  return all;
 }
 
 template <class T, int Dim>
@@ -461,16 +671,7 @@ void Simulation<T, Dim>::reorder_particles() {
       std::memcpy(c + lo * sizeof(V), scratch + lo * sizeof(V), std::size_t(hi - lo) * sizeof(V));
     });
   };
-  permute(P.x);
-  permute(P.v);
-  permute(P.m);
-  permute(P.vol0);
-  permute(P.F);
-  permute(P.J);
-  permute(P.C);
-  permute(P.plastic);
-  permute(P.material);
-  permute(P.id);
+  P.for_each_channel(permute);
   bins_.reset_order();
 }
 
@@ -620,6 +821,7 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
             for (std::int64_t b = lo; b < hi; ++b) {
               if (sleep_ && sleep_->bin_block[std::size_t(b)]) continue;
               const auto& bin = bins[std::size_t(b)];
+              if (split_ && !owned_block(bin.block)) continue;  // ghosts: their own rank moves them
               transfer::Patch<T, Dim, Order> patch(bin.block, origin_, dx_, inv_dx);
               grid.read_patch(patch);
               const T s2 = fluid_[bin.material]
@@ -642,11 +844,22 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
     case TransferKind::MLS: vmax2 = gather(std::integral_constant<Scheme, Scheme::MLS>{}); break;
   }
   max_speed_ = std::sqrt(vmax2);
-  cfl_reached_ = std::max(cfl_reached_, max_speed_ * dt / dx_);
   // A particle moving more than a cell in one substep (or non-finite, or outside the domain)
   // means the step was unstable: stop with a diagnosis rather than write garbage.
   const T limit = std::max(T(1), T(2 * scene_.solver.cfl)) * dx_;
-  if (!(max_speed_ * dt <= limit)) diagnose(dt);
+  if (split_) {  // every rank stops, with the diagnosis of the first rank that found one
+    const bool bad = !(max_speed_ * dt <= limit);
+    double worst[2] = {bad ? 1.0 : 0.0, bad ? 0.0 : double(max_speed_)};
+    split_->comm->max(worst, 2);
+    if (worst[0] > 0) {
+      for (const auto& why : split_->comm->all_gather(bad ? diagnosis(dt) : std::string()))
+        if (!why.empty()) throw SimulationError(why);
+    }
+    max_speed_ = T(worst[1]);
+  } else if (!(max_speed_ * dt <= limit)) {
+    diagnose(dt);
+  }
+  cfl_reached_ = std::max(cfl_reached_, max_speed_ * dt / dx_);
 }
 
 template <class T, int Dim>
@@ -664,7 +877,7 @@ void Simulation<T, Dim>::return_mapping() {
   parallel::parallel_tasks(0, std::int64_t(bins.size()), [&](std::int64_t bi) {
     const auto& bin = bins[std::size_t(bi)];
     const auto& mat = materials_[bin.material];
-    if (mat.plastic_kind == PlasticModel::None) return;
+    if (mat.plastic_kind == PlasticModel::None || !owned_block(bin.block)) return;
     if (sleep_ && sleep_->bin_block[std::size_t(bi)]) {  // unchanged since it fell asleep
       if (snow) hmax[std::size_t(bi)] = sleep_->bin_block[std::size_t(bi)]->hardening;
       return;
@@ -687,6 +900,12 @@ void Simulation<T, Dim>::return_mapping() {
       auto& m = materials_[bins[bi].material];
       if (m.plastic_kind == PlasticModel::Snow)
         m.wave_speed = std::max(m.wave_speed, m.base_wave_speed * std::sqrt(hmax[bi]));
+    }
+    if (split_) {  // the time step is global: the stiffest snow of any rank
+      std::vector<double> c;
+      for (const auto& m : materials_) c.push_back(double(m.wave_speed));
+      split_->comm->max(c.data(), int(c.size()));
+      for (std::size_t k = 0; k < c.size(); ++k) materials_[k].wave_speed = T(c[k]);
     }
   }
   max_wave_speed_ = 0;
@@ -794,12 +1013,18 @@ void Simulation<T, Dim>::sleep_update() {
 
 template <class T, int Dim>
 void Simulation<T, Dim>::diagnose(T dt) const {
+  throw SimulationError(diagnosis(dt));
+}
+
+template <class T, int Dim>
+std::string Simulation<T, Dim>::diagnosis(T dt) const {
   const auto& P = particles_;
   const T limit = std::max(T(1), T(2 * scene_.solver.cfl)) * dx_;
   std::int64_t worst = -1;
   std::string what;
   T worst_speed = -1;
-  for (std::int64_t p = 0; p < std::int64_t(P.size()) && what.empty(); ++p) {
+  const std::int64_t n = std::int64_t(split_ ? split_->owned : P.size());  // not a split run's ghosts
+  for (std::int64_t p = 0; p < n && what.empty(); ++p) {
     if (!P.x[p].allFinite() || !P.v[p].allFinite()) {
       worst = p, what = "has a non-finite position or velocity";
     } else if ((P.x[p].array() < x_lo_.array()).any() || (P.x[p].array() > x_hi_.array()).any()) {
@@ -822,7 +1047,7 @@ void Simulation<T, Dim>::diagnose(T dt) const {
         << " substeps; try a larger solver.cg_max_iterations)";
   msg << ". No further frames are written. Try a smaller solver.cfl, solver.elastic_cfl or solver.max_dt"
       << ", or a stiffer boundary.";
-  throw SimulationError(msg.str());
+  return msg.str();
 }
 
 template <class T, int Dim>
@@ -862,6 +1087,19 @@ RunStats Simulation<T, Dim>::take_stats() {
   s.cfl = double(cfl_reached_);
   projected_ = 0;
   cfl_reached_ = 0;
+  if (split_) {  // the sums of every rank (in another order than one process: the last digits may differ)
+    double sums[] = {s.mass, s.momentum[0], s.momentum[1], s.momentum[2], s.angular_momentum[0], s.angular_momentum[1],
+                     s.angular_momentum[2], s.kinetic, s.potential, s.elastic, s.volume, double(s.particles),
+                     double(s.projected)};
+    split_->comm->sum(sums, int(std::size(sums)));
+    s.mass = sums[0];
+    s.momentum = {sums[1], sums[2], sums[3]};
+    s.angular_momentum = {sums[4], sums[5], sums[6]};
+    s.kinetic = sums[7], s.potential = sums[8], s.elastic = sums[9], s.volume = sums[10];
+    s.particles = std::size_t(sums[11]);
+    s.projected = std::int64_t(sums[12]);
+    split_->comm->max(&s.max_fluid_J_error, 1);  // cfl is global already (max_speed_ is)
+  }
   return s;
 }
 
@@ -871,9 +1109,13 @@ void Simulation<T, Dim>::save_state(std::string& out) const {
   // what carries over is the particles in their storage order (the periodic re-sort depends on
   // steps_), the step and time, the speed and wave-speed limits of the next stable_dt() (snow
   // hardening raises a material's wave speed), and the counters of take_stats().
+  // A split run writes every rank's particles (on every rank): a checkpoint resumes on any
+  // number of processes, since the bins order particles by id, not by storage.
   detail::StateWriter w(out);
   detail::write_layout<T, Dim>(w, detail::kTagMpm);
-  const auto& P = particles_;
+  Particles<T, Dim> all;
+  if (split_) all = all_particles(true);
+  const auto& P = split_ ? all : particles_;
   w.pod(P.channels);
   w.vec(P.x);
   w.vec(P.v);
@@ -974,11 +1216,23 @@ void Simulation<T, Dim>::load_state(std::string_view in, const std::string& what
   r.tag(detail::kTagEnd, "end");
   r.finish();
   stress_.resize(P.size());
+  if (split_) {
+    split_->total = P.size();
+    split_particles();
+  }
 }
 
 template <class T, int Dim>
 io::PlyData Simulation<T, Dim>::frame(const std::vector<std::string>& attributes) const {
-  const auto& P = particles_;
+  if (!split_) return frame_of(particles_, attributes);
+  // Gathered on rank 0, which writes the frame; kept there for particle_storage().
+  auto& gathered = split_->gathered;
+  gathered = all_particles(false);
+  return split_->comm->rank() == 0 ? frame_of(gathered, attributes) : io::PlyData{};
+}
+
+template <class T, int Dim>
+io::PlyData Simulation<T, Dim>::frame_of(const Particles<T, Dim>& P, const std::vector<std::string>& attributes) const {
   // Particles are stored in bin order; frames list them in seeding order (P.id).
   detail::VertexFrame out("", time_, scene_.source, P.size(), P.id.data());
   for (const auto& a : attributes) {
@@ -1003,7 +1257,8 @@ io::PlyData Simulation<T, Dim>::frame(const std::vector<std::string>& attributes
 
 template <class T, int Dim>
 ParticleStorage Simulation<T, Dim>::particle_storage() const {
-  const auto& P = particles_;
+  // A split run's rank 0 shows every particle as of the last frame(); other ranks their own.
+  const auto& P = split_ && split_->comm->rank() == 0 ? split_->gathered : particles_;
   ParticleStorage s;
   s.precision = std::is_same_v<T, double> ? Precision::Double : Precision::Float;
   s.dimension = Dim;

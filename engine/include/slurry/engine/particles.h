@@ -59,12 +59,36 @@ struct Particles {
     id.push_back(std::uint32_t(id.size()));
   }
 
+  /// fn(channel) for every stored channel (the optional ones as `channels` says), in a fixed
+  /// order: for code that moves whole particles (the re-sort by grid block, packing for another
+  /// process, dropping).
+  template <class Fn>
+  void for_each_channel(Fn&& fn) {
+    for_each_channel_of(*this, fn);
+  }
+  template <class Fn>
+  void for_each_channel(Fn&& fn) const {
+    for_each_channel_of(*this, fn);
+  }
+
   /// Bytes held by the channels (capacity, not size).
   std::size_t bytes() const {
     return x.capacity() * sizeof(Vec) + v.capacity() * sizeof(Vec) + m.capacity() * sizeof(T) +
            vol0.capacity() * sizeof(T) + F.capacity() * sizeof(Mat) + J.capacity() * sizeof(T) +
            C.capacity() * sizeof(Mat) + plastic.capacity() * sizeof(T) +
            material.capacity() * sizeof(std::uint16_t) + id.capacity() * sizeof(std::uint32_t);
+  }
+
+ private:
+  template <class Self, class Fn>
+  static void for_each_channel_of(Self& P, Fn& fn) {
+    fn(P.x), fn(P.v), fn(P.m), fn(P.vol0);
+    if (P.channels.F) fn(P.F);
+    if (P.channels.J) fn(P.J);
+    if (P.channels.C) fn(P.C);
+    if (P.channels.plastic) fn(P.plastic);
+    if (P.channels.material) fn(P.material);
+    fn(P.id);
   }
 };
 

@@ -61,6 +61,11 @@ struct RunOptions {
   /// Told what the run removed from the output directory, which checkpoint it resumes from
   /// (and which it refused), and each retry of an unstable frame (one line each).
   std::function<void(const std::string&)> notice;
+  /// Splits an MPM run over the communicator's ranks (simulation.h; slurry::mpi gives one for
+  /// `mpirun`): every rank calls run_scene with the same scene and options, and rank 0 alone
+  /// writes files (frames, stats.csv, checkpoints), the same files as one process would. Every
+  /// rank reads the checkpoints on resume: the output directory must be one they all see.
+  Communicator* communicator = nullptr;
 };
 
 /// Progress after each written frame.

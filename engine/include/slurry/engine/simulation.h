@@ -14,6 +14,18 @@
 ///                   contribution is reused), the gather and the projection until something moves
 ///   check_health    non-finite state, CFL violation, particle outside the domain -> SimulationError
 ///
+/// Split over processes (a Communicator with more than one rank, communicator.h; `mpirun -np N
+/// slurry run`): the domain is cut into slabs of grid-block columns along its longest axis, one
+/// per rank, with borders that follow the particle counts at every frame (balanced_cuts). Each
+/// substep a rank adds copies of its neighbours' border columns (ghosts: the one column whose
+/// patches reach its nodes), bins and scatters them with its own, gathers and projects its own
+/// only, drops the ghosts and hands particles that crossed a border to the neighbour; the time
+/// step and the health check are global. Bins are ordered by persistent id, so every node a rank
+/// reads holds the same sum as in one process and frames are bitwise those of one process.
+/// Frames and checkpoints are gathered to every rank in one piece (rank 0 writes them); a
+/// checkpoint resumes on any number of ranks. The implicit update and solver.sleep run on one
+/// rank only (refused with more).
+///
 /// following Stomakhin et al. 2013 ("A material point method for snow simulation") for the
 /// explicit MPM step, Jiang et al. 2015 (APIC) and Hu et al. 2018 (MLS-MPM) for the transfers.
 /// The time step is the smallest of solver.max_dt, cfl dx / max |v_p| and
@@ -33,6 +45,7 @@
 #include <vector>
 
 #include "slurry/engine/colliders.h"
+#include "slurry/engine/communicator.h"
 #include "slurry/engine/material.h"
 #include "slurry/engine/particles.h"
 #include "slurry/engine/ply.h"
@@ -110,8 +123,10 @@ class Simulation final : public SimulationBase {
   using DenseGrid = transfer::DenseGrid<T, Dim>;
   using SparseGrid = transfer::SparseGrid<T, Dim>;
 
-  /// Validates the scene and seeds its bodies with particles.
-  explicit Simulation(const Scene& scene);
+  /// Validates the scene and seeds its bodies with particles. With a communicator of more than
+  /// one rank, this process keeps its slab's particles (every rank must build the simulation
+  /// from the same scene); SceneError if the scene asks for what a split run does not support.
+  explicit Simulation(const Scene& scene, Communicator* communicator = nullptr);
   ~Simulation() override;
 
   /// The substep the stability limits allow now (not clipped to a frame boundary).
@@ -121,11 +136,14 @@ class Simulation final : public SimulationBase {
 
   double time() const override { return time_; }
   std::int64_t steps() const override { return steps_; }
-  std::size_t particle_count() const override { return particles_.size(); }
+  /// All ranks' particles in a split run.
+  std::size_t particle_count() const override;
+  /// Summed over the ranks in a split run (collective there).
   std::size_t bytes() const override;
   std::int64_t advance_to(double t_end) override;
   io::PlyData frame(const std::vector<std::string>& attributes) const override;
 
+  /// This process's particles (in a split run: its slab's, between substeps).
   Particles<T, Dim>& particles() { return particles_; }
   const Particles<T, Dim>& particles() const { return particles_; }
   const Scene& scene() const { return scene_; }
@@ -156,6 +174,25 @@ class Simulation final : public SimulationBase {
   static constexpr std::int64_t kReorderInterval = 8;
 
   void seed_bodies();
+  // The split over processes (null in one process): see the file comment.
+  struct Split;
+  template <int Order>
+  int column_order(const Vec& x) const;
+  /// The block column along the split axis of the block a particle at x is binned to.
+  int column(const Vec& x) const;
+  /// Keeps this rank's particles of a full set (after seeding and after load_state).
+  void split_particles();
+  /// New slab borders from the particle counts; particles move to their new owners.
+  void rebalance();
+  /// Hands the particles outside this rank's slab to the neighbours, in rounds until none is
+  /// left (one round after a substep: particles move less than a column).
+  void migrate();
+  void add_ghosts();
+  bool owned_block(const Eigen::Matrix<int, Dim, 1>& block) const;
+  /// Every rank's particles, on every rank or on rank 0 only (empty elsewhere).
+  Particles<T, Dim> all_particles(bool on_every_rank) const;
+  io::PlyData frame_of(const Particles<T, Dim>& P, const std::vector<std::string>& attributes) const;
+  std::string diagnosis(T dt) const;
   template <class G>
   void step_on(G& grid, T dt);
   /// K_p = -dt V_p^0 tau(F_p) for the particles order()[begin, end) of one material.
@@ -216,6 +253,7 @@ class Simulation final : public SimulationBase {
   std::unique_ptr<ImplicitUpdate<T, Dim>> implicit_;  // null for "explicit"
   CgStats cg_;
   std::unique_ptr<SleepState> sleep_;  // null unless solver.sleep.speed > 0
+  std::unique_ptr<Split> split_;       // null unless split over more than one process
 };
 
 extern template class Simulation<float, 2>;

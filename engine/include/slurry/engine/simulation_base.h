@@ -23,6 +23,7 @@
 #include <string_view>
 #include <vector>
 
+#include "slurry/engine/communicator.h"
 #include "slurry/engine/errors.h"
 #include "slurry/engine/ply.h"
 #include "slurry/engine/scene.h"
@@ -140,6 +141,9 @@ class SimulationBase {
 };
 
 /// Builds the simulation a scene asks for (its solver, dimension and precision). Validates the scene.
-std::unique_ptr<SimulationBase> make_simulation(const Scene& scene);
+/// With a communicator of more than one rank (every rank calls this with the same scene), the
+/// explicit MPM solver splits the domain over the ranks (simulation.h); the other solvers run in
+/// one process only and are refused with SceneError.
+std::unique_ptr<SimulationBase> make_simulation(const Scene& scene, Communicator* communicator = nullptr);
 
 }  // namespace slurry

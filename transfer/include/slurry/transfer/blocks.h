@@ -192,6 +192,23 @@ class ParticleBins {
     }
   }
 
+  /// Orders the particles of every bin by `rank_of(p)` (distinct unsigned integers, e.g.
+  /// persistent ids). The counting sort leaves a bin in storage order, which depends on the
+  /// history of the storage (re-sorts, arrivals); ordered by a persistent key, a bin's
+  /// particles (and so every sum a patch accumulates) depend on the set of particles alone, so
+  /// that a domain split over processes reproduces a single process bit for bit. A bin that is
+  /// already in order (the common case right after a re-sort by bins) costs one pass.
+  template <class RankOf>
+  void sort_within_bins(RankOf&& rank_of) {
+    std::uint32_t* order = order_.data();
+    parallel::parallel_tasks(0, std::int64_t(bins_.size()), [&](std::int64_t b) {
+      std::uint32_t* first = order + bins_[std::size_t(b)].begin;
+      std::uint32_t* last = order + bins_[std::size_t(b)].end;
+      const auto less = [&](std::uint32_t p, std::uint32_t q) { return rank_of(p) < rank_of(q); };
+      if (!std::is_sorted(first, last, less)) std::sort(first, last, less);
+    });
+  }
+
   /// Call after the caller permuted its particle arrays by order(): particle i is now order()[i]'s
   /// data, so the order becomes the identity (the bins stay valid).
   void reset_order() {

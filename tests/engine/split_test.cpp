@@ -1,0 +1,136 @@
+// What a run split over processes rests on, tested in one process (the runs under mpirun are
+// tests/mpi): slab borders, particles packed for another rank, and frames that depend on the
+// set of particles alone, not on the order they are stored in.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <numeric>
+#include <random>
+
+#include "determinism_scene.h"
+#include "domain_split.h"
+#include "slurry/engine/simulation.h"
+
+namespace slurry {
+namespace {
+
+TEST(BalancedCuts, SplitsAtTheMedianAndGivesEveryRankAColumn) {
+  EXPECT_EQ(detail::balanced_cuts({0, 0, 10, 10, 10, 10, 0, 0}, 2), (std::vector<int>{0, 4, 8}));
+  // All particles in one column: the other ranks still get a column each (particles move less
+  // than a column per substep, so they only ever pass to a neighbour).
+  EXPECT_EQ(detail::balanced_cuts({100, 0, 0, 0}, 4), (std::vector<int>{0, 1, 2, 3, 4}));
+  EXPECT_EQ(detail::balanced_cuts({0, 0, 0, 100}, 3), (std::vector<int>{0, 2, 3, 4}));
+  EXPECT_EQ(detail::balanced_cuts({5, 5, 5}, 1), (std::vector<int>{0, 3}));
+}
+
+TEST(BalancedCuts, NoSlabHoldsMoreThanTheMeanPlusOneColumn) {
+  std::mt19937 rng(7);
+  for (int trial = 0; trial < 500; ++trial) {
+    const int columns = 1 + int(rng() % 40), ranks = 1 + int(rng() % unsigned(columns));
+    std::vector<double> counts(static_cast<std::size_t>(columns));
+    for (auto& c : counts) c = double(rng() % 3 == 0 ? 0 : rng() % 1000);
+    const auto cuts = detail::balanced_cuts(counts, ranks);
+    ASSERT_EQ(cuts.size(), std::size_t(ranks) + 1);
+    ASSERT_EQ(cuts.front(), 0);
+    ASSERT_EQ(cuts.back(), columns);
+    const double total = std::accumulate(counts.begin(), counts.end(), 0.0);
+    const double widest = *std::max_element(counts.begin(), counts.end());
+    for (int r = 0; r < ranks; ++r) {
+      ASSERT_LT(cuts[std::size_t(r)], cuts[std::size_t(r) + 1]) << "rank " << r << " has no column";
+      // Each border lies within half a column's count of its target r / ranks of the particles,
+      // or is forced (a one-column slab, or one that ends early): no slab holds more than the
+      // mean plus the fullest column.
+      double n = 0;
+      for (int c = cuts[std::size_t(r)]; c < cuts[std::size_t(r) + 1]; ++c) n += counts[std::size_t(c)];
+      EXPECT_LE(n, total / ranks + widest + 1e-9) << "trial " << trial << " rank " << r;
+    }
+  }
+}
+
+TEST(PackParticles, RoundTripsEveryStoredChannel) {
+  Particles<float, 3> P;
+  P.channels.F = P.channels.C = P.channels.plastic = P.channels.material = true;
+  for (int i = 0; i < 10; ++i) {
+    P.push_back(Eigen::Vector3f(float(i), 1, 2), Eigen::Vector3f(0, float(i), 0), 0.5f * float(i), 1e-3f, std::uint16_t(i % 3),
+                1.0f + float(i));
+    P.F.back()(0, 1) = float(i);
+    P.C.back()(2, 2) = -float(i);
+  }
+  std::string bytes;
+  detail::pack_particles(P, {7, 2, 9}, bytes);
+  Particles<float, 3> Q;
+  Q.channels = P.channels;
+  detail::unpack_particles(bytes, Q);
+  ASSERT_EQ(Q.size(), 3u);
+  EXPECT_TRUE(Q.J.empty());  // not stored: not sent
+  const std::uint32_t which[] = {7, 2, 9};
+  for (std::size_t k = 0; k < 3; ++k) {
+    const auto p = which[k];
+    EXPECT_EQ(Q.x[k], P.x[p]);
+    EXPECT_EQ(Q.v[k], P.v[p]);
+    EXPECT_EQ(Q.m[k], P.m[p]);
+    EXPECT_EQ(Q.F[k], P.F[p]);
+    EXPECT_EQ(Q.C[k], P.C[p]);
+    EXPECT_EQ(Q.plastic[k], P.plastic[p]);
+    EXPECT_EQ(Q.material[k], P.material[p]);
+    EXPECT_EQ(Q.id[k], P.id[p]);
+  }
+  std::vector<std::uint8_t> drop(P.size(), 0);
+  drop[0] = drop[5] = 1;
+  detail::drop_particles(P, drop);
+  ASSERT_EQ(P.size(), 8u);
+  EXPECT_EQ(P.id[0], 1u);
+  EXPECT_EQ(P.id[4], 6u);
+  EXPECT_EQ(P.F.size(), 8u);
+  bytes.pop_back();
+  EXPECT_THROW(detail::unpack_particles(bytes, Q), SimulationError);  // truncated
+}
+
+/// Particles in ascending id order, as bytes of every channel, for bitwise comparison.
+template <class T, int Dim>
+std::string by_id(const Particles<T, Dim>& P) {
+  std::vector<std::uint32_t> order(P.size());
+  for (std::size_t p = 0; p < P.size(); ++p) order[P.id[p]] = std::uint32_t(p);
+  std::string bytes;
+  detail::pack_particles(P, order, bytes);
+  return bytes;
+}
+
+// A rank holds its particles in an order of its own (arrivals from the neighbours are appended,
+// ghosts come and go); its bins order them by id, so the substeps it takes are those of one
+// process. Here: the storage shuffled mid-run, then the same steps, bitwise the same particles.
+TEST(StorageOrder, ShufflingTheParticlesChangesNoBit) {
+  for (const int dim : {2, 3}) {
+    const Scene s = test::determinism_scene(dim, GridKind::Sparse);
+    auto run = [&](bool shuffle) {
+      auto steps = [&](auto& sim) {
+        for (int i = 0; i < 12; ++i) {
+          if (shuffle && i == 5) {  // mid-run: between two periodic re-sorts
+            auto& P = sim.particles();
+            std::vector<std::uint32_t> perm(P.size());
+            std::iota(perm.begin(), perm.end(), 0u);
+            std::shuffle(perm.begin(), perm.end(), std::mt19937(11));
+            std::string bytes;
+            detail::pack_particles(P, perm, bytes);
+            detail::truncate_particles(P, 0);
+            detail::unpack_particles(bytes, P);
+          }
+          sim.step(sim.stable_dt());
+        }
+        return by_id(sim.particles());
+      };
+      if (dim == 2) {
+        Simulation<float, 2> sim(s);
+        return steps(sim);
+      }
+      Simulation<float, 3> sim(s);
+      return steps(sim);
+    };
+    const std::string plain = run(false), shuffled = run(true);
+    EXPECT_EQ(plain.size(), shuffled.size());
+    EXPECT_TRUE(plain == shuffled) << dim << "D: a shuffled storage changed the particles";
+  }
+}
+
+}  // namespace
+}  // namespace slurry
