@@ -12,7 +12,8 @@
 // A substep's time is the slowest rank's (MPI_Allreduce max; manual time). Counters:
 //   particle-steps/s   all ranks' particles x substeps / time
 //   kB/substep/rank    payload each rank sends per substep (ghost copies of the border columns
-//                      and migrating particles; 108 B per 3D float MLS solid particle), mean over ranks
+//                      and migrating particles; 108 B per 3D float MLS solid particle), mean over
+//                      ranks
 //   kB/substep max     the largest rank's
 //   ghost share        particles sent per substep / particles per rank: the extra work of the halo
 // Fixed iteration counts keep the ranks in step (every substep is collective).
@@ -83,10 +84,15 @@ void run(benchmark::State& state, bool weak) {
   state.counters["ghost share"] = mpi.size() > 1 ? mean / kParticleBytes / (n / mpi.size()) : 0.0;
 }
 
-void BM_Strong(benchmark::State& state) { run(state, false); }
-void BM_Weak(benchmark::State& state) { run(state, true); }
+void BM_Strong(benchmark::State& state) {
+  run(state, false);
+}
+void BM_Weak(benchmark::State& state) {
+  run(state, true);
+}
 
-BENCHMARK(BM_Strong)->Arg(64)->Arg(100)->Iterations(20)->UseManualTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Strong)->Arg(64)->Arg(100)->Iterations(20)->UseManualTime()->Unit(
+    benchmark::kMillisecond);
 BENCHMARK(BM_Weak)->Arg(64)->Iterations(20)->UseManualTime()->Unit(benchmark::kMillisecond);
 
 /// Ranks other than 0 report nothing.

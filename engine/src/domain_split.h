@@ -41,7 +41,8 @@ inline std::vector<int> balanced_cuts(const std::vector<double>& counts, int ran
     const int lo = cuts[std::size_t(r) - 1] + 1, hi = columns - (ranks - r);
     while (k < lo) below += counts[std::size_t(k++)];
     while (k < hi && below + counts[std::size_t(k)] <= target) below += counts[std::size_t(k++)];
-    if (k < hi && target - below > below + counts[std::size_t(k)] - target) below += counts[std::size_t(k++)];
+    if (k < hi && target - below > below + counts[std::size_t(k)] - target)
+      below += counts[std::size_t(k++)];
     cuts[std::size_t(r)] = k;
   }
   return cuts;
@@ -50,7 +51,8 @@ inline std::vector<int> balanced_cuts(const std::vector<double>& counts, int ran
 /// Appends the particles `which` (every stored channel) to `out`: a count, then channel after
 /// channel in Particles::for_each_channel order. Ranks of one run store the same channels.
 template <class T, int Dim>
-void pack_particles(const Particles<T, Dim>& P, const std::vector<std::uint32_t>& which, std::string& out) {
+void pack_particles(const Particles<T, Dim>& P, const std::vector<std::uint32_t>& which,
+                    std::string& out) {
   const std::uint64_t n = which.size();
   out.append(reinterpret_cast<const char*>(&n), sizeof n);
   P.for_each_channel([&](const auto& channel) {
@@ -68,18 +70,21 @@ template <class T, int Dim>
 void unpack_particles(std::string_view in, Particles<T, Dim>& P) {
   if (in.empty()) return;
   std::uint64_t n = 0;
-  if (in.size() < sizeof n) throw SimulationError("a message of particles from another rank is truncated");
+  if (in.size() < sizeof n)
+    throw SimulationError("a message of particles from another rank is truncated");
   std::memcpy(&n, in.data(), sizeof n);
   std::size_t at = sizeof n;
   P.for_each_channel([&](auto& channel) {
     using V = typename std::decay_t<decltype(channel)>::value_type;
-    if (in.size() - at < n * sizeof(V)) throw SimulationError("a message of particles from another rank is truncated");
+    if (in.size() - at < n * sizeof(V))
+      throw SimulationError("a message of particles from another rank is truncated");
     const std::size_t old = channel.size();
     channel.resize(old + n);
     std::memcpy(static_cast<void*>(channel.data() + old), in.data() + at, n * sizeof(V));
     at += n * sizeof(V);
   });
-  if (at != in.size()) throw SimulationError("a message of particles from another rank has trailing bytes");
+  if (at != in.size())
+    throw SimulationError("a message of particles from another rank has trailing bytes");
 }
 
 /// Removes the particles whose `drop` flag is set, keeping the others' order.

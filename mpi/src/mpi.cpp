@@ -19,7 +19,8 @@ void check(int code, const char* what) {
   char text[MPI_MAX_ERROR_STRING];
   int length = 0;
   MPI_Error_string(code, text, &length);
-  throw std::runtime_error(std::string("MPI: ") + what + " failed: " + std::string(text, std::size_t(length)));
+  throw std::runtime_error(std::string("MPI: ") + what +
+                           " failed: " + std::string(text, std::size_t(length)));
 }
 
 /// Displacements of a gather's pieces; refuses a total beyond MPI's int counts.
@@ -30,19 +31,23 @@ std::vector<int> displacements(const std::vector<int>& sizes, const char* what) 
     at[r] = int(total);
     total += sizes[r];
     if (total > INT_MAX)
-      throw std::runtime_error(std::string("MPI: ") + what + ": the ranks' data exceed 2 GiB, more than one gather takes");
+      throw std::runtime_error(std::string("MPI: ") + what +
+                               ": the ranks' data exceed 2 GiB, more than one gather takes");
   }
   return at;
 }
 
-std::vector<std::string> split(const std::string& all, const std::vector<int>& sizes, const std::vector<int>& at) {
+std::vector<std::string> split(const std::string& all, const std::vector<int>& sizes,
+                               const std::vector<int>& at) {
   std::vector<std::string> parts(sizes.size());
-  for (std::size_t r = 0; r < sizes.size(); ++r) parts[r] = all.substr(std::size_t(at[r]), std::size_t(sizes[r]));
+  for (std::size_t r = 0; r < sizes.size(); ++r)
+    parts[r] = all.substr(std::size_t(at[r]), std::size_t(sizes[r]));
   return parts;
 }
 
 int mine_size(const std::string& mine) {
-  if (mine.size() > std::size_t(INT_MAX)) throw std::runtime_error("MPI: a rank's part of a gather exceeds 2 GiB");
+  if (mine.size() > std::size_t(INT_MAX))
+    throw std::runtime_error("MPI: a rank's part of a gather exceeds 2 GiB");
   return int(mine.size());
 }
 
@@ -64,7 +69,8 @@ Session::Session(int& argc, char**& argv) {
   MPI_Comm_set_errhandler(MPI_COMM_WORLD, MPI_ERRORS_RETURN);
   MPI_Comm_rank(MPI_COMM_WORLD, &rank_);
   MPI_Comm_size(MPI_COMM_WORLD, &size_);
-  if (const char* local = std::getenv("OMPI_COMM_WORLD_LOCAL_SIZE")) local_size_ = std::max(1, std::atoi(local));
+  if (const char* local = std::getenv("OMPI_COMM_WORLD_LOCAL_SIZE"))
+    local_size_ = std::max(1, std::atoi(local));
 }
 
 Session::~Session() {
@@ -74,23 +80,30 @@ Session::~Session() {
 }
 
 void Session::sum(double* values, int n) {
-  check(MPI_Allreduce(MPI_IN_PLACE, values, n, MPI_DOUBLE, MPI_SUM, MPI_COMM_WORLD), "MPI_Allreduce (sum)");
+  check(MPI_Allreduce(MPI_IN_PLACE, values, n, MPI_DOUBLE, MPI_SUM, MPI_COMM_WORLD),
+        "MPI_Allreduce (sum)");
 }
 
 void Session::max(double* values, int n) {
-  check(MPI_Allreduce(MPI_IN_PLACE, values, n, MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD), "MPI_Allreduce (max)");
+  check(MPI_Allreduce(MPI_IN_PLACE, values, n, MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD),
+        "MPI_Allreduce (max)");
 }
 
-std::pair<std::string, std::string> Session::exchange(const std::string& to_lower, const std::string& to_upper) {
+std::pair<std::string, std::string> Session::exchange(const std::string& to_lower,
+                                                      const std::string& to_upper) {
   const int lower = rank_ > 0 ? rank_ - 1 : MPI_PROC_NULL;
   const int upper = rank_ + 1 < size_ ? rank_ + 1 : MPI_PROC_NULL;
   // Sizes first, so that each side can receive into a buffer of the right length.
   std::uint64_t send[2] = {to_lower.size(), to_upper.size()}, recv[2] = {0, 0};
   MPI_Request size_requests[4];
-  check(MPI_Irecv(&recv[0], 1, MPI_UINT64_T, lower, kSizeTag, MPI_COMM_WORLD, &size_requests[0]), "MPI_Irecv");
-  check(MPI_Irecv(&recv[1], 1, MPI_UINT64_T, upper, kSizeTag, MPI_COMM_WORLD, &size_requests[1]), "MPI_Irecv");
-  check(MPI_Isend(&send[0], 1, MPI_UINT64_T, lower, kSizeTag, MPI_COMM_WORLD, &size_requests[2]), "MPI_Isend");
-  check(MPI_Isend(&send[1], 1, MPI_UINT64_T, upper, kSizeTag, MPI_COMM_WORLD, &size_requests[3]), "MPI_Isend");
+  check(MPI_Irecv(&recv[0], 1, MPI_UINT64_T, lower, kSizeTag, MPI_COMM_WORLD, &size_requests[0]),
+        "MPI_Irecv");
+  check(MPI_Irecv(&recv[1], 1, MPI_UINT64_T, upper, kSizeTag, MPI_COMM_WORLD, &size_requests[1]),
+        "MPI_Irecv");
+  check(MPI_Isend(&send[0], 1, MPI_UINT64_T, lower, kSizeTag, MPI_COMM_WORLD, &size_requests[2]),
+        "MPI_Isend");
+  check(MPI_Isend(&send[1], 1, MPI_UINT64_T, upper, kSizeTag, MPI_COMM_WORLD, &size_requests[3]),
+        "MPI_Isend");
   check(MPI_Waitall(4, size_requests, MPI_STATUSES_IGNORE), "MPI_Waitall");
   std::pair<std::string, std::string> got;
   got.first.resize(lower == MPI_PROC_NULL ? 0 : std::size_t(recv[0]));
@@ -102,15 +115,18 @@ std::pair<std::string, std::string> Session::exchange(const std::string& to_lowe
       const int n = int(std::min(kPiece, bytes - at));
       requests.emplace_back();
       const int tag = kDataTag + int(piece % 1000);
-      check(receive ? MPI_Irecv(data + at, n, MPI_BYTE, peer, tag, MPI_COMM_WORLD, &requests.back())
-                    : MPI_Isend(data + at, n, MPI_BYTE, peer, tag, MPI_COMM_WORLD, &requests.back()),
+      check(receive
+                ? MPI_Irecv(data + at, n, MPI_BYTE, peer, tag, MPI_COMM_WORLD, &requests.back())
+                : MPI_Isend(data + at, n, MPI_BYTE, peer, tag, MPI_COMM_WORLD, &requests.back()),
             receive ? "MPI_Irecv" : "MPI_Isend");
     }
   };
   post(true, got.first.data(), got.first.size(), lower);
   post(true, got.second.data(), got.second.size(), upper);
-  post(false, const_cast<char*>(to_lower.data()), lower == MPI_PROC_NULL ? 0 : to_lower.size(), lower);
-  post(false, const_cast<char*>(to_upper.data()), upper == MPI_PROC_NULL ? 0 : to_upper.size(), upper);
+  post(false, const_cast<char*>(to_lower.data()), lower == MPI_PROC_NULL ? 0 : to_lower.size(),
+       lower);
+  post(false, const_cast<char*>(to_upper.data()), upper == MPI_PROC_NULL ? 0 : to_upper.size(),
+       upper);
   if (!requests.empty())
     check(MPI_Waitall(int(requests.size()), requests.data(), MPI_STATUSES_IGNORE), "MPI_Waitall");
   if (lower != MPI_PROC_NULL) exchanged_bytes_ += to_lower.size();
@@ -124,7 +140,8 @@ std::vector<std::string> Session::all_gather(const std::string& mine) {
   check(MPI_Allgather(&n, 1, MPI_INT, sizes.data(), 1, MPI_INT, MPI_COMM_WORLD), "MPI_Allgather");
   const auto at = displacements(sizes, "all_gather");
   std::string all(std::size_t(at.back()) + std::size_t(sizes.back()), '\0');
-  check(MPI_Allgatherv(mine.data(), n, MPI_BYTE, all.data(), sizes.data(), at.data(), MPI_BYTE, MPI_COMM_WORLD),
+  check(MPI_Allgatherv(mine.data(), n, MPI_BYTE, all.data(), sizes.data(), at.data(), MPI_BYTE,
+                       MPI_COMM_WORLD),
         "MPI_Allgatherv");
   return split(all, sizes, at);
 }
@@ -139,13 +156,16 @@ std::vector<std::string> Session::gather(const std::string& mine) {
     at = displacements(sizes, "gather");
     all.resize(std::size_t(at.back()) + std::size_t(sizes.back()));
   }
-  check(MPI_Gatherv(mine.data(), n, MPI_BYTE, all.data(), sizes.data(), at.data(), MPI_BYTE, 0, MPI_COMM_WORLD),
+  check(MPI_Gatherv(mine.data(), n, MPI_BYTE, all.data(), sizes.data(), at.data(), MPI_BYTE, 0,
+                    MPI_COMM_WORLD),
         "MPI_Gatherv");
   if (rank_ != 0) return {};
   return split(all, sizes, at);
 }
 
-void Session::barrier() { check(MPI_Barrier(MPI_COMM_WORLD), "MPI_Barrier"); }
+void Session::barrier() {
+  check(MPI_Barrier(MPI_COMM_WORLD), "MPI_Barrier");
+}
 
 void Session::abort(int code) {
   MPI_Abort(MPI_COMM_WORLD, code);

@@ -41,7 +41,8 @@ TEST(BalancedCuts, NoSlabHoldsMoreThanTheMeanPlusOneColumn) {
       // or is forced (a one-column slab, or one that ends early): no slab holds more than the
       // mean plus the fullest column.
       double n = 0;
-      for (int c = cuts[std::size_t(r)]; c < cuts[std::size_t(r) + 1]; ++c) n += counts[std::size_t(c)];
+      for (int c = cuts[std::size_t(r)]; c < cuts[std::size_t(r) + 1]; ++c)
+        n += counts[std::size_t(c)];
       EXPECT_LE(n, total / ranks + widest + 1e-9) << "trial " << trial << " rank " << r;
     }
   }
@@ -51,8 +52,8 @@ TEST(PackParticles, RoundTripsEveryStoredChannel) {
   Particles<float, 3> P;
   P.channels.F = P.channels.C = P.channels.plastic = P.channels.material = true;
   for (int i = 0; i < 10; ++i) {
-    P.push_back(Eigen::Vector3f(float(i), 1, 2), Eigen::Vector3f(0, float(i), 0), 0.5f * float(i), 1e-3f, std::uint16_t(i % 3),
-                1.0f + float(i));
+    P.push_back(Eigen::Vector3f(float(i), 1, 2), Eigen::Vector3f(0, float(i), 0), 0.5f * float(i),
+                1e-3f, std::uint16_t(i % 3), 1.0f + float(i));
     P.F.back()(0, 1) = float(i);
     P.C.back()(2, 2) = -float(i);
   }

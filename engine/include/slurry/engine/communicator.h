@@ -28,7 +28,8 @@ class Communicator {
   virtual void max(double* values, int n) = 0;
   /// Sends `to_lower` to rank - 1 and `to_upper` to rank + 1 (nothing beyond the first and the
   /// last rank) and returns {what rank - 1 sent, what rank + 1 sent} (empty beyond the ends).
-  virtual std::pair<std::string, std::string> exchange(const std::string& to_lower, const std::string& to_upper) = 0;
+  virtual std::pair<std::string, std::string> exchange(const std::string& to_lower,
+                                                       const std::string& to_upper) = 0;
   /// Every rank's `mine`, in rank order, on every rank.
   virtual std::vector<std::string> all_gather(const std::string& mine) = 0;
   /// Every rank's `mine`, in rank order, on rank 0; an empty list on the others.
