@@ -803,6 +803,9 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
   const auto& bins = bins_.bins();
   const std::uint32_t* order = bins_.order();
   const T inv_dx = T(1) / dx_;
+  // A split run gathers only the bins of its own columns.
+  const bool split = bool(split_);
+  const int axis = split ? split_->axis : 0, lo = split ? split_->lo : 0, hi = split ? split_->hi : 0;
   // F <- (I + dt grad v) F for solids, J <- det(I + dt grad v) J for fluids.
   auto solid_state = [=](std::int64_t p, const Mat& gv) {
     const Mat A = Mat::Identity() + dt * gv;
@@ -821,7 +824,7 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
             for (std::int64_t b = lo; b < hi; ++b) {
               if (sleep_ && sleep_->bin_block[std::size_t(b)]) continue;
               const auto& bin = bins[std::size_t(b)];
-              if (split_ && !owned_block(bin.block)) continue;  // ghosts: their own rank moves them
+              if (split && (bin.block[axis] < lo || bin.block[axis] >= hi)) continue;  // ghosts: their rank moves them
               transfer::Patch<T, Dim, Order> patch(bin.block, origin_, dx_, inv_dx);
               grid.read_patch(patch);
               const T s2 = fluid_[bin.material]
