@@ -535,15 +535,36 @@ bool Simulation<T, Dim>::owned_block(const Eigen::Matrix<int, Dim, 1>& block) co
 }
 
 template <class T, int Dim>
+bool Simulation<T, Dim>::set_borders(const std::vector<double>& counts) {
+  auto& S = *split_;
+  const int ranks = S.comm->size(), rank = S.comm->rank();
+  const auto cuts = detail::balanced_cuts(counts, ranks);
+  S.fewest = double(S.total), S.most = 0;
+  for (int r = 0; r < ranks; ++r) {
+    double n = 0;
+    for (int c = cuts[std::size_t(r)]; c < cuts[std::size_t(r) + 1]; ++c) n += counts[std::size_t(c)];
+    S.fewest = std::min(S.fewest, n), S.most = std::max(S.most, n);
+  }
+  if (cuts == S.cuts) return false;
+  S.cuts = cuts;
+  S.lo = S.cuts[std::size_t(rank)];
+  S.hi = S.cuts[std::size_t(rank) + 1];
+  return true;
+}
+
+template <class T, int Dim>
+std::vector<double> Simulation<T, Dim>::column_counts() const {
+  std::vector<double> counts(std::size_t(bins_.block_res()[split_->axis]), 0.0);
+  for (const auto& x : particles_.x) counts[std::size_t(column(x))] += 1;
+  return counts;
+}
+
+template <class T, int Dim>
 void Simulation<T, Dim>::split_particles() {
   // Every rank holds the same full set here, so every rank computes the same borders.
   auto& S = *split_;
-  const int ranks = S.comm->size(), rank = S.comm->rank();
-  std::vector<double> counts(std::size_t(bins_.block_res()[S.axis]), 0.0);
-  for (const auto& x : particles_.x) counts[std::size_t(column(x))] += 1;
-  S.cuts = detail::balanced_cuts(counts, ranks);
-  S.lo = S.cuts[std::size_t(rank)];
-  S.hi = S.cuts[std::size_t(rank) + 1];
+  S.cuts.clear();
+  set_borders(column_counts());
   std::vector<std::uint8_t> drop(particles_.size());
   for (std::size_t p = 0; p < drop.size(); ++p) {
     const int c = column(particles_.x[p]);
@@ -552,34 +573,13 @@ void Simulation<T, Dim>::split_particles() {
   detail::drop_particles(particles_, drop);
   S.owned = particles_.size();
   stress_.resize(particles_.size());
-  S.fewest = S.total, S.most = 0;
-  for (int r = 0; r < ranks; ++r) {
-    double n = 0;
-    for (int c = S.cuts[std::size_t(r)]; c < S.cuts[std::size_t(r) + 1]; ++c) n += counts[std::size_t(c)];
-    S.fewest = std::min(S.fewest, n), S.most = std::max(S.most, n);
-  }
 }
 
 template <class T, int Dim>
 void Simulation<T, Dim>::rebalance() {
-  auto& S = *split_;
-  const int ranks = S.comm->size(), rank = S.comm->rank();
-  std::vector<double> counts(std::size_t(bins_.block_res()[S.axis]), 0.0);
-  for (const auto& x : particles_.x) counts[std::size_t(column(x))] += 1;
-  S.comm->sum(counts.data(), int(counts.size()));
-  const auto cuts = detail::balanced_cuts(counts, ranks);
-  if (cuts != S.cuts) {
-    S.cuts = cuts;
-    S.lo = S.cuts[std::size_t(rank)];
-    S.hi = S.cuts[std::size_t(rank) + 1];
-    migrate();
-  }
-  S.fewest = double(S.total), S.most = 0;
-  for (int r = 0; r < ranks; ++r) {
-    double n = 0;
-    for (int c = S.cuts[std::size_t(r)]; c < S.cuts[std::size_t(r) + 1]; ++c) n += counts[std::size_t(c)];
-    S.fewest = std::min(S.fewest, n), S.most = std::max(S.most, n);
-  }
+  auto counts = column_counts();
+  split_->comm->sum(counts.data(), int(counts.size()));
+  if (set_borders(counts)) migrate();
 }
 
 template <class T, int Dim>
@@ -803,9 +803,12 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
   const auto& bins = bins_.bins();
   const std::uint32_t* order = bins_.order();
   const T inv_dx = T(1) / dx_;
-  // A split run gathers only the bins of its own columns.
+  // A split run gathers the bins of its own block columns only. The test sits behind a
+  // loop-invariant flag, which the compiler unswitches: the one-process loop stays as it was
+  // (testing bounds in every bin instead cost 2D G2P 30%, 5.9 -> 7.6 ms per step; a test through
+  // split_ cost the same), and tests/mpi checks that the split copy computes the same bits.
   const bool split = bool(split_);
-  const int axis = split ? split_->axis : 0, lo = split ? split_->lo : 0, hi = split ? split_->hi : 0;
+  const int axis = split ? split_->axis : 0, own_lo = split ? split_->lo : 0, own_hi = split ? split_->hi : 0;
   // F <- (I + dt grad v) F for solids, J <- det(I + dt grad v) J for fluids.
   auto solid_state = [=](std::int64_t p, const Mat& gv) {
     const Mat A = Mat::Identity() + dt * gv;
@@ -824,7 +827,7 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
             for (std::int64_t b = lo; b < hi; ++b) {
               if (sleep_ && sleep_->bin_block[std::size_t(b)]) continue;
               const auto& bin = bins[std::size_t(b)];
-              if (split && (bin.block[axis] < lo || bin.block[axis] >= hi)) continue;  // ghosts: their rank moves them
+              if (split && (bin.block[axis] < own_lo || bin.block[axis] >= own_hi)) continue;  // ghosts: their rank moves them
               transfer::Patch<T, Dim, Order> patch(bin.block, origin_, dx_, inv_dx);
               grid.read_patch(patch);
               const T s2 = fluid_[bin.material]

@@ -180,6 +180,11 @@ class Simulation final : public SimulationBase {
   int column_order(const Vec& x) const;
   /// The block column along the split axis of the block a particle at x is binned to.
   int column(const Vec& x) const;
+  /// Particles of this rank per block column along the split axis.
+  std::vector<double> column_counts() const;
+  /// Slab borders balanced for all ranks' column counts (and the per-rank extremes for the
+  /// log); true if they moved.
+  bool set_borders(const std::vector<double>& counts);
   /// Keeps this rank's particles of a full set (after seeding and after load_state).
   void split_particles();
   /// New slab borders from the particle counts; particles move to their new owners.
