@@ -22,6 +22,7 @@
 #include <chrono>
 #include <memory>
 
+#include "block_scene.h"
 #include "slurry/engine/simulation.h"
 #include "slurry/mpi/mpi.h"
 #include "slurry/transfer/parallel.h"
@@ -30,34 +31,11 @@ namespace {
 
 slurry::mpi::Session* g_mpi = nullptr;
 
-slurry::Scene block_scene(int res, int stretch) {
-  slurry::Scene s;
-  s.source = "bench_mpi";
-  s.solver.dimension = 3;
-  s.solver.transfer = slurry::TransferKind::MLS;
-  s.solver.kernel = slurry::KernelKind::Quadratic;
-  s.domain.min = {0, 0, 0};
-  s.domain.max = {0.5 * stretch + 0.5, 1, 1};
-  s.domain.dx = 1.0 / res;
-  slurry::MaterialParams m;
-  m.name = "jelly";
-  m.model = slurry::ElasticModel::FixedCorotated;
-  s.materials = {m};
-  slurry::BodyParams b;
-  b.min = {0.25, 0.25, 0.25};
-  b.max = {0.25 + 0.5 * stretch, 0.75, 0.75};
-  b.material = "jelly";
-  b.velocity = {0.3, -0.2, 0.1};
-  b.particles_per_cell = 8;
-  s.bodies = {b};
-  return s;
-}
-
 void run(benchmark::State& state, bool weak) {
   auto& mpi = *g_mpi;
   const int res = int(state.range(0));
   slurry::parallel::ThreadLimit threads(1);
-  slurry::Simulation<float, 3> sim(block_scene(res, weak ? mpi.size() : 1), &mpi);
+  slurry::Simulation<float, 3> sim(slurry::bench::block_scene(3, res, false, weak ? mpi.size() : 1), &mpi);
   const float dt = 0.2f * sim.stable_dt();
   for (int i = 0; i < 3; ++i) sim.step(dt);  // warm up: grid blocks and particle order settle
   const auto sent = mpi.exchanged_bytes();

@@ -13,40 +13,17 @@
 #include <algorithm>
 #include <vector>
 
+#include "block_scene.h"
 #include "slurry/engine/simulation.h"
 #include "slurry/transfer/parallel.h"
 
 namespace {
 
-slurry::Scene block_scene(int dim, int res, bool dbl) {
-  slurry::Scene s;
-  s.source = "bench";
-  s.solver.dimension = dim;
-  s.solver.precision = dbl ? slurry::Precision::Double : slurry::Precision::Float;
-  s.solver.transfer = slurry::TransferKind::MLS;
-  s.solver.kernel = slurry::KernelKind::Quadratic;
-  s.domain.min = {0, 0, 0};
-  s.domain.max = {1, 1, 1};
-  s.domain.dx = 1.0 / res;
-  slurry::MaterialParams m;
-  m.name = "jelly";
-  m.model = slurry::ElasticModel::FixedCorotated;
-  s.materials = {m};
-  slurry::BodyParams b;
-  b.min = {0.25, 0.25, 0.25};
-  b.max = {0.75, 0.75, 0.75};
-  b.material = "jelly";
-  b.velocity = {0.3, -0.2, 0.1};
-  b.particles_per_cell = dim == 3 ? 8 : 4;
-  s.bodies = {b};
-  return s;
-}
-
 template <class T, int Dim>
 void BM_MlsStep(benchmark::State& state) {
   const int res = int(state.range(0));
   slurry::parallel::ThreadLimit threads(int(state.range(1)));
-  slurry::Simulation<T, Dim> sim(block_scene(Dim, res, std::is_same_v<T, double>));
+  slurry::Simulation<T, Dim> sim(slurry::bench::block_scene(Dim, res, std::is_same_v<T, double>));
   const T dt = T(0.2) * sim.stable_dt();
   for (int i = 0; i < 3; ++i) sim.step(dt);  // warm up: grid blocks and particle order settle
   const slurry::PhaseTimes before = sim.phase_times();
