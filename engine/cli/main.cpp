@@ -8,6 +8,8 @@
 //                      (built with slurry::io, SLURRY_BUILD_IO=ON)
 //   mpirun -np N slurry run SCENE.json ...   (built with slurry::mpi, SLURRY_BUILD_MPI=ON): the MPM
 //                      domain split over N processes; rank 0 writes the frames and prints the log
+//                      (with output.per_rank each process writes frame_NNNN.rankR.ply instead)
+//   slurry merge DIR [--keep-parts]   joins per-rank frames into frame_NNNN.ply
 //
 // Exit codes: 0 success, 1 the simulation became unstable, 2 invalid scene or usage, 3 file or
 // resource error, 130 / 143 stopped by SIGINT / SIGTERM after the last complete frame.
@@ -191,6 +193,14 @@ int main(int argc, char** argv) {
   resume_cmd->add_flag("--quiet,-q", quiet, "No progress output");
   resume_cmd->add_flag("--force", force, "Accept checkpoints written for another version of the scene file");
 
+  std::string merge_dir;
+  bool keep_parts = false;
+  auto* merge = app.add_subcommand(
+      "merge", "Join the per-rank frames of a run split over MPI processes (output.per_rank: frame_NNNN.rankR.ply) "
+               "into frame_NNNN.ply, the frames one process writes");
+  merge->add_option("directory", merge_dir, "Output directory holding frame_NNNN.rankR.ply files")->required();
+  merge->add_flag("--keep-parts", keep_parts, "Keep the per-rank files (default: removed once merged)");
+
   auto* validate = app.add_subcommand("validate", "Check a scene file, its meshes and its resources, and exit");
   validate->add_option("scene", scene_path, "Scene file (JSON)")->required();
   validate->add_option("--memory-limit", memory_text, "Memory limit in GiB (replaces limits.memory_gb)");
@@ -240,6 +250,19 @@ int main(int argc, char** argv) {
 #ifdef SLURRY_WITH_IO
   if (surface.app->parsed()) return slurry::cli::run_surface_command(surface);
 #endif
+
+  if (merge->parsed()) {
+    if (rank != 0) return 0;
+    try {
+      const auto m = slurry::merge_rank_frames(merge_dir, keep_parts);
+      if (m.frames == 0) throw slurry::IoError(merge_dir + ": no per-rank frames (frame_NNNN.rankR.ply) to merge");
+      std::printf("slurry: merged %d frames from %d per-rank files in %s (%zu particles in the last)\n", m.frames, m.parts,
+                  merge_dir.c_str(), m.particles);
+      return 0;
+    } catch (const slurry::IoError& e) {
+      return report(true, 3, e.what());
+    }
+  }
 
   try {
     if (resume_cmd->parsed()) {

@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <regex>
 #include <signal.h>
 #include <thread>
@@ -61,8 +62,10 @@ DirectoryState scan_directory(const fs::path& dir) {
   if (!fs::exists(dir, ec)) return s;
   if (!fs::is_directory(dir, ec))
     throw IoError(dir.string() + ": exists and is not a directory (expected an output directory)");
-  static const std::regex frame(R"(frame_\d{4,}\.ply)"),
-      temp(R"((?:frame_\d{4,}\.ply|checkpoint_\d{4,}\.slc)\.tmp-(\d+)-\d+)");
+  // Frames are frame_NNNN.ply, or frame_NNNN.rankR.ply for each process of a run split with
+  // output.per_rank.
+  static const std::regex frame(R"(frame_\d{4,}(?:\.rank\d+)?\.ply)"),
+      temp(R"((?:frame_\d{4,}(?:\.rank\d+)?\.ply|checkpoint_\d{4,}\.slc)\.tmp-(\d+)-\d+)");
   for (const auto& e : fs::directory_iterator(dir, ec)) {
     const std::string name = e.path().filename().string();
     std::smatch m;
@@ -80,7 +83,7 @@ DirectoryState scan_directory(const fs::path& dir) {
   return s;
 }
 
-/// The frame index of frame_NNNN.ply.
+/// The frame index of frame_NNNN.ply (or frame_NNNN.rankR.ply).
 int frame_index(const fs::path& file) { return std::atoi(file.filename().string().c_str() + 6); }
 
 /// The run's own part of a checkpoint (the solver's state follows it in the payload).
@@ -275,6 +278,8 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   // A split run: every rank simulates and takes part in the gathers; rank 0 writes.
   Communicator* const comm = options.communicator;
   const bool writer = files && (!comm || comm->rank() == 0);
+  // output.per_rank: every process writes its own particles (frame_NNNN.rankR.ply), nothing is gathered.
+  const bool per_rank = files && comm && comm->size() > 1 && scene.output.per_rank;
   if (files && dir.empty()) throw SceneError(scene.source + ": output directory: expected a non-empty path");
   const int frames = options.frames.value_or(scene.output.frames);
   if (frames < 0) throw SceneError(scene.source + ": frames: expected an integer >= 0, got " + std::to_string(frames));
@@ -355,8 +360,11 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
                             " (its hash differs; pass --force to resume anyway)");
           continue;
         }
+        std::vector<bool> present(std::size_t(c.frame) + 1, false);  // whole, or in parts (output.per_rank)
+        for (const auto& g : before.frames)
+          if (const int i = frame_index(g); i >= 0 && i <= c.frame) present[std::size_t(i)] = true;
         for (int f = 0; f <= c.frame; ++f)
-          if (!fs::exists(frame_file(dir, f)))
+          if (!present[std::size_t(f)])
             throw IoError(file.string() + ": frame " + frame_file(dir, f).filename().string() + " before it is missing");
         std::string_view state;
         const RunSection run = parse_payload(c, state);
@@ -417,6 +425,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   const bool created = writer && !fs::exists(dir, ec);
   if (writer) fs::create_directories(dir, ec);
   if (ec) throw IoError(dir.string() + ": cannot create the output directory: " + ec.message());
+  if (per_rank) comm->barrier();  // every process writes into it
   if (first_frame > 0) summary.frames_written = first_frame;
   if (first_frame > 0 && writer) {
     truncate_stats(dir / "stats.csv", first_frame - 1);
@@ -481,7 +490,9 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     }
     const auto file = files ? frame_file(dir, f) : fs::path();
     try {
-      if (files) {
+      if (per_rank) {
+        io::write_ply(rank_frame_file(dir, f, comm->rank()), sim->own_frame(scene.output.attributes), format);
+      } else if (files) {
         const io::PlyData frame = sim->frame(scene.output.attributes);  // gathered to rank 0 in a split run
         if (writer) io::write_ply(file, frame, format);
       }
@@ -540,6 +551,123 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   summary.bytes = sim->bytes();
   summary.particles = sim->particle_count();
   if (sim_seconds > 0) summary.particle_steps_per_second = particle_steps / sim_seconds;
+  return summary;
+}
+
+std::filesystem::path rank_frame_file(const std::filesystem::path& directory, int frame, int rank) {
+  char name[48];
+  std::snprintf(name, sizeof name, "frame_%04d.rank%d.ply", frame, rank);
+  return directory / name;
+}
+
+namespace {
+
+/// "slurry part R of N id=requested|added" of a per-rank frame, or false.
+bool parse_part(const io::PlyData& d, int& rank, int& ranks, bool& id_added) {
+  for (const auto& c : d.comments) {
+    char id[16] = {};
+    if (std::sscanf(c.c_str(), "slurry part %d of %d id=%15s", &rank, &ranks, id) == 3) {
+      id_added = std::string(id) == "added";
+      return ranks > 0 && rank >= 0 && rank < ranks && (id_added || std::string(id) == "requested");
+    }
+  }
+  return false;
+}
+
+/// The body format a PLY file was written in (its header's second line).
+io::PlyFormat file_format(const fs::path& file) {
+  std::ifstream in(file, std::ios::binary);
+  std::string magic, line;
+  std::getline(in, magic);
+  std::getline(in, line);
+  return line.rfind("format ascii", 0) == 0 ? io::PlyFormat::Ascii : io::PlyFormat::BinaryLittleEndian;
+}
+
+}  // namespace
+
+MergeSummary merge_rank_frames(const std::filesystem::path& directory, bool keep_parts) {
+  static const std::regex part(R"(frame_(\d{4,})\.rank(\d+)\.ply)");
+  std::map<int, std::vector<fs::path>> frames;  // frame -> its parts
+  std::error_code ec;
+  if (!fs::is_directory(directory, ec))
+    throw IoError(directory.string() + ": expected a directory of per-rank frames (frame_NNNN.rankR.ply)");
+  for (const auto& e : fs::directory_iterator(directory, ec)) {
+    const std::string name = e.path().filename().string();
+    std::smatch m;
+    if (std::regex_match(name, m, part)) frames[std::atoi(m[1].str().c_str())].push_back(e.path());
+  }
+  if (ec) throw IoError(directory.string() + ": cannot list it: " + ec.message());
+  MergeSummary summary;
+  for (auto& [f, files] : frames) {
+    std::sort(files.begin(), files.end());
+    std::vector<io::PlyData> parts;
+    std::vector<bool> seen;
+    int ranks = -1;
+    bool id_added = false;
+    std::size_t n = 0;
+    for (const auto& file : files) {
+      io::PlyData d = io::read_ply(file);
+      int r = 0, nr = 0;
+      bool added = false;
+      if (!parse_part(d, r, nr, added))
+        throw IoError(file.string() + ": expected a per-rank frame (the comment \"slurry part R of N id=...\"), found none");
+      if (ranks < 0) {
+        ranks = nr;
+        id_added = added;
+        seen.assign(std::size_t(nr), false);
+      }
+      if (nr != ranks || added != id_added || (!parts.empty() && d.comments.front() != parts.front().comments.front()))
+        throw IoError(file.string() + ": part of another run than " + files.front().string() +
+                      " (expected the same process count, time and id column)");
+      if (seen[std::size_t(r)]) throw IoError(file.string() + ": a second part " + std::to_string(r) + " of frame " + std::to_string(f));
+      seen[std::size_t(r)] = true;
+      n += d.element("vertex").count;
+      parts.push_back(std::move(d));
+    }
+    for (int r = 0; r < ranks; ++r)
+      if (!seen[std::size_t(r)])
+        throw IoError(rank_frame_file(directory, f, r).string() + ": missing (frame " + std::to_string(f) + " was written by " +
+                      std::to_string(ranks) + " processes; expected every part)");
+    // Row = id: an MPM run keeps every particle, and its ids are 0 .. n - 1.
+    io::PlyData merged;
+    merged.comments.push_back(parts.front().comments.front());
+    io::PlyElement& out = merged.elements.emplace_back();
+    out.name = "vertex";
+    out.count = n;
+    std::vector<bool> filled(n, false);
+    for (std::size_t k = 0; k < parts.size(); ++k) {
+      const io::PlyElement& v = parts[k].element("vertex");
+      const auto& ids = v.column<std::uint32_t>("id");
+      if (k == 0) {
+        for (const auto& p : v.properties) {
+          if (id_added && p.name == "id") continue;
+          auto& col = out.properties.emplace_back();
+          col.name = p.name;
+          std::visit([&](const auto& c) { col.data = std::decay_t<decltype(c)>(n); }, p.data);
+        }
+      }
+      for (std::size_t i = 0; i < v.count; ++i) {
+        if (ids[i] >= n || filled[ids[i]])
+          throw IoError(v.source.string() + ": particle id " + std::to_string(ids[i]) + (ids[i] >= n ? " beyond the " + std::to_string(n) + " particles of the frame" : " appears twice") +
+                        " (expected the ids 0 .. n - 1 once each over the parts)");
+        filled[ids[i]] = true;
+      }
+      for (auto& col : out.properties) {
+        const io::PlyProperty* src = v.find(col.name);
+        if (!src || src->data.index() != col.data.index())
+          throw IoError(v.source.string() + ": column " + col.name + " missing or of another type than in the frame's first part");
+        std::visit([&](auto& dst) {
+          const auto& c = std::get<std::decay_t<decltype(dst)>>(src->data);
+          for (std::size_t i = 0; i < v.count; ++i) dst[ids[i]] = c[i];
+        }, col.data);
+      }
+    }
+    io::write_ply(frame_file(directory, f), merged, file_format(files.front()));
+    ++summary.frames;
+    summary.parts += int(files.size());
+    summary.particles = n;
+    if (!keep_parts) remove_all(files);
+  }
   return summary;
 }
 

@@ -792,6 +792,12 @@ void Scene::validate_pipeline_outputs() const {
   if ((!output.surface.empty() || output.vdb_points) && solver.type == SolverType::FEM)
     fail(source, output.vdb_points ? "output.vdb_points" : "output.surface",
          "solver.type \"fem\" writes meshes, not particles: surfaces and VDB points are for \"mpm\" and \"flip\"");
+  if (output.per_rank && (!output.surface.empty() || output.vdb_points))
+    fail(source, "output.per_rank",
+         std::string("per-rank frames hold part of the particles each, and ") +
+             (output.vdb_points ? "output.vdb_points" : "output.surface") +
+             " is made from whole frames: expected output.per_rank false, or no pipeline outputs (make them from the "
+             "frames `slurry merge` joins, with `slurry surface`)");
   if (output.vdb_points && !(has("velocity") && has("id")))
     fail(source, "output.vdb_points", "the points carry velocity and a persistent id: expected \"velocity\" and \"id\" in output.attributes");
   if (!(output.surface_voxel_size >= 0 && output.surface_voxel_size <= 1e300))
@@ -1009,6 +1015,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.number("volume_drift", s.output.volume_drift);
     r.number("energy_growth", s.output.energy_growth);
     r.integer("checkpoint_every", s.output.checkpoint_every, 0, std::numeric_limits<int>::max());
+    r.boolean("per_rank", s.output.per_rank);
     r.strings("surface", s.output.surface);
     r.boolean("vdb_points", s.output.vdb_points);
     r.number("surface_voxel_size", s.output.surface_voxel_size);

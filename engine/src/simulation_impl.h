@@ -1238,9 +1238,28 @@ io::PlyData Simulation<T, Dim>::frame(const std::vector<std::string>& attributes
 }
 
 template <class T, int Dim>
-io::PlyData Simulation<T, Dim>::frame_of(const Particles<T, Dim>& P, const std::vector<std::string>& attributes) const {
+io::PlyData Simulation<T, Dim>::own_frame(const std::vector<std::string>& attributes) const {
+  if (!split_) return frame(attributes);
+  // This process's particles in ascending id: row r holds the r-th smallest id it owns.
+  const auto& P = particles_;
+  std::vector<std::uint32_t> order(P.size()), rows(P.size());
+  for (std::size_t p = 0; p < order.size(); ++p) order[p] = std::uint32_t(p);
+  std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) { return P.id[a] < P.id[b]; });
+  for (std::size_t r = 0; r < order.size(); ++r) rows[order[r]] = std::uint32_t(r);
+  const bool requested = std::find(attributes.begin(), attributes.end(), "id") != attributes.end();
+  std::vector<std::string> columns = attributes;
+  if (!requested) columns.push_back("id");
+  io::PlyData part = frame_of(P, columns, rows.data());
+  part.comments.push_back("slurry part " + std::to_string(split_->comm->rank()) + " of " +
+                          std::to_string(split_->comm->size()) + (requested ? " id=requested" : " id=added"));
+  return part;
+}
+
+template <class T, int Dim>
+io::PlyData Simulation<T, Dim>::frame_of(const Particles<T, Dim>& P, const std::vector<std::string>& attributes,
+                                         const std::uint32_t* rows) const {
   // Particles are stored in bin order; frames list them in seeding order (P.id).
-  detail::VertexFrame out("", time_, scene_.source, P.size(), P.id.data());
+  detail::VertexFrame out("", time_, scene_.source, P.size(), rows ? rows : P.id.data());
   for (const auto& a : attributes) {
     if (a == "position") {
       out.add_positions<Dim>(P.x);

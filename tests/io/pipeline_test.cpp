@@ -56,6 +56,11 @@ TEST(Pipeline, SceneKeysAreValidated) {
             std::string::npos);
   EXPECT_NE(error_of(R"("vdb_points": 1)").find("output.vdb_points: expected true or false"),
             std::string::npos);
+  // Per-rank frames hold part of the particles: no surface or points can be made from one.
+  EXPECT_NE(error_of(R"("attributes": ["position", "material"], "surface": ["vdb"], "per_rank": true)")
+                .find("output.per_rank: per-rank frames hold part of the particles"),
+            std::string::npos);
+  EXPECT_EQ(error_of(R"("attributes": ["position", "material"], "per_rank": true)"), "");
   EXPECT_NE(
       error_of(
           R"("attributes": ["position", "material"], "surface": ["vdb"], "surface_smoothing": 101)")

@@ -4,6 +4,9 @@
 #   mpi_check.sh CLI SCENE FRAMES resume NP1 NP2   a run split over NP1 processes, stopped at
 #                                                  frame FRAMES/2 and resumed over NP2, equals one process
 #   mpi_check.sh CLI SCENE FRAMES refused NP       mpirun -np NP is refused with exit 2 (one-process solvers)
+#   mpi_check.sh CLI SCENE FRAMES per_rank NP      with output.per_rank each of NP processes writes its own
+#                                                  part of each frame; slurry merge joins them into the
+#                                                  one-process frames; a missing part is refused (exit 3)
 # Every frame must be byte-identical to the one-process run's (cmp); stats.csv's mass and momentum,
 # summed in another order over the ranks, must agree to 1e-9 (mass: relative; momentum: of
 # sqrt(2 M K), which bounds sum m |v|). The split is checked to have happened (the per-frame log
@@ -75,6 +78,33 @@ if [ "${1:-}" = resume ]; then
   rm -rf "$work/one"
   "$cli" run "$scene" --out "$work/one" --frames "$frames" --threads 1 --quiet > "$work/one.log" 2>&1 || fail "the one-process run failed"
   compare "$work/resumed" "stopped over $np1 processes at frame $half, resumed over $np2"
+  exit 0
+fi
+
+if [ "${1:-}" = per_rank ]; then
+  np=$2
+  sed 's/"output": {/"output": { "per_rank": true,/' "$scene" > "$work/$name.json"
+  scene="$work/$name.json"
+  mkdir -p "$work/parts"
+  split_run "$np" "$work/parts" --frames "$frames" || fail "mpirun -np $np with output.per_rank failed"
+  [ ! -e "$work/parts/frame_0000.ply" ] || fail "a per-rank run wrote a whole frame"
+  parts=$(find "$work/parts" -name 'frame_*.rank*.ply' | wc -l)
+  [ "$parts" -eq $(((frames + 1) * np)) ] || fail "$parts per-rank files, expected $(((frames + 1) * np))"
+  # A frame with a part missing is refused, naming the file, and nothing is written for it.
+  mkdir -p "$work/broken"
+  cp "$work/parts/frame_0001.rank0.ply" "$work/broken/"
+  set +e
+  "$cli" merge "$work/broken" > "$work/broken.log" 2>&1
+  rc=$?
+  set -e
+  [ "$rc" -eq 3 ] || { cat "$work/broken.log"; fail "merging an incomplete frame exited $rc, expected 3"; }
+  grep -q "frame_0001.rank1.ply: missing" "$work/broken.log" || { cat "$work/broken.log"; fail "no message naming the missing part"; }
+  [ ! -e "$work/broken/frame_0001.ply" ] || fail "an incomplete frame was merged"
+  "$cli" merge "$work/parts" > "$work/merge.log" 2>&1 || { cat "$work/merge.log"; fail "slurry merge failed"; }
+  [ "$(find "$work/parts" -name 'frame_*.rank*.ply' | wc -l)" -eq 0 ] || fail "slurry merge left per-rank files"
+  rm -rf "$work/one"
+  "$cli" run "$scene" --out "$work/one" --frames "$frames" --threads 1 --quiet > "$work/one.log" 2>&1 || fail "the one-process run failed"
+  compare "$work/parts" "mpirun -np $np, per-rank files merged ($parts parts)"
   exit 0
 fi
 

@@ -124,6 +124,23 @@ void check_scene(const Scene& scene, double memory_gb = 0);
 /// The file name of frame f: frame_NNNN.ply.
 std::filesystem::path frame_file(const std::filesystem::path& directory, int frame);
 
+/// The file name of process `rank`'s part of frame f in a run with output.per_rank:
+/// frame_NNNN.rankR.ply.
+std::filesystem::path rank_frame_file(const std::filesystem::path& directory, int frame, int rank);
+
+struct MergeSummary {
+  int frames = 0;  ///< frame_NNNN.ply files written
+  int parts = 0;   ///< frame_NNNN.rankR.ply files read
+  std::size_t particles = 0;  ///< of the last frame
+};
+
+/// Joins the per-rank frames in `directory` (output.per_rank: frame_NNNN.rankR.ply, each with the
+/// comment "slurry part R of N") into frame_NNNN.ply, byte for byte the frame one process writes:
+/// rows in persistent id order, the scene's columns (the id column only if the scene asked for
+/// it), the same format. Removes the parts unless keep_parts. Throws IoError naming the file if a
+/// part is missing, duplicated, from another run, or the ids are not 0 .. n - 1 once each.
+MergeSummary merge_rank_frames(const std::filesystem::path& directory, bool keep_parts = false);
+
 /// The scene file a checkpoint in `directory` was written for, from the newest checkpoint that
 /// reads: its path as the run named it if that names the same file from the working directory
 /// (frames record it), else its absolute path; for `slurry resume DIR`. Throws IoError if none.

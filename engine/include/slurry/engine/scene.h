@@ -236,6 +236,10 @@ struct OutputParams {
   /// A checkpoint (the full solver state, run.h) is written beside the frames every this many
   /// frames; the last two are kept. 0 = none.
   int checkpoint_every = 10;
+  /// A run split over MPI processes: each process writes its own particles to
+  /// frame_NNNN.rankR.ply (no gather on one process) and `slurry merge DIR` joins them into the
+  /// frame_NNNN.ply a single process writes. One process writes frame_NNNN.ply as always.
+  bool per_rank = false;
 };
 
 /// Limits checked before a run allocates or steps (README, "Limits"): the estimated memory of

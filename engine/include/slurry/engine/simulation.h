@@ -142,6 +142,7 @@ class Simulation final : public SimulationBase {
   std::size_t bytes() const override;
   std::int64_t advance_to(double t_end) override;
   io::PlyData frame(const std::vector<std::string>& attributes) const override;
+  io::PlyData own_frame(const std::vector<std::string>& attributes) const override;
 
   /// This process's particles (in a split run: its slab's, between substeps).
   Particles<T, Dim>& particles() { return particles_; }
@@ -196,7 +197,10 @@ class Simulation final : public SimulationBase {
   bool owned_block(const Eigen::Matrix<int, Dim, 1>& block) const;
   /// Every rank's particles, on every rank or on rank 0 only (empty elsewhere).
   Particles<T, Dim> all_particles(bool on_every_rank) const;
-  io::PlyData frame_of(const Particles<T, Dim>& P, const std::vector<std::string>& attributes) const;
+  /// P's particles as a frame; particle p's values land in row rows[p] (P.id when null: one
+  /// process holds every particle, and ids are 0 .. n - 1).
+  io::PlyData frame_of(const Particles<T, Dim>& P, const std::vector<std::string>& attributes,
+                       const std::uint32_t* rows = nullptr) const;
   std::string diagnosis(T dt) const;
   template <class G>
   void step_on(G& grid, T dt);

@@ -95,6 +95,12 @@ class SimulationBase {
   /// The particles' current state as a PLY "vertex" element with the named attributes
   /// (position, velocity, material, J, plastic; FLIP: id).
   virtual io::PlyData frame(const std::vector<std::string>& attributes) const = 0;
+  /// The particles this process holds, as a frame of their own (output.per_rank): in a run
+  /// split over MPI processes, this process's particles in ascending id, with an "id" column
+  /// whether asked for or not, and the comment "slurry part R of N id=requested|added" after the
+  /// frame's own comment (merge_rank_frames() in run.h joins the parts). Not collective. A run
+  /// that is not split returns frame(attributes).
+  virtual io::PlyData own_frame(const std::vector<std::string>& attributes) const { return frame(attributes); }
   /// One line on the last substep's linear solve (iterations, relative residual), for the CLI's
   /// per-frame log; empty for solvers without one (explicit MPM and FEM).
   virtual std::string solver_status() const { return {}; }
