@@ -69,8 +69,9 @@ void apic_reproduces_linear_field() {
   }
   CellSort<double, Dim> sort;
   sort.build(P.x, g.origin, g.dx, g.res);
-  FlipParticles<double, Dim> sorted;
-  P.gather(sort.order, sorted);
+  FlipParticles<double, Dim> sorted = P;
+  typename FlipParticles<double, Dim>::PermuteBuffers spare;
+  sorted.permute(sort.order, spare);
   FaceArrays<double, Dim> wsum;
   particles_to_faces<Order>(g, sorted, sort, wsum);
   // Faces whose whole kernel support lies in the filled block.
@@ -128,8 +129,9 @@ TEST(FaceTransfer, PicDoesNotReproduceLinearField) {
   }
   CellSort<double, 2> sort;
   sort.build(P.x, g.origin, g.dx, g.res);
-  FlipParticles<double, 2> sorted;
-  P.gather(sort.order, sorted);
+  FlipParticles<double, 2> sorted = P;
+  typename FlipParticles<double, 2>::PermuteBuffers spare;
+  sorted.permute(sort.order, spare);
   FaceArrays<double, 2> wsum;
   particles_to_faces<1>(g, sorted, sort, wsum);
   double err = 0;

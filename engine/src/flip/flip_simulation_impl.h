@@ -101,8 +101,9 @@ std::string FlipSimulation<T, Dim>::solver_status() const {
 
 template <class T, int Dim>
 std::size_t FlipSimulation<T, Dim>::bytes() const {
-  std::size_t b = particles_.bytes() + scratch_.bytes() + (sort_.key.capacity() + sort_.start.capacity() +
-                                                           sort_.order.capacity()) * sizeof(std::int64_t);
+  std::size_t b = particles_.bytes() + permute_spare_.bytes() +
+                  (sort_.key.capacity() + sort_.order.capacity()) * sizeof(std::uint32_t) +
+                  sort_.start.capacity() * sizeof(std::int64_t);
   const std::size_t cells = std::size_t(grid_.num_cells());
   b += cells * (2 + 2 * sizeof(T)) + target_flux_.capacity() * sizeof(double);
   for (int d = 0; d < Dim; ++d)
@@ -177,8 +178,7 @@ void FlipSimulation<T, Dim>::emit(T dt) {
 template <class T, int Dim>
 void FlipSimulation<T, Dim>::sort_particles() {
   sort_.build(particles_.x, grid_.origin, grid_.dx, grid_.res, true);
-  particles_.gather(sort_.order, scratch_);
-  particles_.swap(scratch_);
+  particles_.permute(sort_.order, permute_spare_);
 }
 
 template <class T, int Dim>

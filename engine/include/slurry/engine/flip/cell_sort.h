@@ -9,6 +9,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
+#include <stdexcept>
 #include <vector>
 
 #include "slurry/transfer/parallel.h"
@@ -20,9 +22,9 @@ struct CellSort {
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using IVec = Eigen::Matrix<int, Dim, 1>;
 
-  std::vector<std::int64_t> key;    ///< cell of each particle (input order)
-  std::vector<std::int64_t> start;  ///< particles of cell k are [start[k], start[k+1]) after sorting
-  std::vector<std::int64_t> order;  ///< sorted position i holds input particle order[i]
+  std::vector<std::uint32_t> key;    ///< cell of each particle (input order)
+  std::vector<std::int64_t> start;   ///< particles of cell k are [start[k], start[k+1]) after sorting
+  std::vector<std::uint32_t> order;  ///< sorted position i holds input particle order[i]
 
   /// Cell containing x (clamped to the grid).
   static std::int64_t cell_of(const Vec& x, const Vec& origin, T inv_dx, const IVec& res) {
@@ -41,9 +43,13 @@ struct CellSort {
     const std::int64_t n = std::int64_t(x.size());
     std::int64_t cells = 1;
     for (int d = 0; d < Dim; ++d) cells *= res[d];
+    // 32-bit cell and particle indices (a dense FLIP grid of 2^32 cells would need a terabyte).
+    if (cells > std::int64_t(std::numeric_limits<std::uint32_t>::max()) ||
+        n > std::int64_t(std::numeric_limits<std::uint32_t>::max()))
+      throw std::length_error("FLIP cell sort: more than 2^32 - 1 cells or particles");
     key.resize(std::size_t(n));
     const T inv_dx = T(1) / dx;
-    parallel::parallel_for(0, n, [&](std::int64_t p) { key[p] = cell_of(x[p], origin, inv_dx, res); });
+    parallel::parallel_for(0, n, [&](std::int64_t p) { key[p] = std::uint32_t(cell_of(x[p], origin, inv_dx, res)); });
     start.assign(std::size_t(cells + 1), 0);
     for (std::int64_t p = 0; p < n; ++p) ++start[std::size_t(key[p] + 1)];
     for (std::int64_t k = 0; k < cells; ++k) start[k + 1] += start[k];
@@ -51,7 +57,7 @@ struct CellSort {
     order.resize(std::size_t(n));
     // Stable scatter: particles keep their relative order within a cell.
     cursor_.assign(start.begin(), start.end() - 1);
-    for (std::int64_t p = 0; p < n; ++p) order[std::size_t(cursor_[key[p]]++)] = p;
+    for (std::int64_t p = 0; p < n; ++p) order[std::size_t(cursor_[key[p]]++)] = std::uint32_t(p);
   }
 
   /// Particles in cell k.

@@ -62,39 +62,33 @@ struct FlipParticles {
     if (has_material) material[to] = material[from];
   }
 
-  /// out[i] = this[order[i]] for every channel (parallel); out keeps its capacity between calls.
-  void gather(const std::vector<std::int64_t>& order, FlipParticles& out) const {
-    const std::size_t n = order.size();
-    out.affine = affine;
-    out.has_material = has_material;
-    out.next_id = next_id;
-    out.x.resize(n);
-    out.v.resize(n);
-    out.id.resize(n);
-    if (affine)
-      for (int d = 0; d < Dim; ++d) out.c[d].resize(n);
-    if (has_material) out.material.resize(n);
-    const std::int64_t* o = order.data();
-    parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t i) {
-      const std::size_t p = std::size_t(o[i]);
-      out.x[i] = x[p];
-      out.v[i] = v[p];
-      out.id[i] = id[p];
-      if (affine)
-        for (int d = 0; d < Dim; ++d) out.c[d][i] = c[d][p];
-      if (has_material) out.material[i] = material[p];
-    });
-  }
+  /// Spare storage for permute(): one channel of each value type, kept between calls.
+  struct PermuteBuffers {
+    std::vector<Vec> vec;
+    std::vector<std::uint32_t> u32;
+    std::vector<std::uint16_t> u16;
+    std::size_t bytes() const { return vec.capacity() * sizeof(Vec) + u32.capacity() * 4 + u16.capacity() * 2; }
+  };
 
-  void swap(FlipParticles& o) {
-    std::swap(affine, o.affine);
-    std::swap(has_material, o.has_material);
-    x.swap(o.x);
-    v.swap(o.v);
-    id.swap(o.id);
-    std::swap(next_id, o.next_id);
-    for (int d = 0; d < Dim; ++d) c[d].swap(o.c[d]);
-    material.swap(o.material);
+  /// this[i] = old this[order[i]] for every channel (each channel gathered in parallel into the
+  /// spare buffer of its type, which then takes its place): one channel's worth of extra memory
+  /// instead of a second copy of every particle.
+  void permute(const std::vector<std::uint32_t>& order, PermuteBuffers& spare) {
+    const std::int64_t n = std::int64_t(order.size());
+    const std::uint32_t* o = order.data();
+    const auto apply = [&](auto& channel, auto& buffer) {
+      buffer.resize(std::size_t(n));
+      auto* dst = buffer.data();
+      const auto* src = channel.data();
+      parallel::parallel_for(0, n, [&](std::int64_t i) { dst[i] = src[o[i]]; });
+      channel.swap(buffer);
+    };
+    apply(x, spare.vec);
+    apply(v, spare.vec);
+    apply(id, spare.u32);
+    if (affine)
+      for (int d = 0; d < Dim; ++d) apply(c[d], spare.vec);
+    if (has_material) apply(material, spare.u16);
   }
 
   /// Bytes held (capacity).

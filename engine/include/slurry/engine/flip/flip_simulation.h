@@ -124,7 +124,8 @@ class FlipSimulation final : public SimulationBase {
   FlipSimulation(const FlipSimulation&) = delete;
   FaceScheme scheme_ = FaceScheme::APIC;
   int order_ = 1;
-  FlipParticles<T, Dim> particles_, scratch_;
+  FlipParticles<T, Dim> particles_;
+  typename FlipParticles<T, Dim>::PermuteBuffers permute_spare_;  // sort_particles()' spare channel
   CellSort<T, Dim> sort_;
   Grid grid_;
   std::array<std::vector<T>, Dim> weight_sum_, old_u_;

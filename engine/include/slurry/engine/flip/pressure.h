@@ -217,28 +217,15 @@ class PressureSolver {
   /// unknowns are ignored in b and returned as 0 in x. x holds the initial guess on entry.
   ProjectionReport solve(const std::vector<double>& b, std::vector<double>& x, const ProjectionOptions& opt) {
     opt.validate();
-    if (opt.preconditioner == Preconditioner::MIC0 && (!mic_built_ || opt.mic_blocks != mic_blocks_)) {
-      mic_blocks_ = opt.mic_blocks;
-      compute_blocks();
-      build_mic0();
-      mic_built_ = true;
-    }
-    if (opt.preconditioner == Preconditioner::Multigrid && !multigrid_built_) {
-      build_multigrid();
-      multigrid_built_ = true;
-    }
-    std::vector<double>& rhs = rhs_;  // a member: no allocation per solve
-    rhs.resize(std::size_t(num_cells_));
-    parallel::parallel_for(0, num_cells_, [&](std::int64_t c) { rhs[std::size_t(c)] = is_unknown(c) ? b[std::size_t(c)] : 0.0; });
-    remove_closed_means(rhs.data());
+    rhs_.resize(std::size_t(num_cells_));  // a member: no allocation per solve
+    parallel::parallel_for(0, num_cells_, [&](std::int64_t c) { rhs_[std::size_t(c)] = is_unknown(c) ? b[std::size_t(c)] : 0.0; });
     double* xs = x_.data() + pad_;
     if (std::int64_t(x.size()) == num_cells_) {
       parallel::parallel_for(0, num_cells_, [&](std::int64_t c) { xs[c] = is_unknown(c) ? x[std::size_t(c)] : 0.0; });
     } else {
       std::fill(x_.begin(), x_.end(), 0.0);
     }
-    ProjectionReport rep = pcg(rhs.data(), opt);
-    remove_closed_means(xs);
+    ProjectionReport rep = solve_in_place(opt);
     x.assign(x_.begin() + pad_, x_.begin() + pad_ + num_cells_);
     return rep;
   }
@@ -254,18 +241,18 @@ class PressureSolver {
     prepare_for(opt.preconditioner, opt.mic_blocks);
     assemble(g, opt.ghost_fluid);
     const double scale = opt.density * double(g.dx) / double(dt);  // b = -(rho dx / dt) D
-    std::vector<double>& b = project_b_;
-    std::vector<double>& p = project_p_;
+    // b and the warm start p go straight into the solver's own vectors (zero off the unknowns).
+    std::vector<double>& b = rhs_;
     b.resize(std::size_t(num_cells_));
-    p.resize(std::size_t(num_cells_));
+    double* const p = x_.data() + pad_;
     for_each_index(g.res, [&](std::int64_t c, const IVec& i) {
       const bool unknown = is_unknown(c);
       const double target = target_flux ? target_flux[c] : 0.0;
       b[std::size_t(c)] = unknown ? -scale * (double(open_flux_sum(g, i)) - target) : 0.0;
       p[std::size_t(c)] = unknown ? double(g.pressure[std::size_t(c)]) : 0.0;
     });
-    ProjectionReport rep = solve(b, p, opt);
-    parallel::parallel_for(0, num_cells_, [&](std::int64_t c) { g.pressure[std::size_t(c)] = T(p[std::size_t(c)]); });
+    ProjectionReport rep = solve_in_place(opt);
+    parallel::parallel_for(0, num_cells_, [&](std::int64_t c) { g.pressure[std::size_t(c)] = T(p[c]); });
     const double coef = double(dt) / (opt.density * double(g.dx));
     for (int d = 0; d < Dim; ++d) {
       for_each_index(g.face_res(d), [&](std::int64_t f, const IVec& fi) {
@@ -285,12 +272,12 @@ class PressureSolver {
         }
         double dp;
         if (ua && ub) {
-          dp = p[std::size_t(b_cell)] - p[std::size_t(a_cell)];
+          dp = p[b_cell] - p[a_cell];
         } else if (ua) {
           // b is air (an open face next to an unknown is fluid or air): ghost p_b.
-          dp = -p[std::size_t(a_cell)] / theta(g, a_cell, b_cell);
+          dp = -p[a_cell] / theta(g, a_cell, b_cell);
         } else {
-          dp = p[std::size_t(b_cell)] / theta(g, b_cell, a_cell);
+          dp = p[b_cell] / theta(g, b_cell, a_cell);
         }
         g.u[d][fs] = T(double(g.u[d][fs]) - coef * dp);
         g.valid[d][fs] = 1;
@@ -644,6 +631,26 @@ class PressureSolver {
     });
   }
 
+  /// Solves with the right-hand side in rhs_ (zero off the unknowns) and the initial guess in
+  /// x_ (the same): builds the preconditioner if needed, removes the closed components' means
+  /// and runs pcg().
+  ProjectionReport solve_in_place(const ProjectionOptions& opt) {
+    if (opt.preconditioner == Preconditioner::MIC0 && (!mic_built_ || opt.mic_blocks != mic_blocks_)) {
+      mic_blocks_ = opt.mic_blocks;
+      compute_blocks();
+      build_mic0();
+      mic_built_ = true;
+    }
+    if (opt.preconditioner == Preconditioner::Multigrid && !multigrid_built_) {
+      build_multigrid();
+      multigrid_built_ = true;
+    }
+    remove_closed_means(rhs_.data());
+    ProjectionReport rep = pcg(rhs_.data(), opt);
+    remove_closed_means(x_.data() + pad_);
+    return rep;
+  }
+
   /// PCG (Saad 2003, Alg. 9.1) on x_ with right-hand side b (zero outside the unknowns).
   ProjectionReport pcg(const double* b, const ProjectionOptions& opt) {
     ProjectionReport rep;
@@ -729,7 +736,7 @@ class PressureSolver {
   // Padded by pad_ = stride_[0] cells on both ends so that neighbour reads never leave the
   // arrays; the pads hold zeros, and so do coefficients across the domain boundary.
   std::vector<double> diag_, precon_, x_, r_, z_, p_, q_;
-  std::vector<double> rhs_, project_b_, project_p_;  ///< solve() / project() work vectors
+  std::vector<double> rhs_;  ///< right-hand side of solve_in_place()
   std::array<std::vector<double>, Dim> plus_;  ///< A(c, c + e_d) = -w, stored at c
   std::vector<std::uint8_t> dirichlet_;
   using Multigrid = MultigridPreconditioner<Dim, float>;
