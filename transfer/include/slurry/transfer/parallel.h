@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cstdint>
+#include <thread>
 #include <vector>
 
 #if defined(SLURRY_PARALLEL_OPENMP)
@@ -124,6 +125,47 @@ void parallel_chunks(std::int64_t begin, std::int64_t end, Fn&& fn) {
                     [&](const tbb::blocked_range<std::int64_t>& r) { fn(r.begin(), r.end()); });
 #else
   fn(begin, end);
+#endif
+}
+
+/// tile(a, b) for every tile of an na x nb grid in the order of a triangular solve over tiles:
+/// tile (a, b) starts after (a - 1, b) and (a, b - 1) have finished (with `reverse`: after
+/// (a + 1, b) and (a, b + 1)). A tile that reads only the tiles it waits for therefore sees the
+/// values of a sequential sweep, whatever the thread count. OpenMP: one parallel region (not one
+/// per anti-diagonal, which costs a thread wake-up each under OMP_WAIT_POLICY=passive); the rows a
+/// of tiles are dealt to the threads in turn and a thread starts tile (a, b) once the previous row
+/// has finished its tile b, told by that row's counter in `progress` (resized to na; release and
+/// acquire, spinning then yielding). Other backends: one parallel loop per anti-diagonal a + b.
+template <class Fn>
+void wavefront(int na, int nb, bool reverse, std::vector<int>& progress, Fn&& tile) {
+  if (na <= 0 || nb <= 0) return;
+#if defined(SLURRY_PARALLEL_OPENMP)
+  progress.assign(static_cast<std::size_t>(na), 0);
+  int* done = progress.data();
+#pragma omp parallel
+  {
+    const int threads = omp_get_num_threads(), me = omp_get_thread_num();
+    for (int k = me; k < na; k += threads) {
+      const int a = reverse ? na - 1 - k : k;
+      const int* before = k > 0 ? done + (reverse ? a + 1 : a - 1) : nullptr;
+      for (int m = 0; m < nb; ++m) {
+        if (before) {
+          for (int spins = 0; __atomic_load_n(before, __ATOMIC_ACQUIRE) <= m; ++spins)
+            if (spins > 256) std::this_thread::yield();
+        }
+        tile(a, reverse ? nb - 1 - m : m);
+        __atomic_store_n(done + a, m + 1, __ATOMIC_RELEASE);
+      }
+    }
+  }
+#else
+  (void)progress;
+  const int levels = na + nb - 1;
+  for (int step = 0; step < levels; ++step) {
+    const int level = reverse ? levels - 1 - step : step;
+    const int a_lo = std::max(0, level - (nb - 1)), a_hi = std::min(na - 1, level);
+    parallel_tasks(a_lo, a_hi + 1, [&](std::int64_t a) { tile(int(a), level - int(a)); });
+  }
 #endif
 }
 

@@ -503,27 +503,31 @@ class PressureSolver {
         return s;
       });
     }
+    // Tiles of kTile x kTile rows in a wavefront (parallel.h); each tile's sum is kept and the
+    // sums are added anti-diagonal by anti-diagonal, tiles in ascending order within one, so the
+    // result's bits do not depend on the thread count or the order the tiles ran in.
+    tile_sums_.resize(std::size_t(tiles0_) * std::size_t(tiles1_));
+    parallel::wavefront(tiles0_, tiles1_, !forward, wave_progress_, [&](int ti, int tj) {
+      double s = 0;
+      const int i0 = ti * kTile, i1 = std::min(n0_, i0 + kTile);
+      const int j0 = tj * kTile, j1 = std::min(n1_, j0 + kTile);
+      if (forward) {
+        for (int i = i0; i < i1; ++i)
+          for (int j = j0; j < j1; ++j) s += fn(std::int64_t(i) * n1_ + j, false, false);
+      } else {
+        for (int i = i1 - 1; i >= i0; --i)
+          for (int j = j1 - 1; j >= j0; --j) s += fn(std::int64_t(i) * n1_ + j, false, false);
+      }
+      tile_sums_[std::size_t(ti) * std::size_t(tiles1_) + std::size_t(tj)] = s;
+    });
     const int levels = tiles0_ + tiles1_ - 1;
     double total = 0;
     for (int step = 0; step < levels; ++step) {
       const int level = forward ? step : levels - 1 - step;
       const int t_lo = std::max(0, level - (tiles1_ - 1)), t_hi = std::min(tiles0_ - 1, level);
-      total += parallel::parallel_sum<double>(t_lo, t_hi + 1, 1, [&](std::int64_t lo, std::int64_t hi) {
-        double s = 0;
-        for (std::int64_t ti = lo; ti < hi; ++ti) {
-          const int tj = level - int(ti);
-          const int i0 = int(ti) * kTile, i1 = std::min(n0_, i0 + kTile);
-          const int j0 = tj * kTile, j1 = std::min(n1_, j0 + kTile);
-          if (forward) {
-            for (int i = i0; i < i1; ++i)
-              for (int j = j0; j < j1; ++j) s += fn(std::int64_t(i) * n1_ + j, false, false);
-          } else {
-            for (int i = i1 - 1; i >= i0; --i)
-              for (int j = j1 - 1; j >= j0; --j) s += fn(std::int64_t(i) * n1_ + j, false, false);
-          }
-        }
-        return s;
-      });
+      double s = 0;
+      for (int ti = t_lo; ti <= t_hi; ++ti) s += tile_sums_[std::size_t(ti) * std::size_t(tiles1_) + std::size_t(level - ti)];
+      total += s;
     }
     return total;
   }
@@ -727,6 +731,8 @@ class PressureSolver {
   IVec res_ = IVec::Zero();
   std::int64_t num_cells_ = 0, num_rows_ = 0, pad_ = 0, unknowns_ = 0;
   int nz_ = 0, n0_ = 0, n1_ = 0, tiles0_ = 0, tiles1_ = 0;
+  mutable std::vector<int> wave_progress_;   ///< sweep(): the wavefront's per-row counters
+  mutable std::vector<double> tile_sums_;    ///< sweep(): each tile's sum
   std::array<std::int64_t, Dim> stride_{};
   bool ghost_fluid_ = true;
   bool mic_built_ = false, multigrid_built_ = false;
