@@ -144,6 +144,11 @@ std::string checkpoint_payload(const RunSection& run, const SimulationBase& sim)
   w.pod(run.substeps);
   w.pod(std::int32_t(run.drift_warnings));
   w.pod(run.largest_cfl);
+  // One allocation for the whole state. Grown by doubling, the string would hold its old and
+  // its new buffer at once, up to three times the state, at the run's memory peak (the 3D FLIP
+  // dam break: 457 MB against 302 MB without checkpoints). Capacity that is never written is
+  // never touched, so an upper bound (the solver's bytes()) costs no resident memory.
+  payload.reserve(sizeof(std::uint64_t) + section.size() + sim.bytes() + (std::size_t(1) << 20));
   detail::StateWriter(payload).text(section);
   sim.save_state(payload);
   return payload;
