@@ -72,14 +72,21 @@ std::vector<std::pair<int, fs::path>> list_checkpoints(const fs::path& directory
 
 void write_checkpoint(const fs::path& file, std::uint64_t scene_hash, int frame,
                       std::string_view payload) {
+  write_checkpoint(file, scene_hash, frame, [&](const PayloadSink& sink) { sink(payload.data(), payload.size()); });
+}
+
+void write_checkpoint(const fs::path& file, std::uint64_t scene_hash, int frame,
+                      const std::function<void(const PayloadSink&)>& produce) {
+  // The header with the payload's size and checksum still zero; both are written at their
+  // offsets (32, 40) once the payload has gone through.
   std::string header(kMagic, sizeof kMagic);
   put(header, kCheckpointVersion);
   put(header, kByteOrder);
   put(header, scene_hash);
   put(header, std::int32_t(frame));
   put(header, std::uint32_t(0));
-  put(header, std::uint64_t(payload.size()));
-  put(header, fnv1a64(payload));
+  put(header, std::uint64_t(0));
+  put(header, std::uint64_t(0));
   fs::path temp = file;
   static unsigned long counter = 0;
   temp += ".tmp-" + std::to_string(long(::getpid())) + "-" + std::to_string(counter++);
@@ -88,7 +95,30 @@ void write_checkpoint(const fs::path& file, std::uint64_t scene_hash, int frame,
     io_fail(temp, std::string("cannot create the temporary checkpoint: ") + std::strerror(errno));
   try {
     write_all(fd, header.data(), header.size(), temp);
-    write_all(fd, payload.data(), payload.size(), temp);
+    constexpr std::size_t kBuffer = std::size_t(1) << 20;
+    std::string buffer;
+    buffer.reserve(kBuffer);
+    std::uint64_t size = 0, checksum = kFnvOffset;
+    produce([&](const char* data, std::size_t n) {
+      checksum = fnv1a64(std::string_view(data, n), checksum);
+      size += n;
+      if (buffer.size() + n <= kBuffer) {
+        buffer.append(data, n);
+        return;
+      }
+      write_all(fd, buffer.data(), buffer.size(), temp);
+      buffer.clear();
+      if (n < kBuffer)
+        buffer.append(data, n);
+      else
+        write_all(fd, data, n, temp);  // a whole channel: straight from the solver's memory
+    });
+    write_all(fd, buffer.data(), buffer.size(), temp);
+    std::string tail;
+    put(tail, size);
+    put(tail, checksum);
+    if (::pwrite(fd, tail.data(), tail.size(), 32) != ssize_t(tail.size()))
+      io_fail(temp, std::string("writing the checkpoint's header failed: ") + std::strerror(errno));
     if (::fsync(fd) != 0) io_fail(temp, std::string("fsync failed: ") + std::strerror(errno));
   } catch (...) {
     ::close(fd);

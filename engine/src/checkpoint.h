@@ -17,6 +17,7 @@
 #pragma once
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -41,6 +42,14 @@ std::vector<std::pair<int, std::filesystem::path>> list_checkpoints(
 /// Writes one checkpoint atomically. Throws IoError.
 void write_checkpoint(const std::filesystem::path& file, std::uint64_t scene_hash, int frame,
                       std::string_view payload);
+/// Receives payload bytes in order (SimulationBase::StateSink).
+using PayloadSink = std::function<void(const char* data, std::size_t size)>;
+/// The same, with the payload streamed: `produce` hands it to the sink piece by piece, and the
+/// pieces go to the temporary file as they come (small ones through a 1 MiB buffer), the size
+/// and checksum accumulating; they are written into the header before the fsync. No copy of
+/// the state is held. Throws IoError (or what `produce` throws; the temporary file is removed).
+void write_checkpoint(const std::filesystem::path& file, std::uint64_t scene_hash, int frame,
+                      const std::function<void(const PayloadSink&)>& produce);
 /// Reads a checkpoint and checks its magic, version, byte order, length and checksum. Throws
 /// IoError naming the file and what is wrong (the scene hash is left to the caller).
 Checkpoint read_checkpoint(const std::filesystem::path& file);

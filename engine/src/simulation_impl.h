@@ -1110,7 +1110,7 @@ RunStats Simulation<T, Dim>::take_stats() {
 }
 
 template <class T, int Dim>
-void Simulation<T, Dim>::save_state(std::string& out) const {
+void Simulation<T, Dim>::save_state(const StateSink& out) const {
   // Between substeps the grid, the bins and the stress are scratch (rebuilt by every substep);
   // what carries over is the particles in their storage order (the periodic re-sort depends on
   // steps_), the step and time, the speed and wave-speed limits of the next stable_dt() (snow

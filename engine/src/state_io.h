@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cstdint>
 #include <cstring>
+#include <functional>
 #include <random>
 #include <sstream>
 #include <string>
@@ -25,22 +26,26 @@ inline constexpr bool kPlainBytes =
 
 class StateWriter {
  public:
-  explicit StateWriter(std::string& out) : out_(out) {}
+  using Sink = std::function<void(const char* data, std::size_t size)>;
+  /// Appends to `out`.
+  explicit StateWriter(std::string& out) : out_([&out](const char* d, std::size_t n) { out.append(d, n); }) {}
+  /// Hands the bytes to `sink` (SimulationBase::StateSink), a whole vector at a time.
+  explicit StateWriter(const Sink& sink) : out_(sink) {}
   /// A scalar or a fixed-size Eigen object, as its bytes.
   template <class V>
   void pod(const V& v) {
     static_assert(kPlainBytes<V>);
-    out_.append(reinterpret_cast<const char*>(&v), sizeof(V));
+    out_(reinterpret_cast<const char*>(&v), sizeof(V));
   }
   template <class V>
   void vec(const std::vector<V>& v) {
     static_assert(kPlainBytes<V>);
     pod(std::uint64_t(v.size()));
-    if (!v.empty()) out_.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(V));
+    if (!v.empty()) out_(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(V));
   }
   void text(const std::string& s) {
     pod(std::uint64_t(s.size()));
-    out_.append(s);
+    out_(s.data(), s.size());
   }
   /// The generator's state in its standard text form (operator<<, exact for mt19937_64).
   void rng(const std::mt19937_64& g) {
@@ -52,7 +57,7 @@ class StateWriter {
   void tag(std::uint32_t t) { pod(t); }
 
  private:
-  std::string& out_;
+  Sink out_;
 };
 
 class StateReader {

@@ -135,7 +135,7 @@ std::int64_t FemSimulation<T, Dim>::advance_to(double t_end) {
 }
 
 template <class T, int Dim>
-void FemSimulation<T, Dim>::save_state(std::string& out) const {
+void FemSimulation<T, Dim>::save_state(const StateSink& out) const {
   // The mesh, masses and rest quantities follow from the scene; positions and velocities of
   // the vertices (and time, step, counters) are the state.
   detail::StateWriter w(out);

@@ -428,7 +428,7 @@ T FlipSimulation<T, Dim>::fluid_cell_volume() const {
 }
 
 template <class T, int Dim>
-void FlipSimulation<T, Dim>::save_state(std::string& out) const {
+void FlipSimulation<T, Dim>::save_state(const StateSink& out) const {
   // Carried over between substeps: the particles in their storage order (with the next id),
   // the emitters' generators and carried fractions, the pressure (the warm start of the next
   // projection), and the face velocities, validity, labels and level set of the last substep.

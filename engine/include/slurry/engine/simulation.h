@@ -166,7 +166,8 @@ class Simulation final : public SimulationBase {
   std::string solver_status() const override;
   RunStats take_stats() override;
   ParticleStorage particle_storage() const override;
-  void save_state(std::string& out) const override;
+  using SimulationBase::save_state;
+  void save_state(const StateSink& sink) const override;
   void load_state(std::string_view in, const std::string& what) override;
 
  private:

@@ -17,6 +17,7 @@
 #include <Eigen/Core>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <stdexcept>
 #include <string>
@@ -110,11 +111,18 @@ class SimulationBase {
   /// Where the particle channels are now (valid until the next substep).
   virtual ParticleStorage particle_storage() const = 0;
 
-  /// Appends the state that determines every later substep to `out` (binary, this machine's
+  /// Receives a state's bytes in order, piece by piece (a whole particle channel at a time).
+  using StateSink = std::function<void(const char* data, std::size_t size)>;
+  /// Hands the state that determines every later substep to `sink` (binary, this machine's
   /// byte order): particles with every channel in their storage order, time, step counter,
   /// emitter random generators and carried-over grid fields. A simulation built from the same
   /// scene and given this state by load_state() takes bit-identical substeps from there on.
-  virtual void save_state(std::string& out) const = 0;
+  /// Checkpoints stream it to their file without holding a copy. Collective in a split run.
+  virtual void save_state(const StateSink& sink) const = 0;
+  /// The same state appended to `out`.
+  void save_state(std::string& out) const {
+    save_state(StateSink([&out](const char* data, std::size_t size) { out.append(data, size); }));
+  }
   /// Replaces the state by one save_state() wrote (the simulation must have been built from
   /// the same scene). Throws IoError naming `what` if the bytes are truncated or do not fit
   /// this simulation (another solver, dimension, precision or particle layout).

@@ -67,7 +67,8 @@ class FemSimulation final : public SimulationBase {
   RunStats take_stats() override;
   /// The mesh vertices: position, velocity, material; the vertex index is the id.
   ParticleStorage particle_storage() const override;
-  void save_state(std::string& out) const override;
+  using SimulationBase::save_state;
+  void save_state(const StateSink& sink) const override;
   void load_state(std::string_view in, const std::string& what) override;
 
  private:

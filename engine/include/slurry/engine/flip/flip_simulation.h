@@ -86,7 +86,8 @@ class FlipSimulation final : public SimulationBase {
   RunStats take_stats() override;
   /// position, velocity, id, material (when the scene has more than one liquid).
   ParticleStorage particle_storage() const override;
-  void save_state(std::string& out) const override;
+  using SimulationBase::save_state;
+  void save_state(const StateSink& sink) const override;
   void load_state(std::string_view in, const std::string& what) override;
   /// Largest particle speed after the last substep (m/s).
   T max_speed() const { return max_speed_; }
