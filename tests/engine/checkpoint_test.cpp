@@ -20,6 +20,7 @@
 #include <thread>
 #include <vector>
 
+#include "checkpoint.h"
 #include "slurry/engine/run.h"
 #include "slurry/engine/scene.h"
 
@@ -276,6 +277,47 @@ TEST(Checkpoint, CorruptTruncatedOrOtherVersionIsRefusedAndThePreviousOneUsed) {
   }
   // A directory without checkpoints.
   EXPECT_THROW(run(scene, dir / "none", 8, 1, true), slurry::IoError);
+}
+
+// A checkpoint streamed piece by piece (how runs write them) is the file the whole payload
+// writes at once, and reads back; a producer that fails midway leaves neither the checkpoint
+// nor its temporary file.
+TEST(Checkpoint, StreamedFileEqualsTheWholePayloadsAndAFailedOneLeavesNothing) {
+  const fs::path dir = fs::temp_directory_path() / ("slurry_ckpt_stream_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  std::string payload(3'500'000, '\0');  // pieces below, at and above the 1 MiB buffer
+  for (std::size_t i = 0; i < payload.size(); ++i) payload[i] = char((i * 2654435761u) >> 13);
+  const std::size_t pieces[] = {1, 7, 1u << 20, 5, (1u << 20) + 3, 1000, 2000};
+  slurry::detail::write_checkpoint(dir / "whole.slc", 42, 3, std::string_view(payload));
+  slurry::detail::write_checkpoint(dir / "streamed.slc", 42, 3, [&](const slurry::detail::PayloadSink& sink) {
+    std::size_t at = 0;
+    for (std::size_t k = 0; at < payload.size(); ++k) {
+      const std::size_t n = std::min(pieces[k % 7], payload.size() - at);
+      sink(payload.data() + at, n);
+      at += n;
+    }
+  });
+  const auto bytes = [](const fs::path& f) {
+    std::ifstream in(f, std::ios::binary);
+    return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  };
+  EXPECT_EQ(bytes(dir / "whole.slc"), bytes(dir / "streamed.slc"));
+  const auto c = slurry::detail::read_checkpoint(dir / "streamed.slc");
+  EXPECT_EQ(c.frame, 3);
+  EXPECT_EQ(c.scene_hash, 42u);
+  EXPECT_TRUE(c.payload == payload);
+
+  EXPECT_THROW(slurry::detail::write_checkpoint(dir / "failed.slc", 42, 4,
+                                                [&](const slurry::detail::PayloadSink& sink) {
+                                                  sink(payload.data(), 2'000'000);
+                                                  throw slurry::IoError("the gather failed");
+                                                }),
+               slurry::IoError);
+  int files = 0;
+  for (const auto& e : fs::directory_iterator(dir)) files += e.path().filename().string().rfind("failed", 0) == 0;
+  EXPECT_EQ(files, 0) << "a failed checkpoint left a file";
+  fs::remove_all(dir);
 }
 
 TEST(Checkpoint, OtherSolverLayoutIsRefused) {
