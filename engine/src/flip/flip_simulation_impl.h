@@ -105,7 +105,8 @@ std::size_t FlipSimulation<T, Dim>::bytes() const {
                   (sort_.key.capacity() + sort_.order.capacity()) * sizeof(std::uint32_t) +
                   sort_.start.capacity() * sizeof(std::int64_t);
   const std::size_t cells = std::size_t(grid_.num_cells());
-  b += cells * (2 + 2 * sizeof(T)) + target_flux_.capacity() * sizeof(double);
+  b += cells * (2 + 2 * sizeof(T)) + target_flux_.capacity() * sizeof(double) + holes_.capacity();
+  b += pressure_.bytes() + extrapolator_.bytes();  // the pressure solve's vectors are most of the grid's memory
   for (int d = 0; d < Dim; ++d)
     b += grid_.u[d].capacity() * (4 * sizeof(T) + 1) + weight_sum_[d].capacity() * sizeof(T) +
          old_u_[d].capacity() * sizeof(T);

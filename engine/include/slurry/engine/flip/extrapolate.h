@@ -40,6 +40,13 @@ class Extrapolator {
 
   /// Fills up to `layers` (at most 120) layers of invalid faces from valid neighbours; returns
   /// the number of faces filled.
+  /// Bytes held by the scratch (capacity).
+  std::size_t bytes() const {
+    std::size_t b = stamp_.capacity() + (band_.capacity() + next_.capacity()) * sizeof(std::int64_t);
+    for (const auto& l : lists_) b += l.capacity() * sizeof(std::int64_t);
+    return b;
+  }
+
   std::int64_t run(MacGrid<T, Dim>& g, int layers, Extrapolation rule = Extrapolation::Linear) {
     layers = std::clamp(layers, 0, 120);
     std::int64_t filled = 0;

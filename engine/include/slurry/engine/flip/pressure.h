@@ -43,6 +43,7 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <array>
+#include <type_traits>
 #include <cmath>
 #include <cstdint>
 #include <sstream>
@@ -202,6 +203,17 @@ class PressureSolver {
   }
 
   bool is_unknown(std::int64_t c) const { return diag_[std::size_t(pad_ + c)] > 0; }
+
+  /// Bytes held by the solver's work arrays and the multigrid hierarchy (capacity).
+  std::size_t bytes() const {
+    std::size_t b = multigrid_.bytes();
+    const auto add = [&](const auto& v) { b += v.capacity() * sizeof(typename std::decay_t<decltype(v)>::value_type); };
+    add(diag_), add(precon_), add(x_), add(r_), add(z_), add(p_), add(q_), add(rhs_);
+    for (int d = 0; d < Dim; ++d) add(plus_[std::size_t(d)]), add(open_[std::size_t(d)]);
+    add(dirichlet_), add(kind_), add(phi_), add(span_lo_), add(span_hi_), add(closed_cells_), add(closed_start_);
+    add(flood_seen_), add(flood_queue_), add(block_start_), add(wave_progress_), add(tile_sums_);
+    return b;
+  }
   std::int64_t unknowns() const { return unknowns_; }
   /// Fluid components with no free-surface face (each makes A singular by one constant).
   int closed_components() const { return int(closed_start_.size()) - (closed_start_.empty() ? 0 : 1); }

@@ -49,6 +49,7 @@
 #include <algorithm>
 #include <array>
 #include <cstdint>
+#include <type_traits>
 #include <vector>
 
 #include "slurry/transfer/parallel.h"
@@ -108,6 +109,19 @@ class MultigridPreconditioner {
 
   /// z = M^-1 r (one V-cycle from zero) over the unknowns; r and z are fine row-major arrays
   /// (z is written on the unknowns' row spans only). Returns r . z, summed in fixed row chunks.
+  /// Bytes held by every level's arrays (capacity).
+  std::size_t bytes() const {
+    std::size_t b = 0;
+    const auto add = [&](const auto& v) { b += v.capacity() * sizeof(typename std::decay_t<decltype(v)>::value_type); };
+    for (const Level& L : levels_) {
+      add(L.diag), add(L.inv_diag), add(L.x), add(L.b), add(L.r), add(L.pscale), add(L.phi);
+      for (int d = 0; d < Dim; ++d) add(L.plus[std::size_t(d)]), add(L.weight[std::size_t(d)]);
+      add(L.kind), add(L.row_base), add(L.parity), add(L.lo), add(L.hi), add(L.band);
+      add(L.band_colour[0]), add(L.band_colour[1]);
+    }
+    return b;
+  }
+
   double apply(const double* r, double* z, int smoothing, int boundary_smoothing) {
     const int last = active_ - 1;
     Level& f = levels_[0];
