@@ -55,16 +55,17 @@ struct CellSort {
     for (std::int64_t k = 0; k < cells; ++k) start[k + 1] += start[k];
     if (!permute) return;
     order.resize(std::size_t(n));
-    // Stable scatter: particles keep their relative order within a cell.
-    cursor_.assign(start.begin(), start.end() - 1);
-    for (std::int64_t p = 0; p < n; ++p) order[std::size_t(cursor_[key[p]]++)] = std::uint32_t(p);
+    // Stable scatter: particles keep their relative order within a cell. start[k] serves as
+    // cell k's cursor and ends at the old start[k + 1]; shifting it back restores the ranges
+    // (no per-cell cursor array: 8 bytes a cell less).
+    for (std::int64_t p = 0; p < n; ++p) order[std::size_t(start[key[p]]++)] = std::uint32_t(p);
+    for (std::int64_t k = cells; k > 0; --k) start[k] = start[k - 1];
+    start[0] = 0;
   }
 
   /// Particles in cell k.
   std::int64_t count(std::int64_t k) const { return start[k + 1] - start[k]; }
 
- private:
-  std::vector<std::int64_t> cursor_;
 };
 
 }  // namespace slurry::flip
