@@ -71,11 +71,6 @@ std::vector<std::pair<int, fs::path>> list_checkpoints(const fs::path& directory
 }
 
 void write_checkpoint(const fs::path& file, std::uint64_t scene_hash, int frame,
-                      std::string_view payload) {
-  write_checkpoint(file, scene_hash, frame, [&](const PayloadSink& sink) { sink(payload.data(), payload.size()); });
-}
-
-void write_checkpoint(const fs::path& file, std::uint64_t scene_hash, int frame,
                       const std::function<void(const PayloadSink&)>& produce) {
   // The header with the payload's size and checksum still zero; both are written at their
   // offsets (32, 40) once the payload has gone through.

@@ -39,12 +39,9 @@ std::filesystem::path checkpoint_file(const std::filesystem::path& directory, in
 /// The checkpoint files of a directory with their frames, oldest first.
 std::vector<std::pair<int, std::filesystem::path>> list_checkpoints(
     const std::filesystem::path& directory);
-/// Writes one checkpoint atomically. Throws IoError.
-void write_checkpoint(const std::filesystem::path& file, std::uint64_t scene_hash, int frame,
-                      std::string_view payload);
 /// Receives payload bytes in order (SimulationBase::StateSink).
 using PayloadSink = std::function<void(const char* data, std::size_t size)>;
-/// The same, with the payload streamed: `produce` hands it to the sink piece by piece, and the
+/// Writes one checkpoint atomically, its payload streamed: `produce` hands it to the sink piece by piece, and the
 /// pieces go to the temporary file as they come (small ones through a 1 MiB buffer), the size
 /// and checksum accumulating; they are written into the header before the fsync. No copy of
 /// the state is held. Throws IoError (or what `produce` throws; the temporary file is removed).

@@ -591,15 +591,14 @@ io::PlyFormat file_format(const fs::path& file) {
 }  // namespace
 
 MergeSummary merge_rank_frames(const std::filesystem::path& directory, bool keep_parts) {
-  static const std::regex part(R"(frame_(\d{4,})\.rank(\d+)\.ply)");
+  static const std::regex part(R"(frame_\d{4,}\.rank\d+\.ply)");
   std::map<int, std::vector<fs::path>> frames;  // frame -> its parts
   std::error_code ec;
   if (!fs::is_directory(directory, ec))
     throw IoError(directory.string() + ": expected a directory of per-rank frames (frame_NNNN.rankR.ply)");
   for (const auto& e : fs::directory_iterator(directory, ec)) {
     const std::string name = e.path().filename().string();
-    std::smatch m;
-    if (std::regex_match(name, m, part)) frames[std::atoi(m[1].str().c_str())].push_back(e.path());
+    if (std::regex_match(name, part)) frames[frame_index(e.path())].push_back(e.path());
   }
   if (ec) throw IoError(directory.string() + ": cannot list it: " + ec.message());
   MergeSummary summary;

@@ -279,8 +279,8 @@ TEST(Checkpoint, CorruptTruncatedOrOtherVersionIsRefusedAndThePreviousOneUsed) {
   EXPECT_THROW(run(scene, dir / "none", 8, 1, true), slurry::IoError);
 }
 
-// A checkpoint streamed piece by piece (how runs write them) is the file the whole payload
-// writes at once, and reads back; a producer that fails midway leaves neither the checkpoint
+// A checkpoint streamed in small and large pieces (through the writer's buffer and around it)
+// is the file the payload handed over in one piece writes, and reads back; a producer that fails midway leaves neither the checkpoint
 // nor its temporary file.
 TEST(Checkpoint, StreamedFileEqualsTheWholePayloadsAndAFailedOneLeavesNothing) {
   const fs::path dir = fs::temp_directory_path() / ("slurry_ckpt_stream_" + std::to_string(::getpid()));
@@ -289,7 +289,9 @@ TEST(Checkpoint, StreamedFileEqualsTheWholePayloadsAndAFailedOneLeavesNothing) {
   std::string payload(3'500'000, '\0');  // pieces below, at and above the 1 MiB buffer
   for (std::size_t i = 0; i < payload.size(); ++i) payload[i] = char((i * 2654435761u) >> 13);
   const std::size_t pieces[] = {1, 7, 1u << 20, 5, (1u << 20) + 3, 1000, 2000};
-  slurry::detail::write_checkpoint(dir / "whole.slc", 42, 3, std::string_view(payload));
+  slurry::detail::write_checkpoint(dir / "whole.slc", 42, 3, [&](const slurry::detail::PayloadSink& sink) {
+    sink(payload.data(), payload.size());
+  });
   slurry::detail::write_checkpoint(dir / "streamed.slc", 42, 3, [&](const slurry::detail::PayloadSink& sink) {
     std::size_t at = 0;
     for (std::size_t k = 0; at < payload.size(); ++k) {
