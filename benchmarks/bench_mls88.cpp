@@ -37,7 +37,8 @@ constexpr int kTimedSubsteps = 2000;
 void BM_Mls88(benchmark::State& state) {
   slurry::parallel::ThreadLimit threads(int(state.range(0)));
   const int warm = int(state.range(1));
-  const slurry::Scene scene = slurry::load_scene(std::string(SLURRY_BENCH_SCENES_DIR) + "/mls88_snow_2d.json");
+  const slurry::Scene scene =
+      slurry::load_scene(std::string(SLURRY_BENCH_SCENES_DIR) + "/mls88_snow_2d.json");
   const float dt = float(scene.solver.max_dt);
   double n = 0, mean_y = 0;
   slurry::PhaseTimes spent;
