@@ -3,17 +3,17 @@
 // filling the middle half of the unit domain along each axis (res^3 particles for res cells per
 // axis), sparse grid. Counters: particle-steps/s of the full step and of P2G and G2P alone
 // (from the simulation's phase timers), engine bytes per particle and the process's peak
-// resident memory per particle (meaningful when one case runs alone, see RESULTS.md).
+// resident memory per particle of this case (peak_rss.h).
 //
 //   build/release/bin/bench_mpm_step --benchmark_counters_tabular=true
 // Arguments: cells per axis, threads.
 #include <benchmark/benchmark.h>
-#include <sys/resource.h>
 
 #include <algorithm>
 #include <vector>
 
 #include "block_scene.h"
+#include "peak_rss.h"
 #include "slurry/engine/simulation.h"
 #include "slurry/transfer/parallel.h"
 
@@ -23,6 +23,7 @@ template <class T, int Dim>
 void BM_MlsStep(benchmark::State& state) {
   const int res = int(state.range(0));
   slurry::parallel::ThreadLimit threads(int(state.range(1)));
+  const bool reset = slurry::bench::reset_peak_rss();
   slurry::Simulation<T, Dim> sim(slurry::bench::block_scene(Dim, res, std::is_same_v<T, double>));
   const T dt = T(0.2) * sim.stable_dt();
   for (int i = 0; i < 3; ++i) sim.step(dt);  // warm up: grid blocks and particle order settle
@@ -43,9 +44,9 @@ void BM_MlsStep(benchmark::State& state) {
   state.counters["ms_g2p"] = 1e3 * (after.g2p - before.g2p) / steps;
   state.counters["ms_plastic"] = 1e3 * (after.plasticity - before.plasticity) / steps;
   state.counters["bytes/particle"] = double(sim.bytes()) / n;
-  rusage usage{};
-  getrusage(RUSAGE_SELF, &usage);
-  state.counters["peakRSS/particle"] = double(usage.ru_maxrss) * 1024.0 / n;
+  // This case's peak (the process's baseline of about 4 MB included), see peak_rss.h.
+  state.counters["peakRSS/particle"] = slurry::bench::peak_rss_bytes() / n;
+  if (!reset) state.SetLabel("peakRSS of the process");
 }
 
 // With --benchmark_repetitions, the fastest repetition: on a shared machine the noise only ever
@@ -74,4 +75,11 @@ BENCHMARK_TEMPLATE(BM_MlsStep, double, 2)->Apply(Args2D);
 
 }  // namespace
 
-BENCHMARK_MAIN();
+int main(int argc, char** argv) {
+  slurry::bench::fresh_process_malloc();  // peak_rss.h
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}

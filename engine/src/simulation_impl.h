@@ -43,14 +43,13 @@ bool tracks_J(const Particles<T, Dim>& P, const std::vector<Material<T, Dim>>& m
 /// just outside its surface and loses its velocity into it.
 template <class T, int Dim>
 void keep_out_of_colliders(Particles<T, Dim>& P, const std::vector<Collider<T, Dim>>& colliders,
-                           const unsigned char* x_before, T t0, T t1, T dx) {
+                           const Eigen::Matrix<T, Dim, 1>* x_before, T t0, T t1, T dx) {
   const T margin = T(1e-3) * dx;
   using Vec = Eigen::Matrix<T, Dim, 1>;
   const auto poses0 = collider_poses(colliders, t0), poses1 = collider_poses(colliders, t1);
   parallel::parallel_chunks(0, std::int64_t(P.size()), [&](std::int64_t lo, std::int64_t hi) {
     for (std::int64_t p = lo; p < hi; ++p) {
-      Vec x0;
-      std::memcpy(static_cast<void*>(x0.data()), x_before + std::size_t(p) * sizeof(Vec), sizeof(Vec));
+      const Vec x0 = x_before[p];
       for (std::size_t k = 0; k < colliders.size(); ++k) {
         const auto& c = colliders[k];
         if (!thin_collider(c, dx)) continue;
@@ -141,7 +140,6 @@ Simulation<T, Dim>::Simulation(const Scene& scene, Communicator* communicator) :
     fluid_.push_back(m.fluid ? 1 : 0);
   }
   seed_bodies();
-  stress_.resize(particles_.size());
   for (const auto& v : particles_.v) max_speed_ = std::max(max_speed_, v.norm());
   if (scene_.solver.integrator == Integrator::Implicit) {
     typename ImplicitUpdate<T, Dim>::Options o;
@@ -283,7 +281,8 @@ std::size_t Simulation<T, Dim>::bytes() const {
     sleeping = sleep_->calm.capacity() * sizeof(std::uint16_t) + sleep_->seen.capacity() * sizeof(std::int64_t);
     for (const auto& [k, blk] : sleep_->asleep) sleeping += sizeof(blk) + blk.nodes.capacity() * sizeof(blk.nodes[0]);
   }
-  double b = double(particles_.bytes() + stress_.capacity() * sizeof(Mat) + bins_.bytes() + dense_.bytes() +
+  double b = double(particles_.bytes() + x_before_.capacity() * sizeof(Vec) +
+                    reorder_done_.capacity() * sizeof(std::uint64_t) + bins_.bytes() + dense_.bytes() +
                     sparse_.bytes() + (implicit_ ? implicit_->bytes() : 0) + sleeping);
   if (split_) split_->comm->sum(&b, 1);
   return std::size_t(b);
@@ -404,20 +403,15 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
   // Colliders act on grid nodes inside them, and a particle takes the velocity of every node
   // around it, including those beyond a collider thinner than the kernel's reach: such a wall
   // leaks (tests/extremes: a block at 20 m/s passed a wall dx/4 thick). For thin colliders the
-  // positions before the move are kept (in stress_, dead after the scatter) and a particle whose
-  // path enters one stops at its surface (detail::keep_out_of_colliders). Thick colliders are
-  // left to the grid alone, as before.
+  // positions before the move are kept (x_before_, allocated for such scenes only) and a particle
+  // whose path enters one stops at its surface (detail::keep_out_of_colliders). Thick colliders
+  // are left to the grid alone, as before.
   const bool thin_colliders = any_thin_collider(colliders_, dx_);
-  if (thin_colliders) {
-    auto* saved = reinterpret_cast<unsigned char*>(static_cast<void*>(stress_.data()));
-    static_assert(sizeof(Vec) <= sizeof(Mat));
-    std::memcpy(saved, static_cast<const void*>(particles_.x.data()), particles_.size() * sizeof(Vec));
-  }
+  if (thin_colliders) x_before_ = particles_.x;
   grid_to_particles(grid, dt);
   if (split_) detail::truncate_particles(particles_, split_->owned);  // the ghosts have served
   if (thin_colliders)
-    detail::keep_out_of_colliders(particles_, colliders_, reinterpret_cast<const unsigned char*>(stress_.data()),
-                                  T(time_), T(time_) + dt, dx_);
+    detail::keep_out_of_colliders(particles_, colliders_, x_before_.data(), T(time_), T(time_) + dt, dx_);
   lap(phase_times_.g2p);
   return_mapping();
   if (sleep_) sleep_update();
@@ -426,18 +420,18 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
 }
 
 template <class T, int Dim>
-void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt) {
+void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt, Mat* K) const {
   // One bin is one material: the model is dispatched once per bin, not per particle.
-  auto& P = particles_;
-  Mat* K = stress_.data();
+  const auto& P = particles_;
   const std::uint32_t* order = bins_.order();
+  K -= begin;  // K[i] for i in [begin, end)
   const auto& mat = materials_[std::size_t(material)];
   if (mat.fluid) {
     // tau = -J p(J) I, so K = -dt V0 tau = dt V0 J p I.
     const auto& fluid = mat.fluid_model();
     for (auto i = begin; i < end; ++i) {
       const auto p = order[i];
-      K[p] = Mat::Identity() * (dt * P.vol0[p] * fluid.kirchhoff_pressure(P.J[p]));
+      K[i] = Mat::Identity() * (dt * P.vol0[p] * fluid.kirchhoff_pressure(P.J[p]));
     }
     return;
   }
@@ -446,12 +440,12 @@ void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::
       for (auto i = begin; i < end; ++i) {
         const auto p = order[i];
         const auto scaled = model.scaled(mat.hardening_factor(P.plastic[p]));
-        K[p] = (-dt * P.vol0[p]) * scaled.kirchhoff(P.F[p]);
+        K[i] = (-dt * P.vol0[p]) * scaled.kirchhoff(P.F[p]);
       }
     } else {
       for (auto i = begin; i < end; ++i) {
         const auto p = order[i];
-        K[p] = (-dt * P.vol0[p]) * model.kirchhoff(P.F[p]);
+        K[i] = (-dt * P.vol0[p]) * model.kirchhoff(P.F[p]);
       }
     }
   });
@@ -572,7 +566,6 @@ void Simulation<T, Dim>::split_particles() {
   }
   detail::drop_particles(particles_, drop);
   S.owned = particles_.size();
-  stress_.resize(particles_.size());
 }
 
 template <class T, int Dim>
@@ -612,7 +605,6 @@ void Simulation<T, Dim>::migrate() {
     if (stray == 0) break;
   }
   S.owned = P.size();
-  stress_.resize(P.size());
 }
 
 template <class T, int Dim>
@@ -633,7 +625,6 @@ void Simulation<T, Dim>::add_ghosts() {
   const auto [from_lower, from_upper] = S.comm->exchange(to_lower, to_upper);
   detail::unpack_particles(from_lower, P);
   detail::unpack_particles(from_upper, P);
-  stress_.resize(P.size());
 }
 
 template <class T, int Dim>
@@ -651,25 +642,35 @@ Particles<T, Dim> Simulation<T, Dim>::all_particles(bool on_every_rank) const {
 
 template <class T, int Dim>
 void Simulation<T, Dim>::reorder_particles() {
-  // Particles are stored in bin order, so that the transfers stream through memory; stress_ is
-  // dead between substeps and serves as the scratch buffer (it is the largest channel).
+  // Particles are stored in bin order, so that the transfers stream through memory. Each channel
+  // is permuted in place by following the cycles of the order (new[j] = old[order[j]]): one
+  // value of temporary storage and one bit per particle, where a gather through a scratch
+  // channel would hold a second copy of the largest channel (36 bytes per particle in 3D float).
+  // The particles moved in a few substeps, so the cycles are short and local. Serial per
+  // channel: the walk is bound by memory latency, which a second thread does not share well
+  // (the parallel gather was slower on two threads than on one, RESULTS.md 2026-11-21).
   auto& P = particles_;
   const std::uint32_t* order = bins_.order();
-  const std::int64_t n = std::int64_t(P.size());
-  auto* scratch = reinterpret_cast<unsigned char*>(static_cast<void*>(stress_.data()));
+  const std::size_t n = P.size();
+  std::vector<std::uint64_t>& done = reorder_done_;
   auto permute = [&](auto& channel) {
     if (channel.empty()) return;
-    using V = typename std::decay_t<decltype(channel)>::value_type;
-    // Channel values are fixed-size Eigen objects or scalars: plain bytes, copied as such.
-    static_assert(sizeof(V) <= sizeof(Mat));
-    auto* c = reinterpret_cast<unsigned char*>(static_cast<void*>(channel.data()));
-    parallel::parallel_chunks(0, n, [&](std::int64_t lo, std::int64_t hi) {
-      for (std::int64_t i = lo; i < hi; ++i)
-        std::memcpy(scratch + i * sizeof(V), c + std::size_t(order[i]) * sizeof(V), sizeof(V));
-    });
-    parallel::parallel_chunks(0, n, [&](std::int64_t lo, std::int64_t hi) {
-      std::memcpy(c + lo * sizeof(V), scratch + lo * sizeof(V), std::size_t(hi - lo) * sizeof(V));
-    });
+    done.assign((n + 63) / 64, 0);
+    auto* c = channel.data();
+    for (std::size_t i = 0; i < n; ++i) {
+      if (done[i >> 6] >> (i & 63) & 1) continue;
+      if (order[i] == i) continue;  // a fixed point is never reached from another cycle
+      const auto first = c[i];
+      std::size_t j = i;
+      for (;;) {
+        done[j >> 6] |= std::uint64_t(1) << (j & 63);
+        const std::size_t k = order[j];
+        if (k == i) break;
+        c[j] = c[k];
+        j = k;
+      }
+      c[j] = first;
+    }
   };
   P.for_each_channel(permute);
   bins_.reset_order();
@@ -690,10 +691,7 @@ template <class T, int Dim>
 template <int Order, class G>
 void Simulation<T, Dim>::particles_to_grid_order(G& grid, T dt) {
   using transfer::Scheme;
-  auto& P = particles_;
-  const Mat* C = P.C.empty() ? nullptr : P.C.data();
   const auto& bins = bins_.bins();
-  const std::uint32_t* order = bins_.order();
   const T inv_dx = T(1) / dx_;
   auto scatter = [&](auto scheme) {
     constexpr Scheme S = decltype(scheme)::value;
@@ -714,11 +712,7 @@ void Simulation<T, Dim>::particles_to_grid_order(G& grid, T dt) {
             // stress impulse of a unit substep, to keep it.
             auto& blk = *sleep_->group_block[g];
             if (!blk.cached) {
-              for (auto b = first; b < last; ++b) {
-                compute_stress(int(bins[b].material), bins[b].begin, bins[b].end, T(1));
-                transfer::scatter_particles<Order, S>(patch, P.x.data(), P.v.data(), P.m.data(), C, stress_.data(),
-                                                      order, bins[b].begin, bins[b].end);
-              }
+              for (auto b = first; b < last; ++b) scatter_bin<Order, S>(patch, bins[b], T(1));
               blk.nodes.assign(patch.nodes.begin(), patch.nodes.end());
               blk.cached = true;
             }
@@ -729,14 +723,7 @@ void Simulation<T, Dim>::particles_to_grid_order(G& grid, T dt) {
             grid.add_patch(patch);
             return;
           }
-          for (auto b = first; b < last; ++b) {
-            // The stress of a bin's particles is computed just before they are scattered: K_p is
-            // still in cache when the scatter reads it, and the step makes one parallel pass
-            // over the particles before the grid update instead of two.
-            compute_stress(int(bins[b].material), bins[b].begin, bins[b].end, dt);
-            transfer::scatter_particles<Order, S>(patch, P.x.data(), P.v.data(), P.m.data(), C, stress_.data(),
-                                                  order, bins[b].begin, bins[b].end);
-          }
+          for (auto b = first; b < last; ++b) scatter_bin<Order, S>(patch, bins[b], dt);
           grid.add_patch(patch);
         });
       }
@@ -747,6 +734,24 @@ void Simulation<T, Dim>::particles_to_grid_order(G& grid, T dt) {
     case TransferKind::FLIP: scatter(std::integral_constant<Scheme, Scheme::PIC>{}); break;
     case TransferKind::APIC: scatter(std::integral_constant<Scheme, Scheme::APIC>{}); break;
     case TransferKind::MLS: scatter(std::integral_constant<Scheme, Scheme::MLS>{}); break;
+  }
+}
+
+template <class T, int Dim>
+template <int Order, transfer::Scheme S, class Patch>
+void Simulation<T, Dim>::scatter_bin(Patch& patch, const typename transfer::ParticleBins<Dim>::Bin& bin, T dt) const {
+  // The stress of a bin's particles is computed just before they are scattered, a batch at a
+  // time into a stack buffer that stays in L1: the step makes one parallel pass over the
+  // particles before the grid update, and keeps no stress per particle. The scatter adds the
+  // particles to the patch in the same order whatever the batches, so the sums are bitwise those
+  // of one batch per bin.
+  const auto& P = particles_;
+  const Mat* C = P.C.empty() ? nullptr : P.C.data();
+  alignas(64) Mat K[kStressChunk];
+  for (std::uint32_t lo = bin.begin; lo < bin.end; lo += kStressChunk) {
+    const std::uint32_t hi = std::min(bin.end, lo + kStressChunk);
+    compute_stress(int(bin.material), lo, hi, dt, K);
+    transfer::scatter_particles<Order, S>(patch, P.x.data(), P.v.data(), P.m.data(), C, K, bins_.order(), lo, hi);
   }
 }
 
@@ -1221,7 +1226,6 @@ void Simulation<T, Dim>::load_state(std::string_view in, const std::string& what
   }
   r.tag(detail::kTagEnd, "end");
   r.finish();
-  stress_.resize(P.size());
   if (split_) {
     split_->total = P.size();
     split_particles();

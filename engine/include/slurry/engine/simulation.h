@@ -55,6 +55,7 @@
 #include "slurry/transfer/blocks.h"
 #include "slurry/transfer/grid.h"
 #include "slurry/transfer/sparse_grid.h"
+#include "slurry/transfer/transfers.h"
 
 namespace slurry {
 
@@ -174,6 +175,7 @@ class Simulation final : public SimulationBase {
   /// Particles are re-stored in bin order every this many substeps (between, they are reached
   /// through the bins' index list), so the transfers stream through memory.
   static constexpr std::int64_t kReorderInterval = 8;
+  static constexpr std::uint32_t kStressChunk = 256;  // particles per stack batch of K_p (scatter_bin; 18 KB in 3D double)
 
   void seed_bodies();
   // The split over processes (null in one process): see the file comment.
@@ -205,8 +207,13 @@ class Simulation final : public SimulationBase {
   std::string diagnosis(T dt) const;
   template <class G>
   void step_on(G& grid, T dt);
-  /// K_p = -dt V_p^0 tau(F_p) for the particles order()[begin, end) of one material.
-  void compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt);
+  /// K[i - begin] = -dt V_p^0 tau(F_p) for the particles p = order()[i], i in [begin, end), of
+  /// one material.
+  void compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt, Mat* K) const;
+  /// Scatters bin b's particles to `patch`, their stress computed just before in chunks of
+  /// kStressChunk on the stack (no per-particle stress array: 36 bytes per particle in 3D float).
+  template <int Order, transfer::Scheme S, class Patch>
+  void scatter_bin(Patch& patch, const typename transfer::ParticleBins<Dim>::Bin& bin, T dt) const;
   void bin_particles();
   void reorder_particles();
   template <class G>
@@ -240,7 +247,8 @@ class Simulation final : public SimulationBase {
   std::vector<Material<T, Dim>> materials_;
   std::vector<Collider<T, Dim>> colliders_;
   Particles<T, Dim> particles_;
-  std::vector<Mat> stress_;  // K_p = -dt V_p^0 tau_p, scratch of the current substep
+  std::vector<std::uint64_t> reorder_done_;  // one bit per particle, reorder_particles
+  std::vector<Vec> x_before_;  // positions before the move, kept for thin colliders only
   std::vector<std::uint8_t> fluid_;  // per material: advances J instead of F
   std::vector<T> hardening_scratch_;  // per bin, snow only
   std::vector<std::int64_t> projected_scratch_;  // per bin: return mappings that yielded

@@ -18,8 +18,8 @@
 /// f_i = -sum_p V_p tau_p grad w_ip (Stomakhin et al. 2013, eq. 6; tau = P F^T the Kirchhoff
 /// stress), as dt f_i added to the grid momentum.
 ///
-/// Inputs are raw channel pointers (structure of arrays). `K[p]` is the stress impulse
-/// -dt V_p^0 tau_p computed by the caller; null means no stress.
+/// Inputs are raw channel pointers (structure of arrays). `K[i - begin]` is the stress impulse
+/// -dt V_p^0 tau_p of the particle at position i, computed by the caller; null means no stress.
 #include <Eigen/Core>
 #include <cmath>
 #include <cstdint>
@@ -49,7 +49,9 @@ constexpr bool carries_affine(Scheme s) {
 
 /// Scatters mass and momentum (and the stress impulse) of particles ids[begin, end) (or
 /// [begin, end) when ids is null) to `grid` and widens its active box. Serial: the scatter
-/// writes shared nodes. `Grid` is a DenseGrid or a block Patch (blocks.h).
+/// writes shared nodes. `Grid` is a DenseGrid or a block Patch (blocks.h). The stress impulses
+/// K (or null) follow the range, not the particle index: K[i - begin] belongs to position i, so
+/// a caller computes them for one range at a time into a small buffer.
 template <int Order, Scheme S, class Grid, class T, int Dim>
 void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
                        const Eigen::Matrix<T, Dim, 1>* v, const T* m,
@@ -88,9 +90,9 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
     }
     if (K) {
       if constexpr (S == Scheme::MLS)
-        A += Dinv * K[p];
+        A += Dinv * K[i - begin];
       else
-        G += K[p];
+        G += K[i - begin];
     }
     // Per node: n_i += w (m v + A (x_i - x_p), m) + G grad w. With x_i - x_p = (ox_a, oy_b, oz_c)
     // and grad w = (dwx_a wy_b wz_c, wx_a dwy_b wz_c, wx_a wy_b dwz_c) the affine and gradient
