@@ -7,6 +7,7 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <random>
 
@@ -106,6 +107,55 @@ TEST(SnowPlasticity, ClampKeepsRotationsAndHardeningFactor) {
   EXPECT_NEAR(snow.hardening_factor(0.9), std::exp(1.0), 1e-14);
   EXPECT_NEAR(snow.hardening_factor(0.0), snow.max_hardening, 1e-12);
   EXPECT_NEAR(snow.hardening_factor(1.5), std::exp(-5.0), 1e-16);
+}
+
+// The window test of SnowPlasticity::project() must never skip a particle the SVD path would
+// clamp: for singular values spread over and around the window (including within 1e-6 of its
+// edges, inside and out), in float and double, 2D and 3D, project() and project_by_svd() leave
+// bitwise the same Fe and Jp and return the same answer; and the test does skip most particles
+// well inside the window (else it saves nothing).
+template <class T, int D>
+void window_test_agrees_with_svd(unsigned seed) {
+  const sc::SnowPlasticity<T> snow;
+  std::mt19937 rng(seed);
+  const double lo = 1 - 2.5e-2, hi = 1 + 7.5e-3;
+  std::uniform_real_distribution<double> spread(lo - 0.01, hi + 0.01), pick(0, 1), edge(-1e-6, 1e-6);
+  int skipped = 0, skipped_deep = 0, deep = 0, yielded = 0;
+  for (int k = 0; k < 20000; ++k) {
+    Eigen::Matrix<double, D, 1> sigma;
+    const bool inside = k % 2 == 0;
+    for (int d = 0; d < D; ++d) {
+      const double u = pick(rng);
+      if (inside)
+        sigma[d] = lo + 0.1 * (hi - lo) + 0.8 * (hi - lo) * u;  // deep inside
+      else
+        sigma[d] = u < 0.3 ? lo + edge(rng) : u < 0.6 ? hi + edge(rng) : spread(rng);
+    }
+    const Eigen::Matrix<T, D, D> F0 =
+        (random_rotation<D>(rng) * sigma.asDiagonal() * random_rotation<D>(rng).transpose()).template cast<T>();
+    Eigen::Matrix<T, D, D> Fa = F0, Fb = F0;
+    T Ja = T(0.9), Jb = T(0.9);
+    const bool ya = snow.project(Fa, Ja), yb = snow.project_by_svd(Fb, Jb);
+    ASSERT_EQ(ya, yb) << "sample " << k;
+    ASSERT_EQ(Ja, Jb) << "sample " << k;
+    for (int i = 0; i < D * D; ++i) ASSERT_EQ(Fa.data()[i], Fb.data()[i]) << "sample " << k;
+    const bool skip = snow.inside_window(F0);
+    skipped += skip;
+    if (inside) ++deep, skipped_deep += skip;
+    yielded += yb;
+  }
+  EXPECT_GT(yielded, 3000);                // the edges and the spread do yield
+  EXPECT_GT(skipped_deep, deep * 9 / 10);  // the test skips the SVD for most particles inside
+  std::printf("%s %dD: SVD skipped for %d of %d samples well inside the window\n", sizeof(T) == 4 ? "float" : "double",
+              D, skipped_deep, deep);
+  EXPECT_LT(skipped, 20000 - yielded + 1);
+}
+
+TEST(SnowPlasticity, WindowTestAgreesWithTheSvdPath) {
+  window_test_agrees_with_svd<float, 2>(1);
+  window_test_agrees_with_svd<float, 3>(2);
+  window_test_agrees_with_svd<double, 2>(3);
+  window_test_agrees_with_svd<double, 3>(4);
 }
 
 // --- Drucker-Prager -------------------------------------------------------------------------

@@ -67,8 +67,36 @@ struct SnowPlasticity {
   /// Clamps the singular values of Fe into the window and updates Jp (starts at 1) so that
   /// det(Fe) Jp is preserved. An inverted Fe is un-inverted by the clamp; Jp is then updated with
   /// |det Fe| so that it stays positive. Returns whether any singular value was clamped.
+  ///
+  /// Most particles of a snow scene are inside the window most of the time, and the SVD is then
+  /// wasted: the squared singular values are the eigenvalues of A = Fe^T Fe, and every
+  /// eigenvalue of a symmetric A lies within sqrt((Dim - 1) / Dim) |A - m I|_F of
+  /// m = tr(A) / Dim (the deviator's eigenvalues sum to zero, so the largest squared one is at
+  /// most (Dim - 1) / Dim of their sum of squares; exact in 2D). When that interval sits inside the squared
+  /// window with a margin of 1e-5 (far above the SVD's round-off in sigma), no singular value can
+  /// be clamped and Fe is left as the SVD path leaves it: the result is bitwise the same
+  /// (tests/constitutive: SnowPlasticity.WindowTestAgreesWithTheSvdPath).
   template <int Dim>
   bool project(Eigen::Matrix<T, Dim, Dim>& Fe, T& Jp) const {
+    if (inside_window(Fe)) return false;
+    return project_by_svd(Fe, Jp);
+  }
+
+  /// Whether every singular value of Fe is certainly inside the window (see project()).
+  template <int Dim>
+  bool inside_window(const Eigen::Matrix<T, Dim, Dim>& Fe) const {
+    const Eigen::Matrix<T, Dim, Dim> A = Fe.transpose() * Fe;
+    const T m = A.trace() / T(Dim);
+    const T lo = T(1) - critical_compression, hi = T(1) + critical_stretch;
+    const T room = std::min(hi * hi - m, m - lo * lo) - T(1e-5);
+    if (!(room > T(0))) return false;
+    const T dev2 = (A - m * Eigen::Matrix<T, Dim, Dim>::Identity()).squaredNorm();
+    return dev2 * T(Dim - 1) < T(Dim) * room * room;
+  }
+
+  /// project() without the window test: always through the SVD.
+  template <int Dim>
+  bool project_by_svd(Eigen::Matrix<T, Dim, Dim>& Fe, T& Jp) const {
     using Vec = Eigen::Matrix<T, Dim, 1>;
     Eigen::Matrix<T, Dim, Dim> U, V;
     Vec sigma;
