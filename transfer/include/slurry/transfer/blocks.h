@@ -75,26 +75,28 @@ class ParticleBins {
   void build(std::int64_t n, BaseOf&& base_of, MaterialOf&& material_of, int materials) {
     if (n > std::int64_t(std::numeric_limits<std::uint32_t>::max()))
       throw std::length_error("ParticleBins: more than 2^32 particles");
-    key_.resize(std::size_t(n));
     order_.resize(std::size_t(n));
     for (auto k : distinct_) table_[std::size_t(k)] = -1;
     distinct_.clear();
     const std::int64_t nm = std::max(1, materials);
     // 1. Block key of every particle, and per fixed chunk of particles the keys that start a run
-    //    of equal keys (neighbouring particles mostly share a block, so runs are few).
-    std::int32_t* key = key_.data();
+    //    of equal keys (neighbouring particles mostly share a block, so runs are few). The keys
+    //    live in order_ until the last pass, which computes them again from base_of while it
+    //    fills order_: no key array of its own (4 bytes per particle).
+    auto block_key = [&](std::int64_t p) {
+      const IVec b = base_of(p);
+      std::int64_t k = 0;
+      for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + (b[d] >> Shape::log2);
+      return std::int32_t(k);
+    };
+    std::int32_t* key = reinterpret_cast<std::int32_t*>(order_.data());
     const std::int64_t scan_chunks = (n + kScanChunk - 1) / kScanChunk;
     if (std::int64_t(runs_.size()) < scan_chunks) runs_.resize(std::size_t(scan_chunks));
     parallel::parallel_tasks(0, scan_chunks, [&](std::int64_t c) {
       auto& runs = runs_[std::size_t(c)];
       runs.clear();
       const std::int64_t lo = c * kScanChunk, hi = std::min(n, (c + 1) * kScanChunk);
-      for (std::int64_t p = lo; p < hi; ++p) {  // kept free of branches: it vectorises
-        const IVec b = base_of(p);
-        std::int64_t k = 0;
-        for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + (b[d] >> Shape::log2);
-        key[p] = std::int32_t(k);
-      }
+      for (std::int64_t p = lo; p < hi; ++p) key[p] = block_key(p);  // free of branches: it vectorises
       std::int32_t prev = -1;
       for (std::int64_t p = lo; p < hi; ++p)
         if (key[p] != prev) runs.push_back(prev = key[p]);
@@ -121,15 +123,10 @@ class ParticleBins {
     count_.assign(std::size_t(chunks * slots), 0);
     std::uint32_t* count = count_.data();
     const std::int32_t* table = table_.data();
-    auto slot_of = [&](std::int64_t p) { return std::int64_t(table[key[p]]) * nm + std::int64_t(material_of(p)); };
-    // The histogram pass leaves each particle's slot in key_, for the scatter pass.
+    auto slot_of = [&](std::int64_t p, std::int32_t k) { return std::int64_t(table[k]) * nm + std::int64_t(material_of(p)); };
     parallel::parallel_tasks(0, chunks, [&](std::int64_t c) {
       std::uint32_t* h = count + c * slots;
-      for (std::int64_t p = c * chunk, e = std::min(n, (c + 1) * chunk); p < e; ++p) {
-        const std::int64_t sl = slot_of(p);
-        key[p] = std::int32_t(sl);
-        ++h[sl];
-      }
+      for (std::int64_t p = c * chunk, e = std::min(n, (c + 1) * chunk); p < e; ++p) ++h[slot_of(p, key[p])];
     });
     // Offsets in (slot, chunk) order: each slot's total over the chunks, an exclusive scan over
     // the slots, then each chunk's start within its slot. The histograms are walked row by row
@@ -180,7 +177,7 @@ class ParticleBins {
     parallel::parallel_tasks(0, chunks, [&](std::int64_t c) {
       std::uint32_t* h = count + c * slots;
       for (std::int64_t p = c * chunk, e = std::min(n, (c + 1) * chunk); p < e; ++p)
-        order[h[key[p]]++] = std::uint32_t(p);
+        order[h[slot_of(p, block_key(p))]++] = std::uint32_t(p);  // the keys in order_ are overwritten
     });
     // 4. Blocks (groups) by colour (the parities of their block coordinates).
     for (auto& c : colour_) c.clear();
@@ -229,7 +226,7 @@ class ParticleBins {
 
   /// Bytes held (capacity).
   std::size_t bytes() const {
-    std::size_t b = table_.capacity() * sizeof(std::int32_t) + key_.capacity() * sizeof(std::int32_t) +
+    std::size_t b = table_.capacity() * sizeof(std::int32_t) +
                     order_.capacity() * sizeof(std::uint32_t) + distinct_.capacity() * sizeof(std::int32_t) +
                     count_.capacity() * sizeof(std::uint32_t) + bins_.capacity() * sizeof(Bin) +
                     groups_.capacity() * sizeof(std::uint32_t);
@@ -245,7 +242,6 @@ class ParticleBins {
   static constexpr std::int64_t kMaxChunks = 64;
   IVec block_res_ = IVec::Zero();
   std::vector<std::int32_t> table_;  // block key -> block index during build, -1 when unused
-  std::vector<std::int32_t> key_;    // per particle: block key, then (block, material) slot
   std::vector<std::uint32_t> order_;
   std::vector<std::int32_t> distinct_;
   std::vector<std::uint32_t> start_;    // per (block, material) slot: first index in order_
