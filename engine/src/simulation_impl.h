@@ -424,14 +424,13 @@ void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::
   // One bin is one material: the model is dispatched once per bin, not per particle.
   const auto& P = particles_;
   const std::uint32_t* order = bins_.order();
-  K -= begin;  // K[i] for i in [begin, end)
   const auto& mat = materials_[std::size_t(material)];
   if (mat.fluid) {
     // tau = -J p(J) I, so K = -dt V0 tau = dt V0 J p I.
     const auto& fluid = mat.fluid_model();
     for (auto i = begin; i < end; ++i) {
       const auto p = order[i];
-      K[i] = Mat::Identity() * (dt * P.vol0[p] * fluid.kirchhoff_pressure(P.J[p]));
+      K[i - begin] = Mat::Identity() * (dt * P.vol0[p] * fluid.kirchhoff_pressure(P.J[p]));
     }
     return;
   }
@@ -440,12 +439,12 @@ void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::
       for (auto i = begin; i < end; ++i) {
         const auto p = order[i];
         const auto scaled = model.scaled(mat.hardening_factor(P.plastic[p]));
-        K[i] = (-dt * P.vol0[p]) * scaled.kirchhoff(P.F[p]);
+        K[i - begin] = (-dt * P.vol0[p]) * scaled.kirchhoff(P.F[p]);
       }
     } else {
       for (auto i = begin; i < end; ++i) {
         const auto p = order[i];
-        K[i] = (-dt * P.vol0[p]) * model.kirchhoff(P.F[p]);
+        K[i - begin] = (-dt * P.vol0[p]) * model.kirchhoff(P.F[p]);
       }
     }
   });
