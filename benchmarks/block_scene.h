@@ -8,7 +8,12 @@
 
 namespace slurry::bench {
 
-inline Scene block_scene(int dim, int res, bool dbl, int stretch = 1) {
+/// The block's material (bench_mpm_step's BM_Material): fixed corotated jelly; snow (fixed
+/// corotated with Stomakhin et al. 2013 plasticity, its default window and hardening); sand
+/// (Hencky StVK with Drucker-Prager, friction angle 30 degrees, Klar et al. 2016).
+enum class BlockMaterial { Jelly, Snow, Sand };
+
+inline Scene block_scene(int dim, int res, bool dbl, int stretch = 1, BlockMaterial material = BlockMaterial::Jelly) {
   Scene s;
   s.source = "bench";
   s.solver.dimension = dim;
@@ -21,6 +26,11 @@ inline Scene block_scene(int dim, int res, bool dbl, int stretch = 1) {
   MaterialParams m;
   m.name = "jelly";
   m.model = ElasticModel::FixedCorotated;
+  if (material == BlockMaterial::Snow) m.plasticity = PlasticModel::Snow;
+  if (material == BlockMaterial::Sand) {
+    m.model = ElasticModel::HenckyStVK;
+    m.plasticity = PlasticModel::DruckerPrager;
+  }
   s.materials = {m};
   BodyParams b;
   b.min = {0.25, 0.25, 0.25};
