@@ -10,6 +10,7 @@
 #include <benchmark/benchmark.h>
 
 #include <algorithm>
+#include <string>
 #include <vector>
 
 #include "block_scene.h"
@@ -20,7 +21,7 @@
 namespace {
 
 template <class T, int Dim>
-void run_steps(benchmark::State& state, int threads_wanted, const slurry::Scene& scene) {
+void run_steps(benchmark::State& state, int threads_wanted, const slurry::Scene& scene, std::string label = {}) {
   slurry::parallel::ThreadLimit threads(threads_wanted);
   const bool reset = slurry::bench::reset_peak_rss();
   slurry::Simulation<T, Dim> sim(scene);
@@ -45,7 +46,8 @@ void run_steps(benchmark::State& state, int threads_wanted, const slurry::Scene&
   state.counters["bytes/particle"] = double(sim.bytes()) / n;
   // This case's peak (the process's baseline of about 4 MB included), see peak_rss.h.
   state.counters["peakRSS/particle"] = slurry::bench::peak_rss_bytes() / n;
-  if (!reset) state.SetLabel("peakRSS of the process");
+  if (!reset) label += label.empty() ? "peakRSS of the process" : ", peakRSS of the process";
+  if (!label.empty()) state.SetLabel(label);
 }
 
 template <class T, int Dim>
@@ -59,10 +61,10 @@ void BM_MlsStep(benchmark::State& state) {
 // strain always takes one. Arguments: material, threads.
 void BM_Material(benchmark::State& state) {
   const auto material = slurry::bench::BlockMaterial(state.range(0));
-  run_steps<float, 3>(state, int(state.range(1)), slurry::bench::block_scene(3, 100, false, 1, material));
-  state.SetLabel(material == slurry::bench::BlockMaterial::Jelly  ? "jelly"
-                 : material == slurry::bench::BlockMaterial::Snow ? "snow"
-                                                                  : "sand");
+  run_steps<float, 3>(state, int(state.range(1)), slurry::bench::block_scene(3, 100, false, 1, material),
+                      material == slurry::bench::BlockMaterial::Jelly  ? "jelly"
+                      : material == slurry::bench::BlockMaterial::Snow ? "snow"
+                                                                       : "sand");
 }
 
 // With --benchmark_repetitions, the fastest repetition: on a shared machine the noise only ever

@@ -38,8 +38,6 @@ class Extrapolator {
  public:
   using IVec = typename MacGrid<T, Dim>::IVec;
 
-  /// Fills up to `layers` (at most 120) layers of invalid faces from valid neighbours; returns
-  /// the number of faces filled.
   /// Bytes held by the scratch (capacity).
   std::size_t bytes() const {
     std::size_t b = stamp_.capacity() + (band_.capacity() + next_.capacity()) * sizeof(std::int64_t);
@@ -47,6 +45,8 @@ class Extrapolator {
     return b;
   }
 
+  /// Fills up to `layers` (at most 120) layers of invalid faces from valid neighbours; returns
+  /// the number of faces filled.
   std::int64_t run(MacGrid<T, Dim>& g, int layers, Extrapolation rule = Extrapolation::Linear) {
     layers = std::clamp(layers, 0, 120);
     std::int64_t filled = 0;

@@ -43,11 +43,11 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <array>
-#include <type_traits>
 #include <cmath>
 #include <cstdint>
 #include <sstream>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "slurry/engine/errors.h"

@@ -107,8 +107,6 @@ class MultigridPreconditioner {
   /// Boundary-band cells on level l.
   std::int64_t band_cells(int l) const { return std::int64_t(levels_[std::size_t(l)].band.size()); }
 
-  /// z = M^-1 r (one V-cycle from zero) over the unknowns; r and z are fine row-major arrays
-  /// (z is written on the unknowns' row spans only). Returns r . z, summed in fixed row chunks.
   /// Bytes held by every level's arrays (capacity).
   std::size_t bytes() const {
     std::size_t b = 0;
@@ -122,6 +120,8 @@ class MultigridPreconditioner {
     return b;
   }
 
+  /// z = M^-1 r (one V-cycle from zero) over the unknowns; r and z are fine row-major arrays
+  /// (z is written on the unknowns' row spans only). Returns r . z, summed in fixed row chunks.
   double apply(const double* r, double* z, int smoothing, int boundary_smoothing) {
     const int last = active_ - 1;
     Level& f = levels_[0];
