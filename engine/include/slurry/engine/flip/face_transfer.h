@@ -14,10 +14,9 @@
 ///        (4 / dx^2) sum_f w_fp (x_f - x_p) u_f (quadratic; D_p = dx^2/4 I, Jiang et al. sec. 5.3).
 ///   Both APIC forms reproduce a linear velocity field exactly.
 ///
-/// P2G is a gather: particles are sorted by cell (CellSort), and every row of faces along the
-/// last axis is owned by one task, which visits the columns of cells its kernel reaches and adds
-/// their particles' contributions into its own row. No atomics, no per-thread grids, and the
-/// summation order is fixed, so results are bitwise independent of the thread count.
+/// P2G scatters from particles sorted by cell (CellSort) in slabs along axis 0 owned by one task
+/// each, even slabs then odd ones: no atomics, no per-thread grids, and the summation order is
+/// fixed, so results are bitwise independent of the thread count.
 #include <Eigen/Core>
 #include <algorithm>
 #include <array>
@@ -120,93 +119,122 @@ struct FaceStencil {
 /// Particles -> axis-d face velocities for every d. The particles must be sorted by cell with
 /// `sort.start` their cell ranges. `wsum` is scratch (resized to the face counts). Sets g.u and
 /// g.valid (1 where some particle reached the face).
+///
+/// A scatter: each particle computes its stencil once per axis (both staggerings) and adds into
+/// the N^Dim faces of every component, branch-free. Slabs of kSlab cells along axis 0 own their
+/// particles (one contiguous range of the cell sort); a particle reaches face rows at most one
+/// cell below and two above its own, so slabs of one parity never touch the same face. The even
+/// slabs run in parallel, then the odd ones: every face receives its contributions in an order
+/// fixed by the slab partition and the sort alone, so the result does not depend on the thread
+/// count.
 template <int Order, class T, int Dim>
 void particles_to_faces(MacGrid<T, Dim>& g, const FlipParticles<T, Dim>& P, const CellSort<T, Dim>& sort,
                         FaceArrays<T, Dim>& wsum) {
   using Vec = Eigen::Matrix<T, Dim, 1>;
-  constexpr int L = Dim - 1;  // rows run along the last axis
-  constexpr int N = transfer::BSpline<Order>::support;
-  const T R = T(kernel_radius<Order>());
+  using Spline = transfer::BSpline<Order>;
+  constexpr int N = Spline::support;
+  static_assert(Order == 1 || Order == 2, "FLIP face transfers use the linear or quadratic B-spline");
+  constexpr int kSlab = 4;  // >= 4 keeps same-parity slabs apart for both orders (see above)
   const T inv_dx = T(1) / g.dx, dx = g.dx;
   const bool affine = P.affine;
   const Vec* X = P.x.data();
   const Vec* V = P.v.data();
   const std::int64_t* start = sort.start.data();
+  std::array<T*, Dim> U, W;
+  std::array<std::array<std::int64_t, Dim>, Dim> stride;  // stride[d][a]: axis-a step on axis-d faces
+  std::array<std::array<int, Dim>, Dim> extent;           // extent[d][a]: axis-d faces along a
   for (int d = 0; d < Dim; ++d) {
-    const auto fr = g.face_res(d);
     wsum[d].resize(g.u[d].size());
-    const std::int64_t row_len = fr[L];
-    std::int64_t rows = 1;
-    for (int a = 0; a < L; ++a) rows *= fr[a];
-    const T shift_L = d == L ? T(0) : T(0.5);
-    const Vec* C = affine ? P.c[d].data() : nullptr;
-    T* U = g.u[d].data();
-    T* W = wsum[d].data();
+    U[d] = g.u[d].data();
+    W[d] = wsum[d].data();
+    const auto fr = g.face_res(d);
+    std::int64_t st = 1;
+    for (int a = Dim - 1; a >= 0; --a) stride[d][a] = st, extent[d][a] = fr[a], st *= fr[a];
+    parallel::parallel_for(0, std::int64_t(g.u[d].size()), [&](std::int64_t f) { U[d][f] = T(0), W[d][f] = T(0); });
+  }
+  const std::int64_t cells_per_layer = g.num_cells() / g.res[0];
+  const int slabs = (g.res[0] + kSlab - 1) / kSlab;
+  for (int parity = 0; parity < 2; ++parity) {
+    parallel::parallel_tasks(0, (slabs + 1 - parity) / 2, [&](std::int64_t t) {
+      const int s0 = int(2 * t + parity) * kSlab, s1 = std::min(g.res[0], s0 + kSlab);
+      const std::int64_t p0 = start[std::int64_t(s0) * cells_per_layer], p1 = start[std::int64_t(s1) * cells_per_layer];
+      for (std::int64_t p = p0; p < p1; ++p) {
+        const Vec xg = (X[p] - g.origin) * inv_dx;
+        // Per axis and staggering (1: the faces normal to that axis, at integer positions;
+        // 0: the other faces, at half-integer ones) the first stencil index, the weights and the
+        // offsets x_f - x_p in metres. Far outside the grid (or NaN) no face is reached.
+        bool inside = true;
+        for (int a = 0; a < Dim; ++a) inside = inside && xg[a] > T(-3) && xg[a] < T(g.res[a] + 3);
+        if (!inside) continue;
+        int base[Dim][2];
+        T w[Dim][2][N], off[Dim][2][N];
+        for (int a = 0; a < Dim; ++a)
+          for (int stag = 0; stag < 2; ++stag) {
+            const T sa = stag ? xg[a] : xg[a] - T(0.5);
+            base[a][stag] = Spline::base(sa);
+            const T f = sa - T(base[a][stag]);
+            T dw[N];
+            Spline::eval(f, w[a][stag], dw);
+            for (int k = 0; k < N; ++k) off[a][stag][k] = (T(k) - f) * dx;
+          }
+        for (int d = 0; d < Dim; ++d) {
+          const T vd = V[p][d];
+          // Per axis: the face index steps (or -1 outside the face grid), weights and the affine
+          // term c_d[a] (x_f - x_p)[a].
+          std::int64_t idx[Dim][N];
+          T wa[Dim][N], ca[Dim][N];
+          for (int a = 0; a < Dim; ++a) {
+            const int stag = a == d ? 1 : 0;
+            for (int k = 0; k < N; ++k) {
+              const int i = base[a][stag] + k;
+              const bool in = i >= 0 && i < extent[d][a];
+              idx[a][k] = in ? std::int64_t(i) * stride[d][a] : -1;
+              wa[a][k] = w[a][stag][k];
+              ca[a][k] = affine ? P.c[d][p][a] * off[a][stag][k] : T(0);
+            }
+          }
+          T* Ud = U[d];
+          T* Wd = W[d];
+          if constexpr (Dim == 2) {
+            for (int i = 0; i < N; ++i) {
+              if (idx[0][i] < 0) continue;
+              for (int j = 0; j < N; ++j) {
+                if (idx[1][j] < 0) continue;
+                const std::int64_t f = idx[0][i] + idx[1][j];
+                const T wk = wa[0][i] * wa[1][j];
+                Ud[f] += wk * (vd + ca[0][i] + ca[1][j]);
+                Wd[f] += wk;
+              }
+            }
+          } else {
+            for (int i = 0; i < N; ++i) {
+              if (idx[0][i] < 0) continue;
+              for (int j = 0; j < N; ++j) {
+                if (idx[1][j] < 0) continue;
+                const std::int64_t fij = idx[0][i] + idx[1][j];
+                const T wij = wa[0][i] * wa[1][j];
+                const T vij = vd + ca[0][i] + ca[1][j];
+                for (int k = 0; k < N; ++k) {
+                  if (idx[2][k] < 0) continue;
+                  const T wk = wij * wa[2][k];
+                  Ud[fij + idx[2][k]] += wk * (vij + ca[2][k]);
+                  Wd[fij + idx[2][k]] += wk;
+                }
+              }
+            }
+          }
+        }
+      }
+    });
+  }
+  for (int d = 0; d < Dim; ++d) {
+    T* Ud = U[d];
+    const T* Wd = W[d];
     std::uint8_t* valid = g.valid[d].data();
-    parallel::parallel_for(0, rows, [&](std::int64_t r) {
-      // Row coordinates along the non-last axes, their face positions (grid units) and the
-      // range of cell columns the kernel reaches.
-      int ri[Dim > 1 ? Dim - 1 : 1];
-      T pos[Dim > 1 ? Dim - 1 : 1];
-      int lo[Dim > 1 ? Dim - 1 : 1], hi[Dim > 1 ? Dim - 1 : 1];
-      std::int64_t rr = r;
-      for (int a = L - 1; a >= 0; --a) {
-        ri[a] = int(rr % fr[a]);
-        rr /= fr[a];
-      }
-      for (int a = 0; a < L; ++a) {
-        pos[a] = T(ri[a]) + (a == d ? T(0) : T(0.5));
-        lo[a] = std::max(0, int(std::floor(pos[a] - R)));
-        hi[a] = std::min(g.res[a] - 1, int(std::ceil(pos[a] + R)) - 1);
-      }
-      T* u_row = U + r * row_len;
-      T* w_row = W + r * row_len;
-      std::fill(u_row, u_row + row_len, T(0));
-      std::fill(w_row, w_row + row_len, T(0));
-      auto visit_column = [&](std::int64_t first_cell) {
-        const std::int64_t p0 = start[first_cell], p1 = start[first_cell + g.res[L]];
-        for (std::int64_t p = p0; p < p1; ++p) {
-          const Vec xg = (X[p] - g.origin) * inv_dx;
-          T w_perp = T(1);
-          for (int a = 0; a < L; ++a) w_perp *= kernel_1d<Order>(xg[a] - pos[a]);
-          if (w_perp == T(0)) continue;
-          const T s = xg[L] - shift_L;
-          const int base = transfer::BSpline<Order>::base(s);
-          const T f = s - T(base);
-          T wl[N], dwl[N];
-          transfer::BSpline<Order>::eval(f, wl, dwl);
-          T value_perp = V[p][d];
-          T slope_L = 0;
-          if (affine) {
-            for (int a = 0; a < L; ++a) value_perp += C[p][a] * (pos[a] - xg[a]) * dx;
-            slope_L = C[p][L] * dx;
-          }
-          for (int k = 0; k < N; ++k) {
-            const int j = base + k;
-            if (j < 0 || j >= row_len) continue;
-            const T wk = w_perp * wl[k];
-            u_row[j] += wk * (value_perp + slope_L * (T(k) - f));
-            w_row[j] += wk;
-          }
-        }
-      };
-      if constexpr (Dim == 2) {
-        for (int c0 = lo[0]; c0 <= hi[0]; ++c0) visit_column(std::int64_t(c0) * g.res[1]);
-      } else {
-        for (int c0 = lo[0]; c0 <= hi[0]; ++c0)
-          for (int c1 = lo[1]; c1 <= hi[1]; ++c1)
-            visit_column((std::int64_t(c0) * g.res[1] + c1) * g.res[2]);
-      }
-      std::uint8_t* v_row = valid + r * row_len;
-      for (std::int64_t j = 0; j < row_len; ++j) {
-        if (w_row[j] > T(0)) {
-          u_row[j] /= w_row[j];
-          v_row[j] = 1;
-        } else {
-          u_row[j] = T(0);
-          v_row[j] = 0;
-        }
-      }
+    parallel::parallel_for(0, std::int64_t(g.u[d].size()), [&](std::int64_t f) {
+      const bool reached = Wd[f] > T(0);
+      Ud[f] = reached ? Ud[f] / Wd[f] : T(0);
+      valid[f] = reached ? 1 : 0;
     });
   }
 }
