@@ -346,6 +346,9 @@ void FlipSimulation<T, Dim>::advect(T dt) {
     return u;
   };
   auto& P = particles_;
+  // PIC and APIC with the linear kernel have just set v_p = u(x_p), gathered trilinearly from
+  // this same grid (faces_to_particles), which is advection's first stage: reuse it.
+  const bool v_is_u = order_ == 1 && (scheme_ == FaceScheme::PIC || scheme_ == FaceScheme::APIC);
   const bool solids = !solids_.empty();
   // A collider thinner than the stencil (or any mesh) can be stepped over in one substep, or
   // its faces left open between grid nodes: a path that enters one stops at its surface.
@@ -355,7 +358,7 @@ void FlipSimulation<T, Dim>::advect(T dt) {
   const auto poses0 = collider_poses(colliders, t0), poses1 = collider_poses(colliders, t_end);
   parallel::parallel_chunks(0, std::int64_t(P.size()), [&](std::int64_t lo, std::int64_t hi) {
     for (std::int64_t p = lo; p < hi; ++p) {
-      Vec x = advect_point(scheme, P.x[p], dt, velocity);
+      Vec x = v_is_u ? advect_point(scheme, P.x[p], P.v[p], dt, velocity) : advect_point(scheme, P.x[p], dt, velocity);
       if (thin) {
         for (std::size_t k = 0; k < colliders.size(); ++k) {
           const auto& c = colliders[k];

@@ -17,9 +17,10 @@
 
 namespace slurry::flip {
 
+/// One step from x with the first stage k1 = u(x) already known (e.g. the velocity a PIC or
+/// APIC G2P has just gathered at x from the same field): saves one evaluation of u.
 template <class Vec, class T, class VelocityFn>
-inline Vec advect_point(AdvectionScheme scheme, const Vec& x, T dt, VelocityFn&& velocity) {
-  const Vec k1 = velocity(x);
+inline Vec advect_point(AdvectionScheme scheme, const Vec& x, const Vec& k1, T dt, VelocityFn&& velocity) {
   switch (scheme) {
     case AdvectionScheme::Euler: return x + dt * k1;
     case AdvectionScheme::Midpoint: return x + dt * velocity(Vec(x + (T(0.5) * dt) * k1));
@@ -34,6 +35,11 @@ inline Vec advect_point(AdvectionScheme scheme, const Vec& x, T dt, VelocityFn&&
     }
   }
   return x + dt * k1;
+}
+
+template <class Vec, class T, class VelocityFn>
+inline Vec advect_point(AdvectionScheme scheme, const Vec& x, T dt, VelocityFn&& velocity) {
+  return advect_point(scheme, x, Vec(velocity(x)), dt, velocity);
 }
 
 }  // namespace slurry::flip
