@@ -253,15 +253,21 @@ class PressureSolver {
     prepare_for(opt.preconditioner, opt.mic_blocks);
     assemble(g, opt.ghost_fluid);
     const double scale = opt.density * double(g.dx) / double(dt);  // b = -(rho dx / dt) D
-    // b and the warm start p go straight into the solver's own vectors (zero off the unknowns).
+    // b and the warm start p go straight into the solver's own vectors, over the rows' spans of
+    // unknowns only: the solve reads b nowhere else, and assemble() has zeroed p (x_).
     std::vector<double>& b = rhs_;
     b.resize(std::size_t(num_cells_));
     double* const p = x_.data() + pad_;
-    for_each_index(g.res, [&](std::int64_t c, const IVec& i) {
-      const bool unknown = is_unknown(c);
-      const double target = target_flux ? target_flux[c] : 0.0;
-      b[std::size_t(c)] = unknown ? -scale * (double(open_flux_sum(g, i)) - target) : 0.0;
-      p[std::size_t(c)] = unknown ? double(g.pressure[std::size_t(c)]) : 0.0;
+    parallel::parallel_for(0, num_rows_, [&](std::int64_t row) {
+      IVec i = row_coord(g.res, row);
+      for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
+        i[Dim - 1] = k;
+        const std::int64_t c = row * nz_ + k;
+        const bool unknown = is_unknown(c);
+        const double target = target_flux ? target_flux[c] : 0.0;
+        b[std::size_t(c)] = unknown ? -scale * (double(open_flux_sum(g, i)) - target) : 0.0;
+        p[std::size_t(c)] = unknown ? double(g.pressure[std::size_t(c)]) : 0.0;
+      }
     });
     ProjectionReport rep = solve_in_place(opt);
     parallel::parallel_for(0, num_cells_, [&](std::int64_t c) { g.pressure[std::size_t(c)] = T(p[c]); });
