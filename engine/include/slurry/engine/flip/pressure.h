@@ -156,7 +156,22 @@ class PressureSolver {
     for (int d = 0; d < Dim; ++d) {  // open weights once: the later passes only read them
       open_[d].resize(std::size_t(g.num_faces(d)));
       face_up_[d] = g.face_stride(d, d);
-      for_each_index(g.face_res(d), [&](std::int64_t f, const IVec& fi) { open_[d][std::size_t(f)] = g.open_weight(d, fi); });
+      // MacGrid::open_weight row by row: 0 on the domain boundary and next to a Solid cell,
+      // else the weight clamped to [0, 1].
+      T* open = open_[d].data();
+      const T* weight = g.weight[d].data();
+      const std::uint8_t* label = g.label.data();
+      const std::int64_t down = g.cell_stride(d);
+      for_each_face_row(g, d, [&](std::int64_t f0, std::int64_t c0, const IVec& fi) {
+        const int n = g.res[Dim - 1] + (d == Dim - 1 ? 1 : 0);
+        const bool row_wall = d != Dim - 1 && (fi[d] <= 0 || fi[d] >= g.res[d]);
+        for (int j = 0; j < n; ++j) {
+          const bool wall = row_wall || (d == Dim - 1 && (j <= 0 || j >= g.res[d]));
+          open[f0 + j] = wall || label[c0 + j - down] == Grid::Solid || label[c0 + j] == Grid::Solid
+                             ? T(0)
+                             : std::clamp(weight[f0 + j], T(0), T(1));
+        }
+      });
     }
     for_each_index(g.res, [&](std::int64_t c, const IVec& i) {
       const auto label = g.label[std::size_t(c)];
@@ -273,20 +288,23 @@ class PressureSolver {
     parallel::parallel_for(0, num_cells_, [&](std::int64_t c) { g.pressure[std::size_t(c)] = T(p[c]); });
     const double coef = double(dt) / (opt.density * double(g.dx));
     for (int d = 0; d < Dim; ++d) {
-      for_each_index(g.face_res(d), [&](std::int64_t f, const IVec& fi) {
-        const std::size_t fs = std::size_t(f);
+      const std::int64_t down = g.cell_stride(d);
+      for_each_face_row(g, d, [&](std::int64_t f0, std::int64_t c0, const IVec&) {
+       const int n = g.res[Dim - 1] + (d == Dim - 1 ? 1 : 0);
+       for (int j = 0; j < n; ++j) {
+        const std::size_t fs = std::size_t(f0 + j);
         const T w = open_[d][fs];
         if (w <= T(0)) {
           g.u[d][fs] = g.u_solid[d][fs];
           g.valid[d][fs] = 0;
-          return;
+          continue;
         }
-        const std::int64_t b_cell = g.cell(fi);  // upper cell; open faces are interior
-        const std::int64_t a_cell = b_cell - g.cell_stride(d);
+        const std::int64_t b_cell = c0 + j;  // upper cell; open faces are interior
+        const std::int64_t a_cell = b_cell - down;
         const bool ua = is_unknown(a_cell), ub = is_unknown(b_cell);
         if (!ua && !ub) {
           g.valid[d][fs] = 0;
-          return;
+          continue;
         }
         double dp;
         if (ua && ub) {
@@ -299,6 +317,7 @@ class PressureSolver {
         }
         g.u[d][fs] = T(double(g.u[d][fs]) - coef * dp);
         g.valid[d][fs] = 1;
+       }
       });
     }
     rep.max_divergence = parallel::parallel_max<double>(0, num_rows_, 0.0, [&](std::int64_t lo, std::int64_t hi) {
@@ -382,6 +401,23 @@ class PressureSolver {
         i[Dim - 1] = k;
         fn(row * nz + k, i);
       }
+    });
+  }
+
+  /// fn(f0, c0, fi) for every row of axis-d faces along the last axis, in parallel: f0 is the
+  /// row's first face, fi its coordinates (last one 0) and c0 the index of the cell with the same
+  /// coordinates, so that face f0 + j lies between cells c0 + j - cell_stride(d) and c0 + j
+  /// (meaningful only for interior faces).
+  template <class Fn>
+  static void for_each_face_row(const Grid& g, int d, Fn&& fn) {
+    const IVec fr = g.face_res(d);
+    std::int64_t rows = 1;
+    for (int a = 0; a < Dim - 1; ++a) rows *= fr[a];
+    parallel::parallel_for(0, rows, [&](std::int64_t row) {
+      const IVec fi = row_coord(fr, row);
+      std::int64_t c0 = 0;
+      for (int a = 0; a < Dim - 1; ++a) c0 = (c0 + fi[a]) * g.res[a + 1];
+      fn(row * fr[Dim - 1], c0, fi);
     });
   }
 
