@@ -290,34 +290,34 @@ class PressureSolver {
     for (int d = 0; d < Dim; ++d) {
       const std::int64_t down = g.cell_stride(d);
       for_each_face_row(g, d, [&](std::int64_t f0, std::int64_t c0, const IVec&) {
-       const int n = g.res[Dim - 1] + (d == Dim - 1 ? 1 : 0);
-       for (int j = 0; j < n; ++j) {
-        const std::size_t fs = std::size_t(f0 + j);
-        const T w = open_[d][fs];
-        if (w <= T(0)) {
-          g.u[d][fs] = g.u_solid[d][fs];
-          g.valid[d][fs] = 0;
-          continue;
+        const int n = g.res[Dim - 1] + (d == Dim - 1 ? 1 : 0);
+        for (int j = 0; j < n; ++j) {
+          const std::size_t fs = std::size_t(f0 + j);
+          const T w = open_[d][fs];
+          if (w <= T(0)) {
+            g.u[d][fs] = g.u_solid[d][fs];
+            g.valid[d][fs] = 0;
+            continue;
+          }
+          const std::int64_t b_cell = c0 + j;  // upper cell; open faces are interior
+          const std::int64_t a_cell = b_cell - down;
+          const bool ua = is_unknown(a_cell), ub = is_unknown(b_cell);
+          if (!ua && !ub) {
+            g.valid[d][fs] = 0;
+            continue;
+          }
+          double dp;
+          if (ua && ub) {
+            dp = p[b_cell] - p[a_cell];
+          } else if (ua) {
+            // b is air (an open face next to an unknown is fluid or air): ghost p_b.
+            dp = -p[a_cell] / theta(g, a_cell, b_cell);
+          } else {
+            dp = p[b_cell] / theta(g, b_cell, a_cell);
+          }
+          g.u[d][fs] = T(double(g.u[d][fs]) - coef * dp);
+          g.valid[d][fs] = 1;
         }
-        const std::int64_t b_cell = c0 + j;  // upper cell; open faces are interior
-        const std::int64_t a_cell = b_cell - down;
-        const bool ua = is_unknown(a_cell), ub = is_unknown(b_cell);
-        if (!ua && !ub) {
-          g.valid[d][fs] = 0;
-          continue;
-        }
-        double dp;
-        if (ua && ub) {
-          dp = p[b_cell] - p[a_cell];
-        } else if (ua) {
-          // b is air (an open face next to an unknown is fluid or air): ghost p_b.
-          dp = -p[a_cell] / theta(g, a_cell, b_cell);
-        } else {
-          dp = p[b_cell] / theta(g, b_cell, a_cell);
-        }
-        g.u[d][fs] = T(double(g.u[d][fs]) - coef * dp);
-        g.valid[d][fs] = 1;
-       }
       });
     }
     rep.max_divergence = parallel::parallel_max<double>(0, num_rows_, 0.0, [&](std::int64_t lo, std::int64_t hi) {
