@@ -2,8 +2,9 @@
 /// \file cell_sort.h
 /// Counting sort of particles by the grid cell that contains them (row-major cell order, stable
 /// in particle index), so that the particles of a cell -- and of a whole column of cells along
-/// the last axis -- are one contiguous index range. The face transfers gather from these ranges:
-/// parallel over faces, race-free without atomics, and independent of the thread count.
+/// the last axis -- are one contiguous index range. P2G scatters from these ranges in slabs of
+/// cells along x (face_transfer.h) and the cell labelling reads them per row: race-free without
+/// atomics and independent of the thread count.
 /// Buffers are kept between calls (no allocation once the particle count has settled).
 #include <Eigen/Core>
 #include <algorithm>

@@ -6,7 +6,7 @@
 /// named phases (the shape of Jet's PicSolver / FlipSolver / ApicSolver, without the class tree):
 ///
 ///   emit             emitters add particles (rate * dt of volume each)
-///   sort             counting sort of the particles by cell (the transfers gather from it)
+///   sort             counting sort of the particles by cell (P2G scatters slab by slab from it)
 ///   transfer_to_grid P2G on the faces (PIC/FLIP: v; APIC: v + c . (x_f - x_p))
 ///   save_velocities  FLIP keeps the face velocities for the delta update
 ///   gravity          u += dt g
