@@ -48,13 +48,52 @@ inline std::vector<int> balanced_cuts(const std::vector<double>& counts, int ran
   return cuts;
 }
 
-/// Appends the particles `which` (every stored channel) to `out`: a count, then channel after
-/// channel in Particles::for_each_channel order. Ranks of one run store the same channels.
+/// How a message stores a ScalarChannel: a flag (1 = one value for every particle) and that value.
+template <class T>
+void pack_scalar_layout(const ScalarChannel<T>& c, std::string& out) {
+  const std::uint8_t uniform = c.uniform() ? 1 : 0;
+  const T value = c.uniform() ? c.value() : T(0);
+  out.append(reinterpret_cast<const char*>(&uniform), sizeof uniform);
+  out.append(reinterpret_cast<const char*>(&value), sizeof value);
+}
+
+/// Reads what pack_scalar_layout wrote and makes P's channel `c` store the same way: an empty
+/// set takes the message's layout; a set with particles must already have it (ranks of one run
+/// seed or load the same particles, so they decide alike whether mass and rest volume are
+/// uniform, and only particles of the run move between them).
+template <class T>
+void unpack_scalar_layout(std::string_view in, std::size_t& at, ScalarChannel<T>& c,
+                          std::size_t count, const char* name) {
+  std::uint8_t uniform = 0;
+  T value = T(0);
+  if (in.size() - at < sizeof uniform + sizeof value)
+    throw SimulationError("a message of particles from another rank is truncated");
+  std::memcpy(&uniform, in.data() + at, sizeof uniform);
+  std::memcpy(static_cast<void*>(&value), in.data() + at + sizeof uniform, sizeof value);
+  at += sizeof uniform + sizeof value;
+  if (count == 0) {
+    c.assign_uniform(value);
+    if (!uniform) c.materialize(0);
+    return;
+  }
+  if (bool(uniform) != c.uniform() || (uniform && !ScalarChannel<T>::same_bits(value, c.value())))
+    throw SimulationError(std::string("a message of particles from another rank stores ") + name +
+                          (uniform ? " as one value for every particle" : " per particle") +
+                          ", where this rank stores " +
+                          (c.uniform() ? "one value for every particle" : "it per particle") +
+                          (uniform && c.uniform() ? " of another value" : ""));
+}
+
+/// Appends the particles `which` (every stored channel) to `out`: a count, how mass and rest
+/// volume are stored (once, with the value, or per particle), then channel after channel in
+/// Particles::for_each_channel order. Ranks of one run store the same channels.
 template <class T, int Dim>
 void pack_particles(const Particles<T, Dim>& P, const std::vector<std::uint32_t>& which,
                     std::string& out) {
   const std::uint64_t n = which.size();
   out.append(reinterpret_cast<const char*>(&n), sizeof n);
+  pack_scalar_layout(P.m, out);
+  pack_scalar_layout(P.vol0, out);
   P.for_each_channel([&](const auto& channel) {
     using V = typename std::decay_t<decltype(channel)>::value_type;
     const std::size_t at = out.size();
@@ -65,7 +104,8 @@ void pack_particles(const Particles<T, Dim>& P, const std::vector<std::uint32_t>
   });
 }
 
-/// Appends the particles packed in `in` (by pack_particles with the same channels) to P.
+/// Appends the particles packed in `in` (by pack_particles with the same channels) to P. An
+/// empty P takes the message's way of storing mass and rest volume; otherwise it must match.
 template <class T, int Dim>
 void unpack_particles(std::string_view in, Particles<T, Dim>& P) {
   if (in.empty()) return;
@@ -74,6 +114,8 @@ void unpack_particles(std::string_view in, Particles<T, Dim>& P) {
     throw SimulationError("a message of particles from another rank is truncated");
   std::memcpy(&n, in.data(), sizeof n);
   std::size_t at = sizeof n;
+  unpack_scalar_layout(in, at, P.m, P.size(), "mass");
+  unpack_scalar_layout(in, at, P.vol0, P.size(), "rest volume");
   P.for_each_channel([&](auto& channel) {
     using V = typename std::decay_t<decltype(channel)>::value_type;
     if (in.size() - at < n * sizeof(V))

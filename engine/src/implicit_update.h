@@ -275,15 +275,19 @@ class ImplicitUpdate {
       case 2: cache_stencils<2>(P); break;
       default: cache_stencils<3>(P); break;
     }
+    const T* vol0 = P.vol0.read_base();  // stored once or per particle (particles.h)
+    const std::size_t vol0_mask = P.vol0.read_mask();
     for (const auto& r : ranges) {
       const auto& mat = materials[std::size_t(r.material)];
       mat.visit_elastic([&](const auto& model) {
         parallel::parallel_for(r.begin, r.end, [&](std::int64_t p) {
           if (mat.plastic_kind == PlasticModel::Snow)
-            K_[std::size_t(p)] = stiffness(model.scaled(mat.hardening_factor(P.plastic[std::size_t(p)])),
-                                           P.F[std::size_t(p)], P.vol0[std::size_t(p)]);
+            K_[std::size_t(p)] =
+                stiffness(model.scaled(mat.hardening_factor(P.plastic[std::size_t(p)])),
+                          P.F[std::size_t(p)], vol0[std::size_t(p) & vol0_mask]);
           else
-            K_[std::size_t(p)] = stiffness(model, P.F[std::size_t(p)], P.vol0[std::size_t(p)]);
+            K_[std::size_t(p)] =
+                stiffness(model, P.F[std::size_t(p)], vol0[std::size_t(p) & vol0_mask]);
         });
       });
     }

@@ -33,6 +33,36 @@ constexpr int kPad = 3;
 /// not specified bit-for-bit across standard libraries; frames must be reproducible).
 inline double uniform01(std::mt19937_64& rng) { return double(rng() >> 11) * 0x1.0p-53; }
 
+/// Writes a mass or rest-volume channel of n particles as the vector of its n values, also
+/// while it is stored once (the checkpoint format has one value per particle).
+template <class T>
+void write_scalar_channel(StateWriter& w, const ScalarChannel<T>& c, std::size_t n) {
+  if (c.uniform())
+    w.repeated(c.value(), n);
+  else
+    w.vec(c.values());
+}
+
+/// Reads what write_scalar_channel wrote into c: stored once if all n values have the same
+/// bits, as seeding would have stored them (Particles::push_back), so that a resumed run
+/// stores its particles as the uninterrupted one does.
+template <class T>
+void read_scalar_channel(StateReader& r, ScalarChannel<T>& c, std::int64_t n, const char* name) {
+  const std::string_view bytes = r.vec_bytes<T>(n, name);
+  bool same = true;
+  for (std::size_t at = sizeof(T); at < bytes.size() && same; at += sizeof(T))
+    same = std::memcmp(bytes.data() + at, bytes.data(), sizeof(T)) == 0;
+  if (same) {
+    T v = T(0);
+    if (!bytes.empty()) std::memcpy(&v, bytes.data(), sizeof(T));
+    c.assign_uniform(v);
+  } else {
+    std::vector<T> v(bytes.size() / sizeof(T));
+    std::memcpy(v.data(), bytes.data(), bytes.size());
+    c.assign(std::move(v));
+  }
+}
+
 /// Whether particle p's volume ratio is the tracked J (a fluid) rather than det F (a solid).
 template <class T, int Dim>
 bool tracks_J(const Particles<T, Dim>& P, const std::vector<Material<T, Dim>>& materials, std::size_t p) {
@@ -421,16 +451,20 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
 
 template <class T, int Dim>
 void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt, Mat* K) const {
-  // One bin is one material: the model is dispatched once per bin, not per particle.
+  // One bin is one material: the model is dispatched once per bin, not per particle. The rest
+  // volume is stored once or per particle (particles.h): the same loop reads both.
   const auto& P = particles_;
   const std::uint32_t* order = bins_.order();
   const auto& mat = materials_[std::size_t(material)];
+  const T* vol0 = P.vol0.read_base();
+  const std::size_t vol0_mask = P.vol0.read_mask();
   if (mat.fluid) {
     // tau = -J p(J) I, so K = -dt V0 tau = dt V0 J p I.
     const auto& fluid = mat.fluid_model();
     for (auto i = begin; i < end; ++i) {
       const auto p = order[i];
-      K[i - begin] = Mat::Identity() * (dt * P.vol0[p] * fluid.kirchhoff_pressure(P.J[p]));
+      K[i - begin] =
+          Mat::Identity() * (dt * vol0[p & vol0_mask] * fluid.kirchhoff_pressure(P.J[p]));
     }
     return;
   }
@@ -439,12 +473,12 @@ void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::
       for (auto i = begin; i < end; ++i) {
         const auto p = order[i];
         const auto scaled = model.scaled(mat.hardening_factor(P.plastic[p]));
-        K[i - begin] = (-dt * P.vol0[p]) * scaled.kirchhoff(P.F[p]);
+        K[i - begin] = (-dt * vol0[p & vol0_mask]) * scaled.kirchhoff(P.F[p]);
       }
     } else {
       for (auto i = begin; i < end; ++i) {
         const auto p = order[i];
-        K[i - begin] = (-dt * P.vol0[p]) * model.kirchhoff(P.F[p]);
+        K[i - begin] = (-dt * vol0[p & vol0_mask]) * model.kirchhoff(P.F[p]);
       }
     }
   });
@@ -632,8 +666,7 @@ Particles<T, Dim> Simulation<T, Dim>::all_particles(bool on_every_rank) const {
   for (std::size_t p = 0; p < mine.size(); ++p) mine[p] = std::uint32_t(p);
   std::string packed;
   detail::pack_particles(particles_, mine, packed);
-  Particles<T, Dim> all;
-  all.channels = particles_.channels;
+  Particles<T, Dim> all = particles_.empty_like();
   const auto parts = on_every_rank ? split_->comm->all_gather(packed) : split_->comm->gather(packed);
   for (const auto& part : parts) detail::unpack_particles(part, all);
   return all;
@@ -750,7 +783,8 @@ void Simulation<T, Dim>::scatter_bin(Patch& patch, const typename transfer::Part
   for (std::uint32_t lo = bin.begin; lo < bin.end; lo += kStressChunk) {
     const std::uint32_t hi = std::min(bin.end, lo + kStressChunk);
     compute_stress(int(bin.material), lo, hi, dt, K);
-    transfer::scatter_particles<Order, S>(patch, P.x.data(), P.v.data(), P.m.data(), C, K, bins_.order(), lo, hi);
+    transfer::scatter_particles<Order, S>(patch, P.x.data(), P.v.data(), P.m.read_base(), C, K,
+                                          bins_.order(), lo, hi, std::int64_t(P.m.read_mask()));
   }
 }
 
@@ -1062,19 +1096,24 @@ std::string Simulation<T, Dim>::diagnosis(T dt) const {
 
 template <class T, int Dim>
 T Simulation<T, Dim>::kinetic_energy() const {
+  const T* m = particles_.m.read_base();
+  const std::size_t mask = particles_.m.read_mask();
   T e = 0;
-  for (std::size_t p = 0; p < particles_.size(); ++p) e += T(0.5) * particles_.m[p] * particles_.v[p].squaredNorm();
+  for (std::size_t p = 0; p < particles_.size(); ++p)
+    e += T(0.5) * m[p & mask] * particles_.v[p].squaredNorm();
   return e;
 }
 
 template <class T, int Dim>
 T Simulation<T, Dim>::elastic_energy() const {
   const auto& P = particles_;
+  const T* vol0 = P.vol0.read_base();
+  const std::size_t mask = P.vol0.read_mask();
   T e = 0;
   for (std::size_t p = 0; p < P.size(); ++p) {
     const auto& mat = materials_[P.material.empty() ? 0 : P.material[p]];
     if (mat.fluid) continue;
-    mat.visit_elastic([&](const auto& model) { e += P.vol0[p] * model.energy(P.F[p]); });
+    mat.visit_elastic([&](const auto& model) { e += vol0[p & mask] * model.energy(P.F[p]); });
   }
   return e;
 }
@@ -1085,12 +1124,14 @@ RunStats Simulation<T, Dim>::take_stats() {
   RunStats s;
   s.time = time_;
   s.particles = P.size();
-  add_particle_sums(s, P.x, P.v, P.m.data(), 0.0, scene_.solver.gravity);
+  add_particle_sums(s, P.x, P.v, P.m.per_particle(), double(P.m.value()), scene_.solver.gravity);
   s.elastic = double(elastic_energy());
+  const T* vol0 = P.vol0.read_base();
+  const std::size_t mask = P.vol0.read_mask();
   for (std::size_t p = 0; p < P.size(); ++p) {
     const bool fluid = detail::tracks_J(P, materials_, p);
     const double J = fluid ? double(P.J[p]) : double(P.F[p].determinant());
-    s.volume += double(P.vol0[p]) * J;
+    s.volume += double(vol0[p & mask]) * J;
     if (fluid) s.max_fluid_J_error = std::max(s.max_fluid_J_error, std::abs(J - 1));
   }
   s.projected = projected_;
@@ -1129,8 +1170,10 @@ void Simulation<T, Dim>::save_state(const StateSink& out) const {
   w.pod(P.channels);
   w.vec(P.x);
   w.vec(P.v);
-  w.vec(P.m);
-  w.vec(P.vol0);
+  // Mass and rest volume are written per particle, also while stored once (the file format
+  // predates that); load_state stores them once again when they are all equal.
+  detail::write_scalar_channel(w, P.m, P.size());
+  detail::write_scalar_channel(w, P.vol0, P.size());
   w.vec(P.F);
   w.vec(P.J);
   w.vec(P.C);
@@ -1182,8 +1225,8 @@ void Simulation<T, Dim>::load_state(std::string_view in, const std::string& what
   r.vec(P.x, -1, "x");
   const auto n = std::int64_t(P.x.size());
   r.vec(P.v, n, "v");
-  r.vec(P.m, n, "m");
-  r.vec(P.vol0, n, "vol0");
+  detail::read_scalar_channel(r, P.m, n, "m");
+  detail::read_scalar_channel(r, P.vol0, n, "vol0");
   r.vec(P.F, c.F ? n : 0, "F");
   r.vec(P.J, c.J ? n : 0, "J");
   r.vec(P.C, c.C ? n : 0, "C");

@@ -43,6 +43,21 @@ class StateWriter {
     pod(std::uint64_t(v.size()));
     if (!v.empty()) out_(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(V));
   }
+  /// n copies of v, as vec() writes a vector of them, without building that vector (a few
+  /// kB at a time).
+  template <class V>
+  void repeated(const V& v, std::uint64_t n) {
+    static_assert(kPlainBytes<V>);
+    pod(n);
+    constexpr std::size_t kChunk = 1024;
+    V chunk[kChunk];
+    for (auto& c : chunk) c = v;
+    for (std::uint64_t done = 0; done < n;) {
+      const std::size_t k = std::size_t(std::min<std::uint64_t>(kChunk, n - done));
+      out_(reinterpret_cast<const char*>(chunk), k * sizeof(V));
+      done += k;
+    }
+  }
   void text(const std::string& s) {
     pod(std::uint64_t(s.size()));
     out_(s.data(), s.size());
@@ -89,6 +104,20 @@ class StateReader {
     if (n > 0)
       std::memcpy(static_cast<void*>(v.data()), in_.data() + at_, std::size_t(n) * sizeof(V));
     at_ += std::size_t(n) * sizeof(V);
+  }
+  /// The bytes of the entries of a vector of V that vec() would read, with the same checks, for
+  /// a reader that stores them otherwise (unaligned: copy them out with memcpy).
+  template <class V>
+  std::string_view vec_bytes(std::int64_t expected, const char* name) {
+    static_assert(kPlainBytes<V>);
+    const auto n = get<std::uint64_t>();
+    if (expected >= 0 && n != std::uint64_t(expected))
+      fail(std::string(name) + " has " + std::to_string(n) + " entries, expected " +
+           std::to_string(expected));
+    if (n > (in_.size() - at_) / std::max<std::size_t>(1, sizeof(V))) need(std::size_t(-1), name);
+    const std::string_view bytes = in_.substr(at_, std::size_t(n) * sizeof(V));
+    at_ += bytes.size();
+    return bytes;
   }
   std::string text() {
     const auto n = get<std::uint64_t>();

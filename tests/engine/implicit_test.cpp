@@ -97,8 +97,9 @@ Cloud<Dim> make_cloud(slurry::TransferKind transfer, slurry::KernelKind kernel, 
   // P2G of the masses only: the unknowns are the nodes with mass.
   auto p2g = [&](auto order) {
     constexpr int O = decltype(order)::value;
-    slurry::transfer::particles_to_grid<O, slurry::transfer::Scheme::PIC>(s.grid, s.P.x.data(), s.P.v.data(),
-                                                                         s.P.m.data(), nullptr, nullptr, 0, n);
+    slurry::transfer::particles_to_grid<O, slurry::transfer::Scheme::PIC>(
+        s.grid, s.P.x.data(), s.P.v.data(), s.P.m.read_base(), nullptr, nullptr, 0, n,
+        std::int64_t(s.P.m.read_mask()));
   };
   if (kernel == slurry::KernelKind::Linear) p2g(std::integral_constant<int, 1>{});
   if (kernel == slurry::KernelKind::Quadratic) p2g(std::integral_constant<int, 2>{});
@@ -172,11 +173,13 @@ Eigen::VectorXd explicit_force(const Cloud<Dim>& s, const slurry::ImplicitUpdate
   std::vector<Mat> Czero(std::size_t(n), Mat::Zero());
   if (mls) {
     if constexpr (Order > 1)
-      slurry::transfer::particles_to_grid<Order, Scheme::MLS>(f, s.P.x.data(), zero.data(), s.P.m.data(), Czero.data(),
-                                                               K.data(), 0, n);
+      slurry::transfer::particles_to_grid<Order, Scheme::MLS>(
+          f, s.P.x.data(), zero.data(), s.P.m.read_base(), Czero.data(), K.data(), 0, n,
+          std::int64_t(s.P.m.read_mask()));
   } else {
-    slurry::transfer::particles_to_grid<Order, Scheme::APIC>(f, s.P.x.data(), zero.data(), s.P.m.data(), Czero.data(),
-                                                              K.data(), 0, n);
+    slurry::transfer::particles_to_grid<Order, Scheme::APIC>(
+        f, s.P.x.data(), zero.data(), s.P.m.read_base(), Czero.data(), K.data(), 0, n,
+        std::int64_t(s.P.m.read_mask()));
   }
   Eigen::VectorXd out(Dim * op.unknowns());
   for (std::int64_t i = 0; i < op.unknowns(); ++i) out.segment<Dim>(Dim * i) = f.node(op.node(i)).template head<Dim>();

@@ -18,8 +18,11 @@
 /// f_i = -sum_p V_p tau_p grad w_ip (Stomakhin et al. 2013, eq. 6; tau = P F^T the Kirchhoff
 /// stress), as dt f_i added to the grid momentum.
 ///
-/// Inputs are raw channel pointers (structure of arrays). `K[i - begin]` is the stress impulse
-/// -dt V_p^0 tau_p of the particle at position i, computed by the caller; null means no stress.
+/// Inputs are raw channel pointers (structure of arrays). The mass of particle p is
+/// m[p & mass_mask]: mass_mask -1 (the default) reads one mass per particle, 0 reads m[0] for
+/// every particle (a scene whose particles all have one mass stores it once; the same code
+/// reads both, without a branch). `K[i - begin]` is the stress impulse -dt V_p^0 tau_p of the
+/// particle at position i, computed by the caller; null means no stress.
 #include <Eigen/Core>
 #include <cmath>
 #include <cstdint>
@@ -56,7 +59,8 @@ template <int Order, Scheme S, class Grid, class T, int Dim>
 void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
                        const Eigen::Matrix<T, Dim, 1>* v, const T* m,
                        const detail::MatPtr<T, Dim>* C, const detail::MatPtr<T, Dim>* K,
-                       const std::uint32_t* ids, std::int64_t begin, std::int64_t end) {
+                       const std::uint32_t* ids, std::int64_t begin, std::int64_t end,
+                       std::int64_t mass_mask = -1) {
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using Mat = Eigen::Matrix<T, Dim, Dim>;
   using IVec = Eigen::Matrix<int, Dim, 1>;
@@ -79,7 +83,7 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
     const IVec base = Eigen::Map<const IVec>(s.base.data());
     lo = lo.cwiseMin(base);
     hi = hi.cwiseMax(base);
-    const T mp = m[p];
+    const T mp = m[p & mass_mask];
     Mat A = Mat::Zero();  // affine momentum, applied to (x_i - x_p)
     Mat G = Mat::Zero();  // stress impulse (and linear-kernel B_p), applied to grad w
     if constexpr (carries_affine(S)) {
@@ -152,8 +156,8 @@ template <int Order, Scheme S, class Grid, class T, int Dim>
 void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
                        const Eigen::Matrix<T, Dim, 1>* v, const T* m,
                        const detail::MatPtr<T, Dim>* C, const detail::MatPtr<T, Dim>* K,
-                       std::int64_t begin, std::int64_t end) {
-  scatter_particles<Order, S>(grid, x, v, m, C, K, nullptr, begin, end);
+                       std::int64_t begin, std::int64_t end, std::int64_t mass_mask = -1) {
+  scatter_particles<Order, S>(grid, x, v, m, C, K, nullptr, begin, end, mass_mask);
 }
 
 /// Gathers velocity (and C for APIC/MLS) back to particles ids[begin, end) (or [begin, end)
