@@ -15,9 +15,10 @@
 /// thread count. Faces of open weight 0 (MacGrid::open_weight: walls, solids) keep u = u_solid
 /// and are neither sources nor targets. Filled faces are marked valid.
 ///
-/// Cost: one pass over every face (closed/valid stamps and layer 1), then each later layer
-/// visits only the faces filled by the layer before it (a narrow band around the liquid, not the
-/// whole grid). A face of layer L is found from its neighbour of layer L - 1 with the smallest
+/// Cost: one pass over every face for the closed/valid stamps, and one for layer 1 that compares
+/// stamp bytes row by row and evaluates only the unknown faces next to a valid one; each later
+/// layer visits only the faces filled by the layer before it (a narrow band around the liquid,
+/// not the whole grid). A face of layer L is found from its neighbour of layer L - 1 with the smallest
 /// index, so the band lists are built in parallel without atomics; the values depend only on
 /// faces of earlier layers, so the result is bitwise independent of the thread count.
 #include <algorithm>
@@ -40,8 +41,8 @@ class Extrapolator {
 
   /// Bytes held by the scratch (capacity).
   std::size_t bytes() const {
-    std::size_t b = stamp_.capacity() + (band_.capacity() + next_.capacity()) * sizeof(std::int64_t);
-    for (const auto& l : lists_) b += l.capacity() * sizeof(std::int64_t);
+    std::size_t b = stamp_.capacity() + band_.capacity() * sizeof(IVec);
+    for (const auto& l : lists_) b += l.capacity() * sizeof(IVec);
     return b;
   }
 
@@ -58,21 +59,21 @@ class Extrapolator {
   static constexpr int L = Dim - 1;       // rows run along the last axis
   static constexpr std::int64_t kRowsPerTask = 32;
   static constexpr std::int64_t kFacesPerTask = 2048;
+  static constexpr int kBlock = 64;  // faces per block of layer 1's scan of a row
   std::vector<std::int8_t> stamp_;       // -2 closed, -1 unknown, 0 valid on entry, L filled by layer L
-  std::vector<std::vector<std::int64_t>> lists_;  // faces found per task
-  std::vector<std::int64_t> band_, next_;          // faces of the last layer
+  // Faces are listed by their coordinates: the next layer needs them, and dividing a face
+  // index back into coordinates cost more than the rest of a band face's work.
+  std::vector<std::vector<IVec>> lists_;  // faces found per task
+  std::vector<IVec> band_;                // faces of the last layer
 
   // Per-axis geometry of the face grid being filled.
   IVec fr_;
   std::array<std::int64_t, Dim> stride_{};
 
-  IVec coord(std::int64_t f) const {
-    IVec i;
-    for (int a = Dim - 1; a >= 0; --a) {
-      i[a] = int(f % fr_[a]);
-      f /= fr_[a];
-    }
-    return i;
+  std::int64_t index(const IVec& i) const {
+    std::int64_t f = 0;
+    for (int a = 0; a < Dim; ++a) f += std::int64_t(i[a]) * stride_[a];
+    return f;
   }
 
   bool known(std::int64_t f, int layer) const {
@@ -180,17 +181,41 @@ class Extrapolator {
       list.clear();
       IVec i;
       const std::int64_t r1 = std::min(rows, (t + 1) * kRowsPerTask);
+      const std::int8_t* stamp = stamp_.data();
       for (std::int64_t r = t * kRowsPerTask; r < r1; ++r) {
         row_coord(r, i);
         const std::int64_t f0 = r * row_len;
-        for (std::int64_t j = 0; j < row_len; ++j) {
-          const std::int64_t f = f0 + j;
-          if (stamp_[std::size_t(f)] != -1) continue;
-          i[L] = int(j);
-          T v;
-          if (!value(g, d, f, i, 1, rule, v)) continue;
-          u[f] = v;  // safe: this layer reads only faces known before it, and f is not one
-          list.push_back(f);
+        // The rows beside this one (across the other axes), inside the face grid.
+        const std::int8_t* side[2 * L + 1];
+        int n_side = 0;
+        for (int a = 0; a < L; ++a) {
+          if (i[a] > 0) side[n_side++] = stamp + f0 - stride_[a];
+          if (i[a] + 1 < fr_[a]) side[n_side++] = stamp + f0 + stride_[a];
+        }
+        const std::int8_t* s = stamp + f0;
+        // Most faces are far from the liquid: find the unknown faces with a neighbour valid on
+        // entry (stamp 0) with byte compares over blocks of the row, and evaluate only those
+        // (value() would return false for every other face, so the result is the same).
+        for (std::int64_t j0 = 0; j0 < row_len; j0 += kBlock) {
+          const int nj = int(std::min<std::int64_t>(kBlock, row_len - j0));
+          std::uint8_t near[kBlock];
+          for (int k = 0; k < nj; ++k) near[k] = 0;
+          for (int q = 0; q < n_side; ++q)
+            for (int k = 0; k < nj; ++k) near[k] |= std::uint8_t(side[q][j0 + k] == 0);
+          for (int k = 0; k < nj; ++k) {
+            const std::int64_t j = j0 + k;
+            const bool along = (j > 0 && s[j - 1] == 0) || (j + 1 < row_len && s[j + 1] == 0);
+            near[k] = std::uint8_t((near[k] | std::uint8_t(along)) & std::uint8_t(s[j] == -1));
+          }
+          for (int k = 0; k < nj; ++k) {
+            if (!near[k]) continue;
+            const std::int64_t j = j0 + k, f = f0 + j;
+            i[L] = int(j);
+            T v;
+            if (!value(g, d, f, i, 1, rule, v)) continue;
+            u[f] = v;  // safe: this layer reads only faces known before it, and f is not one
+            list.push_back(i);
+          }
         }
       }
       return std::int64_t(list.size());
@@ -207,8 +232,8 @@ class Extrapolator {
         list.clear();
         const std::int64_t b1 = std::min(n, (t + 1) * kFacesPerTask);
         for (std::int64_t b = t * kFacesPerTask; b < b1; ++b) {
-          const std::int64_t src = band_[std::size_t(b)];
-          const IVec si = coord(src);
+          const IVec si = band_[std::size_t(b)];
+          const std::int64_t src = index(si);
           for (int a = 0; a < Dim; ++a)
             for (int dir = -1; dir <= 1; dir += 2) {
               const int ia = si[a] + dir;
@@ -221,7 +246,7 @@ class Extrapolator {
               T v;
               value(g, d, f, fi, layer, rule, v);  // src is known: never false
               u[f] = v;
-              list.push_back(f);
+              list.push_back(fi);
             }
         }
         return std::int64_t(list.size());
@@ -245,11 +270,12 @@ class Extrapolator {
 
   /// Stamps the faces in band_ with `layer` and marks them valid.
   void mark(std::uint8_t* valid, int layer) {
-    const std::int64_t* b = band_.data();
+    const IVec* b = band_.data();
     parallel::parallel_chunks(0, std::int64_t(band_.size()), [&](std::int64_t lo, std::int64_t hi) {
       for (std::int64_t k = lo; k < hi; ++k) {
-        stamp_[std::size_t(b[k])] = std::int8_t(layer);
-        valid[b[k]] = 1;
+        const std::int64_t f = index(b[k]);
+        stamp_[std::size_t(f)] = std::int8_t(layer);
+        valid[f] = 1;
       }
     });
   }
