@@ -60,6 +60,19 @@ void label_cells(MacGrid<T, Dim>& g, const FlipParticles<T, Dim>& P, const CellS
           nb[n_nb++] = a * cstride[0] + b * cstride[1];
     }
     const std::int64_t k0 = row * row_len;
+    // No particle in this row or the rows beside it: every cell is air (or solid) at the far
+    // distance, without the per-cell search (most of the domain, most of the time).
+    bool near_particles = false;
+    for (int q = 0; q < n_nb; ++q) near_particles = near_particles || start[nb[q] + row_len] > start[nb[q]];
+    if (!near_particles) {
+      for (int j = 0; j < row_len; ++j) {
+        i[L] = j;
+        g.label[k0 + j] = !solids.empty() && solids.distance(g.cell_center(i), t) < T(0) ? MacGrid<T, Dim>::Solid
+                                                                                           : MacGrid<T, Dim>::Air;
+        g.phi[k0 + j] = far;
+      }
+      return;
+    }
     for (int j = 0; j < row_len; ++j) {
       const std::int64_t k = k0 + j;
       if (start[k + 1] > start[k]) {

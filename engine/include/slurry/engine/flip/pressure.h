@@ -289,9 +289,36 @@ class PressureSolver {
     const double coef = double(dt) / (opt.density * double(g.dx));
     for (int d = 0; d < Dim; ++d) {
       const std::int64_t down = g.cell_stride(d);
-      for_each_face_row(g, d, [&](std::int64_t f0, std::int64_t c0, const IVec&) {
+      for_each_face_row(g, d, [&](std::int64_t f0, std::int64_t c0, const IVec& fi) {
         const int n = g.res[Dim - 1] + (d == Dim - 1 ? 1 : 0);
-        for (int j = 0; j < n; ++j) {
+        // Only faces next to a row's span of unknowns can be updated: [j_lo, j_hi). Outside it
+        // every face is closed (u = u_solid) or not next to an unknown (invalid), in a loop
+        // without branches.
+        int j_lo = n, j_hi = 0;
+        const auto add_span = [&](std::int64_t row, int extra) {
+          const int lo = span_lo_[std::size_t(row)], hi = span_hi_[std::size_t(row)];
+          if (lo < hi) j_lo = std::min(j_lo, lo), j_hi = std::max(j_hi, hi + extra);
+        };
+        if (d == Dim - 1) {
+          add_span(c0 / nz_, 1);  // the faces of cells lo .. hi - 1 are lo .. hi
+        } else if (fi[d] > 0 && fi[d] < g.res[d]) {
+          add_span(c0 / nz_, 0);
+          add_span((c0 - down) / nz_, 0);
+        }
+        if (j_lo >= j_hi) j_lo = j_hi = n;
+        const auto rest = [&](int j0, int j1) {
+          T* u = g.u[d].data() + f0;
+          const T* us = g.u_solid[d].data() + f0;
+          const T* w = open_[d].data() + f0;
+          std::uint8_t* valid = g.valid[d].data() + f0;
+          for (int j = j0; j < j1; ++j) {
+            u[j] = w[j] <= T(0) ? us[j] : u[j];
+            valid[j] = 0;
+          }
+        };
+        rest(0, j_lo);
+        rest(j_hi, n);
+        for (int j = j_lo; j < j_hi; ++j) {
           const std::size_t fs = std::size_t(f0 + j);
           const T w = open_[d][fs];
           if (w <= T(0)) {
