@@ -41,8 +41,9 @@ class Extrapolator {
 
   /// Bytes held by the scratch (capacity).
   std::size_t bytes() const {
-    std::size_t b = stamp_.capacity() + band_.capacity() * sizeof(IVec);
-    for (const auto& l : lists_) b += l.capacity() * sizeof(IVec);
+    std::size_t b = stamp_.capacity();
+    for (const auto& set : lists_)
+      for (const auto& l : set) b += l.capacity() * sizeof(IVec);
     return b;
   }
 
@@ -58,13 +59,14 @@ class Extrapolator {
  private:
   static constexpr int L = Dim - 1;       // rows run along the last axis
   static constexpr std::int64_t kRowsPerTask = 32;
-  static constexpr std::int64_t kFacesPerTask = 2048;
   static constexpr int kBlock = 64;  // faces per block of layer 1's scan of a row
   std::vector<std::int8_t> stamp_;       // -2 closed, -1 unknown, 0 valid on entry, L filled by layer L
   // Faces are listed by their coordinates: the next layer needs them, and dividing a face
-  // index back into coordinates cost more than the rest of a band face's work.
-  std::vector<std::vector<IVec>> lists_;  // faces found per task
-  std::vector<IVec> band_;                // faces of the last layer
+  // index back into coordinates cost more than the rest of a band face's work. A layer's faces
+  // stay in the lists of the tasks that found them (one list per task of layer 1's rows), and
+  // task t of the next layer reads list t of one set and writes list t of the other: no
+  // serial concatenation between layers.
+  std::array<std::vector<std::vector<IVec>>, 2> lists_;
 
   // Per-axis geometry of the face grid being filled.
   IVec fr_;
@@ -110,14 +112,9 @@ class Extrapolator {
     return true;
   }
 
-  /// Concatenates the first `tasks` task lists into band_ (in task order).
-  void gather_lists(std::int64_t tasks) {
-    band_.clear();
-    for (std::int64_t t = 0; t < tasks; ++t) band_.insert(band_.end(), lists_[t].begin(), lists_[t].end());
-  }
-
   void ensure_lists(std::int64_t tasks) {
-    if (std::int64_t(lists_.size()) < tasks) lists_.resize(std::size_t(tasks));
+    for (auto& set : lists_)
+      if (std::int64_t(set.size()) < tasks) set.resize(std::size_t(tasks));
   }
 
   std::int64_t run_axis(MacGrid<T, Dim>& g, int d, int layers, Extrapolation rule) {
@@ -177,7 +174,10 @@ class Extrapolator {
     const std::int64_t row_tasks = (rows + kRowsPerTask - 1) / kRowsPerTask;
     ensure_lists(row_tasks);
     std::int64_t filled = parallel::parallel_sum<std::int64_t>(0, row_tasks, 1, [&](std::int64_t t, std::int64_t) {
-      auto& list = lists_[std::size_t(t)];
+      // Appended to through a local vector: the vectors' headers of neighbouring tasks share
+      // cache lines, and a push_back writes its vector's header.
+      std::vector<IVec> list;
+      list.swap(lists_[0][std::size_t(t)]);
       list.clear();
       IVec i;
       const std::int64_t r1 = std::min(rows, (t + 1) * kRowsPerTask);
@@ -218,21 +218,22 @@ class Extrapolator {
           }
         }
       }
-      return std::int64_t(list.size());
+      const std::int64_t found = std::int64_t(list.size());
+      list.swap(lists_[0][std::size_t(t)]);
+      return found;
     });
-    gather_lists(row_tasks);
-    mark(valid, 1);
+    mark(lists_[0], row_tasks, valid, 1);
     // Later layers: the unknown neighbours of the last layer's faces.
-    for (int layer = 2; layer <= layers && !band_.empty(); ++layer) {
-      const std::int64_t n = std::int64_t(band_.size());
-      const std::int64_t tasks = (n + kFacesPerTask - 1) / kFacesPerTask;
-      ensure_lists(tasks);
-      filled += parallel::parallel_sum<std::int64_t>(0, tasks, 1, [&](std::int64_t t, std::int64_t) {
-        auto& list = lists_[std::size_t(t)];
+    std::int64_t last = filled;
+    int from = 0;
+    for (int layer = 2; layer <= layers && last > 0; ++layer) {
+      const auto& in = lists_[std::size_t(from)];
+      auto& out = lists_[std::size_t(1 - from)];
+      last = parallel::parallel_sum<std::int64_t>(0, row_tasks, 1, [&](std::int64_t t, std::int64_t) {
+        std::vector<IVec> list;  // local, as in layer 1
+        list.swap(out[std::size_t(t)]);
         list.clear();
-        const std::int64_t b1 = std::min(n, (t + 1) * kFacesPerTask);
-        for (std::int64_t b = t * kFacesPerTask; b < b1; ++b) {
-          const IVec si = band_[std::size_t(b)];
+        for (const IVec& si : in[std::size_t(t)]) {
           const std::int64_t src = index(si);
           for (int a = 0; a < Dim; ++a)
             for (int dir = -1; dir <= 1; dir += 2) {
@@ -249,10 +250,13 @@ class Extrapolator {
               list.push_back(fi);
             }
         }
-        return std::int64_t(list.size());
+        const std::int64_t found = std::int64_t(list.size());
+        list.swap(out[std::size_t(t)]);
+        return found;
       });
-      gather_lists(tasks);
-      mark(valid, layer);
+      filled += last;
+      mark(out, row_tasks, valid, layer);
+      from = 1 - from;
     }
     return filled;
   }
@@ -268,12 +272,11 @@ class Extrapolator {
     return best;
   }
 
-  /// Stamps the faces in band_ with `layer` and marks them valid.
-  void mark(std::uint8_t* valid, int layer) {
-    const IVec* b = band_.data();
-    parallel::parallel_chunks(0, std::int64_t(band_.size()), [&](std::int64_t lo, std::int64_t hi) {
-      for (std::int64_t k = lo; k < hi; ++k) {
-        const std::int64_t f = index(b[k]);
+  /// Stamps the faces of the first `n` lists with `layer` and marks them valid.
+  void mark(const std::vector<std::vector<IVec>>& lists, std::int64_t n, std::uint8_t* valid, int layer) {
+    parallel::parallel_for_grain(0, n, 1, [&](std::int64_t t) {
+      for (const IVec& i : lists[std::size_t(t)]) {
+        const std::int64_t f = index(i);
         stamp_[std::size_t(f)] = std::int8_t(layer);
         valid[f] = 1;
       }

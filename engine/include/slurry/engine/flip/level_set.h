@@ -106,6 +106,12 @@ void label_cells(MacGrid<T, Dim>& g, const FlipParticles<T, Dim>& P, const CellS
       return start[kj + 1] > start[kj] || g.label[kj] == MacGrid<T, Dim>::Solid;
     };
     const std::int64_t k0 = row * row_len;
+    // Without solids, a row of at least two cells and no particle has no hole: every cell has
+    // an empty neighbour along the row.
+    if (solids.empty() && row_len >= 2 && start[k0 + row_len] == start[k0]) {
+      std::fill(holes.begin() + k0, holes.begin() + k0 + row_len, std::uint8_t(0));
+      return;
+    }
     for (int j = 0; j < row_len; ++j) {
       const std::int64_t k = k0 + j;
       holes[k] = 0;

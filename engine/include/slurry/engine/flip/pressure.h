@@ -148,9 +148,22 @@ class PressureSolver {
     const std::int64_t n = num_cells_;
     // Zero every buffer: entries outside the unknowns must read as 0 in dot products and as
     // finite values next to zero coefficients.
-    for (auto* v : {&diag_, &precon_, &x_, &r_, &z_, &p_, &q_}) v->assign(std::size_t(n + 2 * pad_), 0.0);
-    for (int d = 0; d < Dim; ++d) plus_[d].assign(std::size_t(n + 2 * pad_), 0.0);
-    dirichlet_.assign(std::size_t(n), 0);
+    // In parallel, in blocks: ten full-grid vectors of doubles, the largest pass of a step
+    // while the fluid fills a small part of the grid (std::vector::assign ran on one thread).
+    {
+      const std::int64_t len = n + 2 * pad_;
+      std::array<double*, 7 + Dim> zero{};
+      int k = 0;
+      for (auto* v : {&diag_, &precon_, &x_, &r_, &z_, &p_, &q_}) v->resize(std::size_t(len)), zero[std::size_t(k++)] = v->data();
+      for (int d = 0; d < Dim; ++d) plus_[d].resize(std::size_t(len)), zero[std::size_t(k++)] = plus_[d].data();
+      dirichlet_.resize(std::size_t(n));
+      constexpr std::int64_t kBlock = std::int64_t(1) << 14;
+      parallel::parallel_for_grain(0, (len + kBlock - 1) / kBlock, 1, [&](std::int64_t b) {
+        const std::int64_t lo = b * kBlock, hi = std::min(len, lo + kBlock);
+        for (double* v : zero) std::fill(v + lo, v + hi, 0.0);
+        if (lo < n) std::fill(dirichlet_.begin() + lo, dirichlet_.begin() + std::min(hi, n), std::uint8_t(0));
+      });
+    }
     kind_.resize(std::size_t(n));
     phi_.resize(std::size_t(n));
     for (int d = 0; d < Dim; ++d) {  // open weights once: the later passes only read them
