@@ -94,16 +94,9 @@ class StateReader {
   /// A vector; `expected` (if not -1) is the length it must have.
   template <class V>
   void vec(std::vector<V>& v, std::int64_t expected = -1, const char* name = "a channel") {
-    static_assert(kPlainBytes<V>);
-    const auto n = get<std::uint64_t>();
-    if (expected >= 0 && n != std::uint64_t(expected))
-      fail(std::string(name) + " has " + std::to_string(n) + " entries, expected " +
-           std::to_string(expected));
-    if (n > (in_.size() - at_) / std::max<std::size_t>(1, sizeof(V))) need(std::size_t(-1), name);
-    v.resize(std::size_t(n));
-    if (n > 0)
-      std::memcpy(static_cast<void*>(v.data()), in_.data() + at_, std::size_t(n) * sizeof(V));
-    at_ += std::size_t(n) * sizeof(V);
+    const std::string_view bytes = vec_bytes<V>(expected, name);
+    v.resize(bytes.size() / sizeof(V));
+    if (!bytes.empty()) std::memcpy(static_cast<void*>(v.data()), bytes.data(), bytes.size());
   }
   /// The bytes of the entries of a vector of V that vec() would read, with the same checks, for
   /// a reader that stores them otherwise (unaligned: copy them out with memcpy).

@@ -42,7 +42,6 @@ class ScalarChannel {
   T value() const { return value_; }
   /// The values per particle, or null while uniform().
   const T* per_particle() const { return uniform_ ? nullptr : values_.data(); }
-  T* per_particle() { return uniform_ ? nullptr : values_.data(); }
   /// Particle p's value.
   T operator[](std::size_t p) const { return uniform_ ? value_ : values_[p]; }
   /// Particle p's value is read_base()[p & read_mask()]: the one value and mask 0 while
@@ -86,6 +85,15 @@ class ScalarChannel {
       values_ = std::move(v);
       uniform_ = false;
     }
+  }
+  /// No values, stored as this channel is: once with the same value, or per particle.
+  ScalarChannel empty_like() const {
+    ScalarChannel c;
+    if (uniform_)
+      c.assign_uniform(value_);
+    else
+      c.materialize(0);
+    return c;
   }
   /// Bytes held (capacity).
   std::size_t bytes() const { return values_.capacity() * sizeof(T); }
@@ -141,14 +149,8 @@ struct Particles {
   Particles empty_like() const {
     Particles P;
     P.channels = channels;
-    if (m.uniform())
-      P.m.assign_uniform(m.value());
-    else
-      P.m.materialize(0);
-    if (vol0.uniform())
-      P.vol0.assign_uniform(vol0.value());
-    else
-      P.vol0.materialize(0);
+    P.m = m.empty_like();
+    P.vol0 = vol0.empty_like();
     return P;
   }
 
