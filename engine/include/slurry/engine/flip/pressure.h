@@ -146,23 +146,42 @@ class PressureSolver {
     setup_layout(g);
     ghost_fluid_ = ghost_fluid;
     const std::int64_t n = num_cells_;
-    // Zero every buffer: entries outside the unknowns must read as 0 in dot products and as
-    // finite values next to zero coefficients.
-    // In parallel, in blocks: ten full-grid vectors of doubles, the largest pass of a step
-    // while the fluid fills a small part of the grid (std::vector::assign ran on one thread).
+    // Zero the buffers: entries outside the unknowns must read as 0 in dot products and as
+    // finite values next to zero coefficients. Every solve writes these vectors only inside the
+    // rows' spans of unknowns (and assemble() only at Fluid cells, whose nonzero entries are
+    // unknowns), so once they have been zeroed whole, zeroing the last assembly's spans restores
+    // them: on the dam break the spans are about a tenth of the ten full-grid vectors (90 MB)
+    // that were zeroed every substep before. In parallel: std::vector::assign ran on one thread.
     {
       const std::int64_t len = n + 2 * pad_;
-      std::array<double*, 7 + Dim> zero{};
+      std::array<double*, 7> zero{};
       int k = 0;
-      for (auto* v : {&diag_, &precon_, &x_, &r_, &z_, &p_, &q_}) v->resize(std::size_t(len)), zero[std::size_t(k++)] = v->data();
-      for (int d = 0; d < Dim; ++d) plus_[d].resize(std::size_t(len)), zero[std::size_t(k++)] = plus_[d].data();
-      dirichlet_.resize(std::size_t(n));
-      constexpr std::int64_t kBlock = std::int64_t(1) << 14;
-      parallel::parallel_for_grain(0, (len + kBlock - 1) / kBlock, 1, [&](std::int64_t b) {
-        const std::int64_t lo = b * kBlock, hi = std::min(len, lo + kBlock);
+      for (auto* v : {&diag_, &precon_, &x_, &r_, &z_, &p_, &q_}) {
+        if (std::int64_t(v->size()) != len) v->resize(std::size_t(len)), zero_all_ = true;
+        zero[std::size_t(k++)] = v->data();
+      }
+      for (int d = 0; d < Dim; ++d)
+        if (std::int64_t(plus_[d].size()) != len) plus_[d].resize(std::size_t(len)), zero_all_ = true;
+      if (std::int64_t(dirichlet_.size()) != n) dirichlet_.resize(std::size_t(n)), zero_all_ = true;
+      if (std::int64_t(span_lo_.size()) != num_rows_) zero_all_ = true;
+      const auto clear = [&](std::int64_t lo, std::int64_t hi) {  // [lo, hi) of the padded vectors
         for (double* v : zero) std::fill(v + lo, v + hi, 0.0);
-        if (lo < n) std::fill(dirichlet_.begin() + lo, dirichlet_.begin() + std::min(hi, n), std::uint8_t(0));
-      });
+        for (int d = 0; d < Dim; ++d) std::fill(plus_[d].data() + lo, plus_[d].data() + hi, T(0));
+        const std::int64_t dlo = std::clamp(lo - pad_, std::int64_t(0), n), dhi = std::clamp(hi - pad_, std::int64_t(0), n);
+        std::fill(dirichlet_.data() + dlo, dirichlet_.data() + dhi, std::uint8_t(0));
+      };
+      if (zero_all_) {
+        constexpr std::int64_t kBlock = std::int64_t(1) << 14;
+        parallel::parallel_for_grain(0, (len + kBlock - 1) / kBlock, 1, [&](std::int64_t b) {
+          clear(b * kBlock, std::min(len, (b + 1) * kBlock));
+        });
+        zero_all_ = false;
+      } else {
+        parallel::parallel_for(0, num_rows_, [&](std::int64_t row) {
+          const std::int64_t c0 = pad_ + row * nz_;
+          clear(c0 + span_lo_[std::size_t(row)], c0 + span_hi_[std::size_t(row)]);
+        });
+      }
     }
     kind_.resize(std::size_t(n));
     phi_.resize(std::size_t(n));
@@ -248,6 +267,7 @@ class PressureSolver {
 
   /// y = A x over the unknowns (full-grid vectors; zero elsewhere).
   void apply(const std::vector<double>& x, std::vector<double>& y) {
+    zero_all_ = true;  // p_ now holds values outside the spans
     std::copy(x.begin(), x.end(), p_.begin() + pad_);
     matvec(p_.data() + pad_, q_.data() + pad_);
     y.assign(q_.begin() + pad_, q_.begin() + pad_ + num_cells_);
@@ -461,8 +481,8 @@ class PressureSolver {
     });
   }
 
-  double* plus(int d) { return plus_[d].data() + pad_; }
-  const double* plus(int d) const { return plus_[d].data() + pad_; }
+  T* plus(int d) { return plus_[d].data() + pad_; }
+  const T* plus(int d) const { return plus_[d].data() + pad_; }
 
   void setup_layout(const Grid& g) {
     res_ = g.res;
@@ -674,7 +694,7 @@ class PressureSolver {
 
   /// Multigrid hierarchy from the assembled system (level 0 in float).
   void build_multigrid() {
-    std::array<const double*, Dim> plus_ptr{};
+    std::array<const T*, Dim> plus_ptr{};
     std::array<const T*, Dim> open_ptr{};
     for (int d = 0; d < Dim; ++d) plus_ptr[d] = plus(d), open_ptr[d] = open_[d].data();
     multigrid_.build(res_, diag_.data() + pad_, plus_ptr, kind_.data(), open_ptr, ghost_fluid_ ? phi_.data() : nullptr);
@@ -698,11 +718,13 @@ class PressureSolver {
         return s;
       });
     }
+    // pc > 0 exactly at the unknowns (build_mic0; zero elsewhere): the sweeps test it, which
+    // they read anyway, instead of the diagonal.
     const double* pc = precon_.data() + pad_;
     sweep(true, [&](std::int64_t row, bool cut_lo, bool) {  // L q = r, q stored in z
       for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
         const std::int64_t c = row * nz_ + k;
-        if (!(diag[c] > 0)) {
+        if (!(pc[c] > 0)) {
           z[c] = 0;
           continue;
         }
@@ -719,7 +741,7 @@ class PressureSolver {
       double s = 0;
       for (int k = span_hi_[std::size_t(row)] - 1; k >= span_lo_[std::size_t(row)]; --k) {
         const std::int64_t c = row * nz_ + k;
-        if (!(diag[c] > 0)) continue;
+        if (!(pc[c] > 0)) continue;
         double t = z[c];
         for (int d = cut_hi ? 1 : 0; d < Dim; ++d) t -= plus(d)[c] * pc[c] * z[c + stride_[d]];
         z[c] = t * pc[c];
@@ -837,7 +859,11 @@ class PressureSolver {
   // arrays; the pads hold zeros, and so do coefficients across the domain boundary.
   std::vector<double> diag_, precon_, x_, r_, z_, p_, q_;
   std::vector<double> rhs_;  ///< right-hand side of solve_in_place()
-  std::array<std::vector<double>, Dim> plus_;  ///< A(c, c + e_d) = -w, stored at c
+  /// A(c, c + e_d) = -w, stored at c in T: w is an open weight of type T, so -w is exact in T,
+  /// and the products with the double vectors are those of the double value (half the bytes
+  /// that the matrix-vector product and the MIC(0) sweeps read).
+  std::array<std::vector<T>, Dim> plus_;
+  bool zero_all_ = true;  ///< assemble() zeroes the whole vectors (first use, new size, apply())
   std::vector<std::uint8_t> dirichlet_;
   using Multigrid = MultigridPreconditioner<Dim, float>;
   std::vector<std::uint8_t> kind_;  ///< Multigrid::Kind per cell: unknown (kFluid), air or solid

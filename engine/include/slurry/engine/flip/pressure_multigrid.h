@@ -74,8 +74,8 @@ class MultigridPreconditioner {
   /// them (zero outside the unknowns), kind[c] (kFluid exactly for the unknowns), and the open
   /// weight of every axis-d face in MacGrid face layout (res + e_d faces per axis).
   /// Allocates only when res changes.
-  template <class T>
-  void build(const IVec& res, const double* diag, const std::array<const double*, Dim>& plus,
+  template <class T, class P>
+  void build(const IVec& res, const double* diag, const std::array<const P*, Dim>& plus,
              const std::uint8_t* kind, const std::array<const T*, Dim>& open, const T* phi) {
     if (levels_.empty() || levels_[0].n != res) {
       levels_.clear();
@@ -237,8 +237,8 @@ class MultigridPreconditioner {
     L.kind.assign(n, kSolid);
   }
 
-  template <class T>
-  void fill_level0(const double* diag, const std::array<const double*, Dim>& plus, const std::uint8_t* kind,
+  template <class T, class P>
+  void fill_level0(const double* diag, const std::array<const P*, Dim>& plus, const std::uint8_t* kind,
                    const std::array<const T*, Dim>& open, const T* phi) {
     Level& L = levels_[0];
     clear(L);
