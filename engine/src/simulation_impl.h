@@ -193,6 +193,13 @@ Simulation<T, Dim>::Simulation(const Scene& scene, Communicator* communicator) :
     sleep_->calm.assign(blocks, 0);
     sleep_->seen.assign(blocks, -2);
   }
+  for (const auto& m : materials_) {
+    bool hencky = false;
+    m.visit_elastic([&](const auto& model) {
+      hencky = std::is_same_v<std::decay_t<decltype(model)>, constitutive::HenckyStVK<T, Dim>>;
+    });
+    project_in_p2g_.push_back(hencky && m.plastic_kind == PlasticModel::DruckerPrager && !implicit_);
+  }
   if (communicator && communicator->size() > 1) {
     const int ranks = communicator->size();
     if (implicit_ || sleep_)
@@ -450,14 +457,28 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
 }
 
 template <class T, int Dim>
-void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt, Mat* K) const {
+void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt, Mat* K,
+                                        std::int64_t* yielded) {
   // One bin is one material: the model is dispatched once per bin, not per particle. The rest
   // volume is stored once or per particle (particles.h): the same loop reads both.
-  const auto& P = particles_;
+  auto& P = particles_;
   const std::uint32_t* order = bins_.order();
   const auto& mat = materials_[std::size_t(material)];
   const T* vol0 = P.vol0.read_base();
   const std::size_t vol0_mask = P.vol0.read_mask();
+  if (yielded && project_in_p2g_[std::size_t(material)]) {
+    // Sand: the return mapping of this substep, then the stress from its SVD (plasticity.h).
+    const auto& dp = mat.drucker_prager;
+    std::int64_t n = 0;
+    Mat tau;
+    for (auto i = begin; i < end; ++i) {
+      const auto p = order[i];
+      n += dp.project_with_stress(P.F[p], P.plastic[p], mat.mu, mat.lambda, tau);
+      K[i - begin] = (-dt * vol0[p & vol0_mask]) * tau;
+    }
+    *yielded += n;
+    return;
+  }
   if (mat.fluid) {
     // tau = -J p(J) I, so K = -dt V0 tau = dt V0 J p I.
     const auto& fluid = mat.fluid_model();
@@ -712,11 +733,15 @@ template <class T, int Dim>
 template <class G>
 void Simulation<T, Dim>::particles_to_grid(G& grid, T dt) {
   grid.activate(bins_.bins());
+  p2g_projected_.assign(bins_.bins().size(), 0);
   switch (scene_.solver.kernel) {
     case KernelKind::Linear: particles_to_grid_order<1>(grid, dt); break;
     case KernelKind::Quadratic: particles_to_grid_order<2>(grid, dt); break;
     case KernelKind::Cubic: particles_to_grid_order<3>(grid, dt); break;
   }
+  // Ghosts (split runs) were projected as well, for their stress; count the rank's own only.
+  for (std::size_t b = 0; b < p2g_projected_.size(); ++b)
+    if (owned_block(bins_.bins()[b].block)) projected_ += p2g_projected_[b];
 }
 
 template <class T, int Dim>
@@ -744,7 +769,9 @@ void Simulation<T, Dim>::particles_to_grid_order(G& grid, T dt) {
             // stress impulse of a unit substep, to keep it.
             auto& blk = *sleep_->group_block[g];
             if (!blk.cached) {
-              for (auto b = first; b < last; ++b) scatter_bin<Order, S>(patch, bins[b], T(1));
+              // Their return mapping was applied when they fell asleep (sleep_update): the
+              // stress alone, so that a resume, which scatters them again, finds the same.
+              for (auto b = first; b < last; ++b) scatter_bin<Order, S>(patch, bins[b], T(1), false);
               blk.nodes.assign(patch.nodes.begin(), patch.nodes.end());
               blk.cached = true;
             }
@@ -755,7 +782,7 @@ void Simulation<T, Dim>::particles_to_grid_order(G& grid, T dt) {
             grid.add_patch(patch);
             return;
           }
-          for (auto b = first; b < last; ++b) scatter_bin<Order, S>(patch, bins[b], dt);
+          for (auto b = first; b < last; ++b) scatter_bin<Order, S>(patch, bins[b], dt, true);
           grid.add_patch(patch);
         });
       }
@@ -771,7 +798,8 @@ void Simulation<T, Dim>::particles_to_grid_order(G& grid, T dt) {
 
 template <class T, int Dim>
 template <int Order, transfer::Scheme S, class Patch>
-void Simulation<T, Dim>::scatter_bin(Patch& patch, const typename transfer::ParticleBins<Dim>::Bin& bin, T dt) const {
+void Simulation<T, Dim>::scatter_bin(Patch& patch, const typename transfer::ParticleBins<Dim>::Bin& bin, T dt,
+                                     bool project) {
   // The stress of a bin's particles is computed just before they are scattered, a batch at a
   // time into a stack buffer that stays in L1: the step makes one parallel pass over the
   // particles before the grid update, and keeps no stress per particle. The scatter adds the
@@ -782,7 +810,8 @@ void Simulation<T, Dim>::scatter_bin(Patch& patch, const typename transfer::Part
   alignas(64) Mat K[kStressChunk];
   for (std::uint32_t lo = bin.begin; lo < bin.end; lo += kStressChunk) {
     const std::uint32_t hi = std::min(bin.end, lo + kStressChunk);
-    compute_stress(int(bin.material), lo, hi, dt, K);
+    compute_stress(int(bin.material), lo, hi, dt, K,
+                   project ? &p2g_projected_[std::size_t(&bin - bins_.bins().data())] : nullptr);
     transfer::scatter_particles<Order, S>(patch, P.x.data(), P.v.data(), P.m.read_base(), C, K,
                                           bins_.order(), lo, hi, std::int64_t(P.m.read_mask()));
   }
@@ -921,7 +950,7 @@ void Simulation<T, Dim>::return_mapping() {
   parallel::parallel_tasks(0, std::int64_t(bins.size()), [&](std::int64_t bi) {
     const auto& bin = bins[std::size_t(bi)];
     const auto& mat = materials_[bin.material];
-    if (mat.plastic_kind == PlasticModel::None || !owned_block(bin.block)) return;
+    if (mat.plastic_kind == PlasticModel::None || project_in_p2g_[bin.material] || !owned_block(bin.block)) return;
     if (sleep_ && sleep_->bin_block[std::size_t(bi)]) {  // unchanged since it fell asleep
       if (snow) hmax[std::size_t(bi)] = sleep_->bin_block[std::size_t(bi)]->hardening;
       return;
@@ -1037,12 +1066,15 @@ void Simulation<T, Dim>::sleep_update() {
     S.seen[ks] = steps_;
     S.calm[ks] = std::uint16_t(S.group_calm[g] ? std::min(before + 1, 65535) : 0);
     if (S.calm[ks] < S.substeps) continue;
-    // Fall asleep: the particles stop where they are.
+    // Fall asleep: the particles stop where they are. A material whose return mapping runs in
+    // P2G gets it now: the block's cached contribution is built from the projected F.
     typename SleepState::Block blk;
     for (auto b = first; b < last; ++b) {
       const auto& mat = materials_[bins[b].material];
+      const bool project = project_in_p2g_[bins[b].material];
       for (auto i = bins[b].begin; i < bins[b].end; ++i) {
         const auto p = order[i];
+        if (project) projected_ += mat.project(P.F[p], P.plastic[p]);
         P.v[p].setZero();
         if (!P.C.empty()) P.C[p].setZero();
         if (mat.plastic_kind == PlasticModel::Snow) blk.hardening = std::max(blk.hardening, mat.hardening_factor(P.plastic[p]));

@@ -295,6 +295,43 @@ TEST(DruckerPrager, FloatFeAtRestStaysAtRest3D) {
   EXPECT_EQ(bad, 0);
 }
 
+// project_with_stress (the MPM step's P2G for sand) must project exactly as project() does, and
+// its stress must be the Hencky Kirchhoff stress of the projected Fe: the same as factoring that
+// Fe again (HenckyStVK::kirchhoff), to round-off. Covers the three branches (inside, onto the
+// cone, to the tip) and a floored singular value.
+TYPED_TEST(PlasticityTest, DruckerPragerStressFromTheProjectionsSvd) {
+  constexpr int D = TypeParam::value;
+  using M = Eigen::Matrix<double, D, D>;
+  const sc::DruckerPrager<double> dp;
+  const sc::HenckyStVK<double, D> model{kMu, kLambda};
+  std::mt19937 rng(28);
+  std::uniform_real_distribution<double> u(-0.3, 0.3);
+  int inside = 0, cone = 0, tip = 0;
+  for (int k = 0; k < 3000; ++k) {
+    Eigen::Matrix<double, D, 1> eps;
+    for (int i = 0; i < D; ++i) eps(i) = u(rng);
+    if (k % 100 == 0) eps(D - 1) = std::log(1e-6);  // below min_singular_value: floored
+    if (k % 7 == 0) eps.array() = eps.sum() / D - 0.01;  // pure compression: inside
+    const M F0 = with_singular_values<D>(eps.array().exp().matrix(), rng);
+    M Fa = F0, Fb = F0, tau;
+    double sa = 0.5, sb = 0.5;
+    const bool ya = dp.project(Fa, sa, kMu, kLambda);
+    const bool yb = dp.project_with_stress(Fb, sb, kMu, kLambda, tau);
+    ASSERT_EQ(ya, yb);
+    ASSERT_EQ(Fa, Fb);  // bitwise: the same projection
+    ASSERT_EQ(sa, sb);
+    const M expected = model.kirchhoff(Fb);
+    EXPECT_LT((tau - expected).norm(), 1e-11 * (1 + expected.norm())) << "eps = " << eps.transpose();
+    EXPECT_LT((tau - tau.transpose()).norm(), 1e-12 * (1 + tau.norm()));
+    if (!ya) ++inside;
+    else if (tau.norm() == 0) ++tip;
+    else ++cone;
+  }
+  EXPECT_GT(inside, 300);
+  EXPECT_GT(cone, 300);
+  EXPECT_GT(tip, 300);
+}
+
 // --- von Mises -------------------------------------------------------------------------------
 
 TYPED_TEST(PlasticityTest, VonMisesReturnsToSurfaceAtConstantVolume) {

@@ -164,29 +164,18 @@ struct DruckerPrager {
   /// given mu > 0 and lambda; state accumulates the plastic strain. Returns whether it yielded.
   template <int Dim>
   bool project(Eigen::Matrix<T, Dim, Dim>& Fe, T& state, T mu, T lambda) const {
-    using Vec = Eigen::Matrix<T, Dim, 1>;
-    Eigen::Matrix<T, Dim, Dim> U, V;
-    Vec sigma;
-    svd(Fe, U, sigma, V);
-    Vec eps = detail::hencky_strain<T, Dim>(sigma, min_singular_value);
-    const T tr = eps.sum();
-    const Vec eps_hat = eps.array() - tr / T(Dim);
-    const T eps_hat_norm = eps_hat.norm();
-    const T delta_gamma = eps_hat_norm + (T(Dim) * lambda + T(2) * mu) / (T(2) * mu) * tr * alpha();
-    if (delta_gamma <= T(0)) {
-      // Inside the cone. If a singular value was floored, store the floored Fe so that it is
-      // the one the elastic stress sees.
-      if (!(sigma(Dim - 1) < min_singular_value)) return false;
-    } else if (tr > T(0) || !(eps_hat_norm > T(0))) {  // the second only with alpha = 0
-      state += eps.norm();
-      Fe = U * V.transpose();
-      return true;
-    } else {
-      eps -= (delta_gamma / eps_hat_norm) * eps_hat;
-      state += delta_gamma;
-    }
-    Fe = U * eps.array().exp().matrix().asDiagonal() * V.transpose();
-    return true;
+    return project_impl<Dim>(Fe, state, mu, lambda, nullptr);
+  }
+
+  /// project(), and the Kirchhoff stress of the projected Fe for HenckyStVK{mu, lambda}:
+  /// tau = U (2 mu eps + lambda tr(eps) I) U^T from the projection's own SVD and strain, so a
+  /// solver that applies the return mapping just before it needs the stress computes one SVD
+  /// per particle instead of two (HenckyStVK::kirchhoff of the projected Fe would factor it
+  /// again). Equal to that up to round-off: the same U and eps, not recomputed from U e^eps V^T.
+  template <int Dim>
+  bool project_with_stress(Eigen::Matrix<T, Dim, Dim>& Fe, T& state, T mu, T lambda,
+                           Eigen::Matrix<T, Dim, Dim>& tau) const {
+    return project_impl<Dim>(Fe, state, mu, lambda, &tau);
   }
 
   /// y(tau) = ||dev tau||_F + alpha tr(tau) for principal Kirchhoff stresses tau; <= 0 inside.
@@ -202,6 +191,41 @@ struct DruckerPrager {
                        std::nextafter(T(90), T(0)), "0 <= value < 90 (degrees)");
     detail::require_at_least("DruckerPrager", "min_singular_value", min_singular_value, T(0),
                              /*strict=*/true);
+  }
+
+ private:
+  template <int Dim>
+  bool project_impl(Eigen::Matrix<T, Dim, Dim>& Fe, T& state, T mu, T lambda, Eigen::Matrix<T, Dim, Dim>* tau) const {
+    using Vec = Eigen::Matrix<T, Dim, 1>;
+    Eigen::Matrix<T, Dim, Dim> U, V;
+    Vec sigma;
+    svd(Fe, U, sigma, V);
+    Vec eps = detail::hencky_strain<T, Dim>(sigma, min_singular_value);
+    // tau = U diag(2 mu eps + lambda tr(eps)) U^T (hencky_stvk.h) for the final eps.
+    const auto stress = [&](const Vec& e) {
+      if (tau) *tau = U * (T(2) * mu * e.array() + lambda * e.sum()).matrix().asDiagonal() * U.transpose();
+    };
+    const T tr = eps.sum();
+    const Vec eps_hat = eps.array() - tr / T(Dim);
+    const T eps_hat_norm = eps_hat.norm();
+    const T delta_gamma = eps_hat_norm + (T(Dim) * lambda + T(2) * mu) / (T(2) * mu) * tr * alpha();
+    if (delta_gamma <= T(0)) {
+      // Inside the cone. If a singular value was floored, store the floored Fe so that it is
+      // the one the elastic stress sees.
+      stress(eps);
+      if (!(sigma(Dim - 1) < min_singular_value)) return false;
+    } else if (tr > T(0) || !(eps_hat_norm > T(0))) {  // the second only with alpha = 0
+      state += eps.norm();
+      Fe = U * V.transpose();
+      if (tau) tau->setZero();  // eps = 0 at the tip
+      return true;
+    } else {
+      eps -= (delta_gamma / eps_hat_norm) * eps_hat;
+      state += delta_gamma;
+      stress(eps);
+    }
+    Fe = U * eps.array().exp().matrix().asDiagonal() * V.transpose();
+    return true;
   }
 };
 

@@ -9,7 +9,9 @@
 ///                   thread count)
 ///   update_grid     v_i = p_i / m_i + dt g; walls and colliders
 ///   grid_to_particles  v_p, C_p, F_p <- (I + dt grad v) F_p (or J_p), x_p += dt v_p
-///   return_mapping  plastic projection of F_p (per plastic material)
+///   return_mapping  plastic projection of F_p (per plastic material; Drucker-Prager sand on
+///                   Hencky elasticity instead at the start of the next particles_to_grid, where
+///                   the projection's SVD also gives the stress: explicit integrator only)
 ///   (solver.sleep) blocks of particles at rest skip the stress, the scatter (their last
 ///                   contribution is reused), the gather and the projection until something moves
 ///   check_health    non-finite state, CFL violation, particle outside the domain -> SimulationError
@@ -208,12 +210,15 @@ class Simulation final : public SimulationBase {
   template <class G>
   void step_on(G& grid, T dt);
   /// K[i - begin] = -dt V_p^0 tau(F_p) for the particles p = order()[i], i in [begin, end), of
-  /// one material.
-  void compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt, Mat* K) const;
+  /// one material. With `yielded` and a material whose return mapping runs here
+  /// (project_in_p2g_) it first projects F_p (and its plastic state) and adds the yielded count
+  /// to *yielded.
+  void compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt, Mat* K, std::int64_t* yielded);
   /// Scatters bin b's particles to `patch`, their stress computed just before in chunks of
-  /// kStressChunk on the stack (no per-particle stress array: 36 bytes per particle in 3D float).
+  /// kStressChunk on the stack (no per-particle stress array: 36 bytes per particle in 3D float);
+  /// `project`: apply the return mappings that run in P2G (not for a sleeping block's cache).
   template <int Order, transfer::Scheme S, class Patch>
-  void scatter_bin(Patch& patch, const typename transfer::ParticleBins<Dim>::Bin& bin, T dt) const;
+  void scatter_bin(Patch& patch, const typename transfer::ParticleBins<Dim>::Bin& bin, T dt, bool project);
   void bin_particles();
   void reorder_particles();
   template <class G>
@@ -252,6 +257,12 @@ class Simulation final : public SimulationBase {
   std::vector<std::uint8_t> fluid_;  // per material: advances J instead of F
   std::vector<T> hardening_scratch_;  // per bin, snow only
   std::vector<std::int64_t> projected_scratch_;  // per bin: return mappings that yielded
+  // Per material: its return mapping runs in P2G, just before its stress, instead of after G2P
+  // (Drucker-Prager on Hencky StVK, explicit integrator): the projection's SVD gives the stress,
+  // one 3x3 SVD per particle and substep instead of two. F_p between substeps is then the trial
+  // F of G2P, projected at the start of the next substep (or when its block falls asleep).
+  std::vector<std::uint8_t> project_in_p2g_;
+  std::vector<std::int64_t> p2g_projected_;  // per bin: yields counted in P2G
   std::int64_t projected_ = 0;  // since the last take_stats()
   T cfl_reached_ = 0;           // largest max_speed dt / dx since the last take_stats()
   transfer::ParticleBins<Dim> bins_;
