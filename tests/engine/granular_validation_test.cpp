@@ -1,5 +1,5 @@
 // Validation of dry granular flow in 3D (ctest label "validation"; not run by CI, run with
-// ctest --preset release -L validation): the axisymmetric collapse of a sand column onto a
+// ctest --test-dir build/release -L validation): the axisymmetric collapse of a sand column onto a
 // rough floor, against the experiments of Lube, Huppert, Sparks and Hallworth 2004,
 // "Axisymmetric collapses of granular columns", J. Fluid Mech. 508:175-199. Their runout law
 // for a column of radius r_i and height h_i (aspect ratio a = h_i / r_i), independent of the
