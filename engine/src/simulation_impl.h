@@ -457,28 +457,34 @@ void Simulation<T, Dim>::step_on(G& grid, T dt) {
 }
 
 template <class T, int Dim>
-void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt, Mat* K,
-                                        std::int64_t* yielded) {
-  // One bin is one material: the model is dispatched once per bin, not per particle. The rest
-  // volume is stored once or per particle (particles.h): the same loop reads both.
+void Simulation<T, Dim>::project_and_stress(int material, std::uint32_t begin, std::uint32_t end, T dt, Mat* K,
+                                            std::int64_t& yielded) {
+  // Sand: the return mapping of this substep, then the stress from its SVD (plasticity.h).
   auto& P = particles_;
   const std::uint32_t* order = bins_.order();
   const auto& mat = materials_[std::size_t(material)];
   const T* vol0 = P.vol0.read_base();
   const std::size_t vol0_mask = P.vol0.read_mask();
-  if (yielded && project_in_p2g_[std::size_t(material)]) {
-    // Sand: the return mapping of this substep, then the stress from its SVD (plasticity.h).
-    const auto& dp = mat.drucker_prager;
-    std::int64_t n = 0;
-    Mat tau;
-    for (auto i = begin; i < end; ++i) {
-      const auto p = order[i];
-      n += dp.project_with_stress(P.F[p], P.plastic[p], mat.mu, mat.lambda, tau);
-      K[i - begin] = (-dt * vol0[p & vol0_mask]) * tau;
-    }
-    *yielded += n;
-    return;
+  const auto& dp = mat.drucker_prager;
+  std::int64_t n = 0;
+  Mat tau;
+  for (auto i = begin; i < end; ++i) {
+    const auto p = order[i];
+    n += dp.project_with_stress(P.F[p], P.plastic[p], mat.mu, mat.lambda, tau);
+    K[i - begin] = (-dt * vol0[p & vol0_mask]) * tau;
   }
+  yielded += n;
+}
+
+template <class T, int Dim>
+void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt, Mat* K) const {
+  // One bin is one material: the model is dispatched once per bin, not per particle. The rest
+  // volume is stored once or per particle (particles.h): the same loop reads both.
+  const auto& P = particles_;
+  const std::uint32_t* order = bins_.order();
+  const auto& mat = materials_[std::size_t(material)];
+  const T* vol0 = P.vol0.read_base();
+  const std::size_t vol0_mask = P.vol0.read_mask();
   if (mat.fluid) {
     // tau = -J p(J) I, so K = -dt V0 tau = dt V0 J p I.
     const auto& fluid = mat.fluid_model();
@@ -810,8 +816,10 @@ void Simulation<T, Dim>::scatter_bin(Patch& patch, const typename transfer::Part
   alignas(64) Mat K[kStressChunk];
   for (std::uint32_t lo = bin.begin; lo < bin.end; lo += kStressChunk) {
     const std::uint32_t hi = std::min(bin.end, lo + kStressChunk);
-    compute_stress(int(bin.material), lo, hi, dt, K,
-                   project ? &p2g_projected_[std::size_t(&bin - bins_.bins().data())] : nullptr);
+    if (project && project_in_p2g_[bin.material])
+      project_and_stress(int(bin.material), lo, hi, dt, K, p2g_projected_[std::size_t(&bin - bins_.bins().data())]);
+    else
+      compute_stress(int(bin.material), lo, hi, dt, K);
     transfer::scatter_particles<Order, S>(patch, P.x.data(), P.v.data(), P.m.read_base(), C, K,
                                           bins_.order(), lo, hi, std::int64_t(P.m.read_mask()));
   }

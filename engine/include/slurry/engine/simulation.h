@@ -210,10 +210,12 @@ class Simulation final : public SimulationBase {
   template <class G>
   void step_on(G& grid, T dt);
   /// K[i - begin] = -dt V_p^0 tau(F_p) for the particles p = order()[i], i in [begin, end), of
-  /// one material. With `yielded` and a material whose return mapping runs here
-  /// (project_in_p2g_) it first projects F_p (and its plastic state) and adds the yielded count
-  /// to *yielded.
-  void compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt, Mat* K, std::int64_t* yielded);
+  /// one material.
+  void compute_stress(int material, std::uint32_t begin, std::uint32_t end, T dt, Mat* K) const;
+  /// compute_stress() for a material whose return mapping runs in P2G (project_in_p2g_): first
+  /// projects F_p (and its plastic state), the stress from the projection's SVD; adds the
+  /// number of particles that yielded to `yielded`.
+  void project_and_stress(int material, std::uint32_t begin, std::uint32_t end, T dt, Mat* K, std::int64_t& yielded);
   /// Scatters bin b's particles to `patch`, their stress computed just before in chunks of
   /// kStressChunk on the stack (no per-particle stress array: 36 bytes per particle in 3D float);
   /// `project`: apply the return mappings that run in P2G (not for a sleeping block's cache).
