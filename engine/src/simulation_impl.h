@@ -193,13 +193,9 @@ Simulation<T, Dim>::Simulation(const Scene& scene, Communicator* communicator) :
     sleep_->calm.assign(blocks, 0);
     sleep_->seen.assign(blocks, -2);
   }
-  for (const auto& m : materials_) {
-    bool hencky = false;
-    m.visit_elastic([&](const auto& model) {
-      hencky = std::is_same_v<std::decay_t<decltype(model)>, constitutive::HenckyStVK<T, Dim>>;
-    });
-    project_in_p2g_.push_back(hencky && m.plastic_kind == PlasticModel::DruckerPrager && !implicit_);
-  }
+  for (const auto& m : materials_)
+    project_in_p2g_.push_back(std::holds_alternative<constitutive::HenckyStVK<T, Dim>>(m.elastic) &&
+                              m.plastic_kind == PlasticModel::DruckerPrager && !implicit_);
   if (communicator && communicator->size() > 1) {
     const int ranks = communicator->size();
     if (implicit_ || sleep_)
@@ -739,15 +735,15 @@ template <class T, int Dim>
 template <class G>
 void Simulation<T, Dim>::particles_to_grid(G& grid, T dt) {
   grid.activate(bins_.bins());
-  p2g_projected_.assign(bins_.bins().size(), 0);
+  projected_scratch_.assign(bins_.bins().size(), 0);  // return_mapping() starts it again
   switch (scene_.solver.kernel) {
     case KernelKind::Linear: particles_to_grid_order<1>(grid, dt); break;
     case KernelKind::Quadratic: particles_to_grid_order<2>(grid, dt); break;
     case KernelKind::Cubic: particles_to_grid_order<3>(grid, dt); break;
   }
   // Ghosts (split runs) were projected as well, for their stress; count the rank's own only.
-  for (std::size_t b = 0; b < p2g_projected_.size(); ++b)
-    if (owned_block(bins_.bins()[b].block)) projected_ += p2g_projected_[b];
+  for (std::size_t b = 0; b < projected_scratch_.size(); ++b)
+    if (owned_block(bins_.bins()[b].block)) projected_ += projected_scratch_[b];
 }
 
 template <class T, int Dim>
@@ -817,7 +813,7 @@ void Simulation<T, Dim>::scatter_bin(Patch& patch, const typename transfer::Part
   for (std::uint32_t lo = bin.begin; lo < bin.end; lo += kStressChunk) {
     const std::uint32_t hi = std::min(bin.end, lo + kStressChunk);
     if (project && project_in_p2g_[bin.material])
-      project_and_stress(int(bin.material), lo, hi, dt, K, p2g_projected_[std::size_t(&bin - bins_.bins().data())]);
+      project_and_stress(int(bin.material), lo, hi, dt, K, projected_scratch_[std::size_t(&bin - bins_.bins().data())]);
     else
       compute_stress(int(bin.material), lo, hi, dt, K);
     transfer::scatter_particles<Order, S>(patch, P.x.data(), P.v.data(), P.m.read_base(), C, K,

@@ -258,13 +258,12 @@ class Simulation final : public SimulationBase {
   std::vector<Vec> x_before_;  // positions before the move, kept for thin colliders only
   std::vector<std::uint8_t> fluid_;  // per material: advances J instead of F
   std::vector<T> hardening_scratch_;  // per bin, snow only
-  std::vector<std::int64_t> projected_scratch_;  // per bin: return mappings that yielded
+  std::vector<std::int64_t> projected_scratch_;  // per bin: return mappings that yielded (P2G's, then return_mapping's)
   // Per material: its return mapping runs in P2G, just before its stress, instead of after G2P
   // (Drucker-Prager on Hencky StVK, explicit integrator): the projection's SVD gives the stress,
   // one 3x3 SVD per particle and substep instead of two. F_p between substeps is then the trial
   // F of G2P, projected at the start of the next substep (or when its block falls asleep).
   std::vector<std::uint8_t> project_in_p2g_;
-  std::vector<std::int64_t> p2g_projected_;  // per bin: yields counted in P2G
   std::int64_t projected_ = 0;  // since the last take_stats()
   T cfl_reached_ = 0;           // largest max_speed dt / dx since the last take_stats()
   transfer::ParticleBins<Dim> bins_;
