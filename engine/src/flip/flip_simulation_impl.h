@@ -105,7 +105,7 @@ std::size_t FlipSimulation<T, Dim>::bytes() const {
                   (sort_.key.capacity() + sort_.order.capacity()) * sizeof(std::uint32_t) +
                   sort_.start.capacity() * sizeof(std::int64_t);
   const std::size_t cells = std::size_t(grid_.num_cells());
-  b += cells * (2 + 2 * sizeof(T)) + target_flux_.capacity() * sizeof(double) + holes_.capacity();
+  b += cells * (2 + 2 * sizeof(T)) + holes_.capacity();
   b += pressure_.bytes() + extrapolator_.bytes();  // the pressure solve's vectors are most of the grid's memory
   for (int d = 0; d < Dim; ++d)
     b += grid_.u[d].capacity() * (4 * sizeof(T) + 1) + weight_sum_[d].capacity() * sizeof(T) +
@@ -248,63 +248,53 @@ void FlipSimulation<T, Dim>::project(T dt) {
   // few particles per face), and correcting that noise stirs a pool at rest (0.28 m/s after 2 s
   // in the hydrostatic test without the band, 0.0175 m/s with 0.1, at rest from 0.2 on).
   constexpr T kSlack = T(0.3);
-  target_flux_.resize(std::size_t(grid_.num_cells()));
   const double flux_per_error = beta * double(grid_.dx) / double(dt);  // dx div u per unit density error
-  // Row by row along the last axis (one coordinate conversion per row); per face, the same
-  // open weight as MacGrid::open_weight, computed once.
-  constexpr int L = Dim - 1;
-  const std::int64_t row_len = grid_.res[L], rows = grid_.num_cells() / row_len;
+  // Evaluated by the projection at its unknowns (Fluid cells) only; per face, the same open
+  // weight as MacGrid::open_weight.
   std::int64_t cstride[Dim], fup[Dim];
   for (int d = 0; d < Dim; ++d) cstride[d] = grid_.cell_stride(d), fup[d] = grid_.face_stride(d, d);
   const std::uint8_t* label = grid_.label.data();
-  parallel::parallel_for(0, rows, [&](std::int64_t row) {
-    IVec i = grid_.cell_coord(row * row_len);
-    for (std::int64_t k = 0; k < row_len; ++k) {
-      const std::int64_t c = row * row_len + k;
-      double target = 0;
-      if (label[c] == Grid::Fluid) {
-        i[L] = int(k);
-        T w = 0;
-        int open = 0;
-        bool interior = true;
-        // Open share of the cell's faces inside the domain (1 away from colliders): a cell that a
-        // collider has nearly closed passes its target flux through slivers of faces, so the
-        // target shrinks with them. Without this a mesh paddle sweeping through bunched liquid
-        // drove the face velocity up as the substep shrank (the target grows as 1/dt), to 1e9 m/s.
-        double openness = 0;
-        int inner = 0;
-        for (int d = 0; d < Dim; ++d) {
-          const std::int64_t lower = grid_.face(d, i);
-          for (int side = 0; side < 2; ++side) {
-            const int nd = i[d] + (side ? 1 : -1);  // neighbour cell's coordinate along d
-            const std::int64_t nb = c + (side ? cstride[d] : -cstride[d]);
-            if (nd >= 0 && nd < grid_.res[d] && label[nb] == Grid::Air) interior = false;
-            const int fd = i[d] + side;  // the face's coordinate along d
-            const std::int64_t f = lower + (side ? fup[d] : 0);
-            T open_w = T(0);  // MacGrid::open_weight
-            if (fd > 0 && fd < grid_.res[d]) {
-              const std::int64_t below = side ? c : nb, above = side ? nb : c;
-              if (label[below] != Grid::Solid && label[above] != Grid::Solid)
-                open_w = std::clamp(grid_.weight[d][std::size_t(f)], T(0), T(1));
-              openness += double(open_w), ++inner;
-            }
-            if (open_w <= T(0)) continue;  // a wall face sees particles on one side only
-            w += weight_sum_[d][std::size_t(f)];
-            ++open;
-          }
+  const auto target_flux = [&](std::int64_t c, const IVec& i) {
+    double target = 0;
+    T w = 0;
+    int open = 0;
+    bool interior = true;
+    // Open share of the cell's faces inside the domain (1 away from colliders): a cell that a
+    // collider has nearly closed passes its target flux through slivers of faces, so the
+    // target shrinks with them. Without this a mesh paddle sweeping through bunched liquid
+    // drove the face velocity up as the substep shrank (the target grows as 1/dt), to 1e9 m/s.
+    double openness = 0;
+    int inner = 0;
+    for (int d = 0; d < Dim; ++d) {
+      const std::int64_t lower = grid_.face(d, i);
+      for (int side = 0; side < 2; ++side) {
+        const int nd = i[d] + (side ? 1 : -1);  // neighbour cell's coordinate along d
+        const std::int64_t nb = c + (side ? cstride[d] : -cstride[d]);
+        if (nd >= 0 && nd < grid_.res[d] && label[nb] == Grid::Air) interior = false;
+        const int fd = i[d] + side;  // the face's coordinate along d
+        const std::int64_t f = lower + (side ? fup[d] : 0);
+        T open_w = T(0);  // MacGrid::open_weight
+        if (fd > 0 && fd < grid_.res[d]) {
+          const std::int64_t below = side ? c : nb, above = side ? nb : c;
+          if (label[below] != Grid::Solid && label[above] != Grid::Solid)
+            open_w = std::clamp(grid_.weight[d][std::size_t(f)], T(0), T(1));
+          openness += double(open_w), ++inner;
         }
-        if (open > 0) {
-          const T e = w / (T(open) * ppc) - T(1);
-          const T shrunk = e > kSlack ? e - kSlack : e < -kSlack ? e + kSlack : T(0);
-          const T err = std::clamp(shrunk, interior ? T(-0.5) : T(0), T(0.5));
-          target = flux_per_error * double(err);
-          if (inner > 0 && openness < inner) target *= openness / inner;
-        }
+        if (open_w <= T(0)) continue;  // a wall face sees particles on one side only
+        w += weight_sum_[d][std::size_t(f)];
+        ++open;
       }
-      target_flux_[std::size_t(c)] = target;
     }
-  });
-  last_projection_ = pressure_.project(grid_, dt, projection_options_, target_flux_.data());
+    if (open > 0) {
+      const T e = w / (T(open) * ppc) - T(1);
+      const T shrunk = e > kSlack ? e - kSlack : e < -kSlack ? e + kSlack : T(0);
+      const T err = std::clamp(shrunk, interior ? T(-0.5) : T(0), T(0.5));
+      target = flux_per_error * double(err);
+      if (inner > 0 && openness < inner) target *= openness / inner;
+    }
+    return target;
+  };
+  last_projection_ = pressure_.project(grid_, dt, projection_options_, target_flux);
 }
 
 template <class T, int Dim>

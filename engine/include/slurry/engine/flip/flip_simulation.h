@@ -130,7 +130,6 @@ class FlipSimulation final : public SimulationBase {
   CellSort<T, Dim> sort_;
   Grid grid_;
   std::array<std::vector<T>, Dim> weight_sum_, old_u_;
-  std::vector<double> target_flux_;  // per cell: the volume correction's target dx div u
   std::vector<std::uint8_t> holes_;
   bool faces_ready_ = false;
   Solids<T, Dim> solids_;

@@ -22,9 +22,13 @@
 /// right-hand side is projected onto the range (its mean over the component removed) and the
 /// solution's mean over the component is set to zero.
 ///
-/// A is symmetric positive (semi)definite. It is stored in Bridson's compact form on the full
-/// cell grid: per cell the diagonal and one off-diagonal per positive axis, zero outside the
-/// fluid. The solve is PCG with a choice of preconditioner:
+/// A is symmetric positive (semi)definite. It is stored in Bridson's compact form: per cell the
+/// diagonal and one off-diagonal per positive axis. Like every vector of the solve it is packed:
+/// only cell rows (along the last axis) next to the fluid are stored, each over the window
+/// [lo - 1, hi + 1) of the union of its own and its axis neighbours' spans of unknowns, so that
+/// every neighbour an unknown reads is stored (zero where it is not an unknown). The liquid of
+/// the 150 x 100 x 75 dam break fills about a tenth of the tank; the full-grid vectors it
+/// replaces held 85 MB there. The solve is PCG with a choice of preconditioner:
 /// - None: plain CG;
 /// - Jacobi: z = r / diag(A);
 /// - MIC0: modified incomplete Cholesky with zero fill-in, tau = 0.97, safety sigma = 0.25
@@ -37,9 +41,8 @@
 /// Every reduction sums fixed chunks in a fixed order (parallel::parallel_sum), so results are
 /// bitwise identical for any thread count.
 ///
-/// Two levels of API: `PressureSolver` keeps its buffers between steps (use one per simulation:
-/// a 150 x 100 x 75 grid needs ~90 MB of them), and the free function `project()` builds a
-/// temporary one.
+/// Two levels of API: `PressureSolver` keeps its buffers between steps (use one per simulation),
+/// and the free function `project()` builds a temporary one.
 #include <Eigen/Core>
 #include <algorithm>
 #include <array>
@@ -48,6 +51,7 @@
 #include <sstream>
 #include <string>
 #include <type_traits>
+#include <utility>
 #include <vector>
 
 #include "slurry/engine/errors.h"
@@ -140,51 +144,16 @@ class PressureSolver {
   static constexpr double kMicTau = 0.97;    ///< MIC(0) modification (Bridson 2015)
   static constexpr double kMicSigma = 0.25;  ///< MIC(0) safety: fall back to IC when e < sigma A_cc
 
+  /// project()'s default target: D_c = 0.
+  struct NoTarget {
+    double operator()(std::int64_t, const IVec&) const { return 0.0; }
+  };
+
   /// Builds A (scaled by dt / (rho dx^2)) from g.label, g.phi and the open face weights.
   /// Unknowns are Fluid cells with at least one open face.
   void assemble(const Grid& g, bool ghost_fluid) {
     setup_layout(g);
     ghost_fluid_ = ghost_fluid;
-    const std::int64_t n = num_cells_;
-    // Zero the buffers: entries outside the unknowns must read as 0 in dot products and as
-    // finite values next to zero coefficients. Every solve writes these vectors only inside the
-    // rows' spans of unknowns (and assemble() only at Fluid cells, whose nonzero entries are
-    // unknowns), so once they have been zeroed whole, zeroing the last assembly's spans restores
-    // them: on the dam break the spans are about a tenth of the ten full-grid vectors (90 MB)
-    // that were zeroed every substep before. In parallel: std::vector::assign ran on one thread.
-    {
-      const std::int64_t len = n + 2 * pad_;
-      std::array<double*, 7> zero{};
-      int k = 0;
-      for (auto* v : {&diag_, &precon_, &x_, &r_, &z_, &p_, &q_}) {
-        if (std::int64_t(v->size()) != len) v->resize(std::size_t(len)), zero_all_ = true;
-        zero[std::size_t(k++)] = v->data();
-      }
-      for (int d = 0; d < Dim; ++d)
-        if (std::int64_t(plus_[d].size()) != len) plus_[d].resize(std::size_t(len)), zero_all_ = true;
-      if (std::int64_t(dirichlet_.size()) != n) dirichlet_.resize(std::size_t(n)), zero_all_ = true;
-      if (std::int64_t(span_lo_.size()) != num_rows_) zero_all_ = true;
-      const auto clear = [&](std::int64_t lo, std::int64_t hi) {  // [lo, hi) of the padded vectors
-        for (double* v : zero) std::fill(v + lo, v + hi, 0.0);
-        for (int d = 0; d < Dim; ++d) std::fill(plus_[d].data() + lo, plus_[d].data() + hi, T(0));
-        const std::int64_t dlo = std::clamp(lo - pad_, std::int64_t(0), n), dhi = std::clamp(hi - pad_, std::int64_t(0), n);
-        std::fill(dirichlet_.data() + dlo, dirichlet_.data() + dhi, std::uint8_t(0));
-      };
-      if (zero_all_) {
-        constexpr std::int64_t kBlock = std::int64_t(1) << 14;
-        parallel::parallel_for_grain(0, (len + kBlock - 1) / kBlock, 1, [&](std::int64_t b) {
-          clear(b * kBlock, std::min(len, (b + 1) * kBlock));
-        });
-        zero_all_ = false;
-      } else {
-        parallel::parallel_for(0, num_rows_, [&](std::int64_t row) {
-          const std::int64_t c0 = pad_ + row * nz_;
-          clear(c0 + span_lo_[std::size_t(row)], c0 + span_hi_[std::size_t(row)]);
-        });
-      }
-    }
-    kind_.resize(std::size_t(n));
-    phi_.resize(std::size_t(n));
     for (int d = 0; d < Dim; ++d) {  // open weights once: the later passes only read them
       open_[d].resize(std::size_t(g.num_faces(d)));
       face_up_[d] = g.face_stride(d, d);
@@ -205,14 +174,13 @@ class PressureSolver {
         }
       });
     }
-    for_each_index(g.res, [&](std::int64_t c, const IVec& i) {
-      const auto label = g.label[std::size_t(c)];
-      kind_[std::size_t(c)] = label == Grid::Air ? Multigrid::kAir : Multigrid::kSolid;
-      phi_[std::size_t(c)] = g.phi[std::size_t(c)];
-      if (label != Grid::Fluid) return;
+    // Row c of A for a Fluid cell c: the diagonal (returned), the off-diagonals to the upper
+    // Fluid neighbours and whether a face opens to air. Unknowns are the cells with diag > 0.
+    const auto fluid_row = [&](std::int64_t c, const IVec& i, std::array<T, Dim>& up, bool& dirichlet) {
       double diag = 0;
-      bool dirichlet = false;
+      dirichlet = false;
       for (int d = 0; d < Dim; ++d) {
+        up[std::size_t(d)] = T(0);
         const std::int64_t lower = g.face(d, i);
         for (int side = 0; side < 2; ++side) {  // lower face (side 0) or upper face (side 1)
           const double w = double(open_[d][std::size_t(side ? lower + face_up_[d] : lower)]);
@@ -221,20 +189,66 @@ class PressureSolver {
           const auto nl = g.label[std::size_t(nb)];
           if (nl == Grid::Fluid) {
             diag += w;
-            if (side) plus(d)[c] = -w;
+            if (side) up[std::size_t(d)] = T(-w);
           } else if (nl == Grid::Air) {
             diag += w / theta(g, c, nb);
             dirichlet = true;
           }
         }
       }
-      diag_[std::size_t(pad_ + c)] = diag;
-      dirichlet_[std::size_t(c)] = dirichlet;
-      if (diag > 0) kind_[std::size_t(c)] = Multigrid::kFluid;
+      return diag;
+    };
+    // Pass 1: each row's span of unknowns, then the packed layout.
+    span_lo_.assign(std::size_t(num_rows_), 0);
+    span_hi_.assign(std::size_t(num_rows_), 0);
+    parallel::parallel_for(0, num_rows_, [&](std::int64_t row) {
+      IVec i = row_coord(res_, row);
+      int lo = nz_, hi = 0;
+      std::array<T, Dim> up{};
+      bool dirichlet = false;
+      for (int k = 0; k < nz_; ++k) {
+        const std::int64_t c = row * nz_ + k;
+        if (g.label[std::size_t(c)] != Grid::Fluid) continue;
+        i[Dim - 1] = k;
+        if (fluid_row(c, i, up, dirichlet) > 0) lo = std::min(lo, k), hi = k + 1;
+      }
+      span_lo_[std::size_t(row)] = lo < hi ? lo : 0;
+      span_hi_[std::size_t(row)] = lo < hi ? hi : 0;
+    });
+    compute_windows();
+    // Pass 2: the coefficients of the Fluid cells in the spans (every other stored entry is 0).
+    parallel::parallel_for(0, num_rows_, [&](std::int64_t row) {
+      IVec i = row_coord(res_, row);
+      const std::int64_t at0 = row_base(row);
+      std::array<T, Dim> up{};
+      bool dirichlet = false;
+      for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
+        const std::int64_t c = row * nz_ + k;
+        if (g.label[std::size_t(c)] != Grid::Fluid) continue;
+        i[Dim - 1] = k;
+        const std::size_t at = std::size_t(at0 + k);
+        diag_[at] = fluid_row(c, i, up, dirichlet);
+        for (int d = 0; d < Dim; ++d) plus_[std::size_t(d)][at] = up[std::size_t(d)];
+        dirichlet_[at] = dirichlet;
+      }
     });
     // An open fluid-fluid face always gives both cells a positive diagonal, so plus(d) never
     // couples an unknown to a non-unknown.
-    compute_spans();
+    unknowns_ = rows_sum<std::int64_t>([&](std::int64_t row) {
+      std::int64_t m = 0;
+      for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) m += diag_[std::size_t(row_base(row) + k)] > 0;
+      return m;
+    });
+    kind_ready_ = preconditioner_wanted_ == Preconditioner::Multigrid;
+    if (kind_ready_) {  // the multigrid's cell kinds and level set, on the full grid
+      kind_.resize(std::size_t(num_cells_));
+      phi_.resize(std::size_t(num_cells_));
+      for_each_index(g.res, [&](std::int64_t c, const IVec&) {
+        const auto label = g.label[std::size_t(c)];
+        kind_[std::size_t(c)] = label == Grid::Air ? Multigrid::kAir : is_unknown(c) ? Multigrid::kFluid : Multigrid::kSolid;
+        phi_[std::size_t(c)] = g.phi[std::size_t(c)];
+      });
+    }
     compute_blocks();
     find_closed_components();
     if (preconditioner_wanted_ == Preconditioner::MIC0) build_mic0();
@@ -249,7 +263,11 @@ class PressureSolver {
     mic_blocks_ = mic_blocks;
   }
 
-  bool is_unknown(std::int64_t c) const { return diag_[std::size_t(pad_ + c)] > 0; }
+  /// Whether cell c (full-grid index) is an unknown of the last assembly.
+  bool is_unknown(std::int64_t c) const {
+    const std::int64_t at = packed(c);
+    return at >= 0 && diag_[std::size_t(at)] > 0;
+  }
 
   /// Bytes held by the solver's work arrays and the multigrid hierarchy (capacity).
   std::size_t bytes() const {
@@ -258,6 +276,7 @@ class PressureSolver {
     add(diag_), add(precon_), add(x_), add(r_), add(z_), add(p_), add(q_), add(rhs_);
     for (int d = 0; d < Dim; ++d) add(plus_[std::size_t(d)]), add(open_[std::size_t(d)]);
     add(dirichlet_), add(kind_), add(phi_), add(span_lo_), add(span_hi_), add(closed_cells_), add(closed_start_);
+    add(win_lo_), add(win_hi_), add(base_);
     add(flood_seen_), add(flood_queue_), add(block_start_), add(wave_progress_), add(tile_sums_);
     return b;
   }
@@ -267,58 +286,62 @@ class PressureSolver {
 
   /// y = A x over the unknowns (full-grid vectors; zero elsewhere).
   void apply(const std::vector<double>& x, std::vector<double>& y) {
-    zero_all_ = true;  // p_ now holds values outside the spans
-    std::copy(x.begin(), x.end(), p_.begin() + pad_);
-    matvec(p_.data() + pad_, q_.data() + pad_);
-    y.assign(q_.begin() + pad_, q_.begin() + pad_ + num_cells_);
+    gather(x.data(), p_.data());
+    matvec(p_.data(), q_.data());
+    scatter(q_.data(), y);
   }
 
   /// Solves A x = b by PCG. b and x are full-grid vectors (cell index); entries outside the
   /// unknowns are ignored in b and returned as 0 in x. x holds the initial guess on entry.
   ProjectionReport solve(const std::vector<double>& b, std::vector<double>& x, const ProjectionOptions& opt) {
     opt.validate();
-    rhs_.resize(std::size_t(num_cells_));  // a member: no allocation per solve
-    parallel::parallel_for(0, num_cells_, [&](std::int64_t c) { rhs_[std::size_t(c)] = is_unknown(c) ? b[std::size_t(c)] : 0.0; });
-    double* xs = x_.data() + pad_;
+    gather(b.data(), rhs_.data());
     if (std::int64_t(x.size()) == num_cells_) {
-      parallel::parallel_for(0, num_cells_, [&](std::int64_t c) { xs[c] = is_unknown(c) ? x[std::size_t(c)] : 0.0; });
+      gather(x.data(), x_.data());
     } else {
-      std::fill(x_.begin(), x_.end(), 0.0);
+      std::fill(x_.begin(), x_.begin() + packed_size_, 0.0);
     }
     ProjectionReport rep = solve_in_place(opt);
-    x.assign(x_.begin() + pad_, x_.begin() + pad_ + num_cells_);
+    scatter(x_.data(), x);
     return rep;
   }
 
   /// Projects g's face velocities: assembles A, solves for p (warm start from g.pressure),
   /// subtracts dt/rho grad p on open faces next to fluid, sets u = u_solid on closed faces and
   /// valid = 1 exactly on the updated faces. Writes g.pressure (0 outside the fluid).
-  /// `target_flux`, if given (one value per cell), asks for D_c = target_flux[c] instead of 0
-  /// (dx times a target divergence, for the FLIP volume correction); max_divergence then
-  /// measures |D_c - target_flux[c]| / dx.
-  ProjectionReport project(Grid& g, T dt, const ProjectionOptions& opt, const double* target_flux = nullptr) {
+  /// `target_flux`, if given, asks for D_c = target_flux(c, i) instead of 0 at every unknown c
+  /// (cell index c, coordinates i; dx times a target divergence, for the FLIP volume correction;
+  /// called twice per unknown, so it must be a function of the grid); max_divergence then
+  /// measures |D_c - target_flux(c, i)| / dx.
+  template <class Target = NoTarget>
+  ProjectionReport project(Grid& g, T dt, const ProjectionOptions& opt, const Target& target_flux = {}) {
     opt.validate();
     prepare_for(opt.preconditioner, opt.mic_blocks);
     assemble(g, opt.ghost_fluid);
     const double scale = opt.density * double(g.dx) / double(dt);  // b = -(rho dx / dt) D
     // b and the warm start p go straight into the solver's own vectors, over the rows' spans of
     // unknowns only: the solve reads b nowhere else, and assemble() has zeroed p (x_).
-    std::vector<double>& b = rhs_;
-    b.resize(std::size_t(num_cells_));
-    double* const p = x_.data() + pad_;
+    double* const b = rhs_.data();
+    double* const p = x_.data();
     parallel::parallel_for(0, num_rows_, [&](std::int64_t row) {
       IVec i = row_coord(g.res, row);
+      const std::int64_t at0 = row_base(row);
       for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
         i[Dim - 1] = k;
-        const std::int64_t c = row * nz_ + k;
-        const bool unknown = is_unknown(c);
-        const double target = target_flux ? target_flux[c] : 0.0;
-        b[std::size_t(c)] = unknown ? -scale * (double(open_flux_sum(g, i)) - target) : 0.0;
-        p[std::size_t(c)] = unknown ? double(g.pressure[std::size_t(c)]) : 0.0;
+        const std::int64_t c = row * nz_ + k, at = at0 + k;
+        const bool unknown = diag_[std::size_t(at)] > 0;
+        const double target = unknown ? double(target_flux(c, std::as_const(i))) : 0.0;
+        b[at] = unknown ? -scale * (double(open_flux_sum(g, i)) - target) : 0.0;
+        p[at] = unknown ? double(g.pressure[std::size_t(c)]) : 0.0;
       }
     });
     ProjectionReport rep = solve_in_place(opt);
-    parallel::parallel_for(0, num_cells_, [&](std::int64_t c) { g.pressure[std::size_t(c)] = T(p[c]); });
+    parallel::parallel_for(0, num_rows_, [&](std::int64_t row) {  // 0 outside the spans
+      T* pr = g.pressure.data() + row * nz_;
+      const std::int64_t at0 = row_base(row);
+      const int lo = span_lo_[std::size_t(row)], hi = span_hi_[std::size_t(row)];
+      for (int k = 0; k < nz_; ++k) pr[k] = k >= lo && k < hi ? T(p[at0 + k]) : T(0);
+    });
     const double coef = double(dt) / (opt.density * double(g.dx));
     for (int d = 0; d < Dim; ++d) {
       const std::int64_t down = g.cell_stride(d);
@@ -339,6 +362,12 @@ class PressureSolver {
           add_span((c0 - down) / nz_, 0);
         }
         if (j_lo >= j_hi) j_lo = j_hi = n;
+        // Packed index of the face's upper cell b = c0 + j and lower cell a = b - down: j lies in
+        // both cells' row windows (a window holds its neighbour rows' spans, and one more cell
+        // at each end along the last axis).
+        const std::int64_t b_row = c0 / nz_;
+        const std::int64_t b_at0 = row_base(b_row);
+        const std::int64_t a_at0 = d == Dim - 1 ? b_at0 - 1 : row_base(b_row - row_step_[std::size_t(d)]);
         const auto rest = [&](int j0, int j1) {
           T* u = g.u[d].data() + f0;
           const T* us = g.u_solid[d].data() + f0;
@@ -361,19 +390,20 @@ class PressureSolver {
           }
           const std::int64_t b_cell = c0 + j;  // upper cell; open faces are interior
           const std::int64_t a_cell = b_cell - down;
-          const bool ua = is_unknown(a_cell), ub = is_unknown(b_cell);
+          const std::int64_t b_at = b_at0 + j, a_at = a_at0 + j;
+          const bool ua = diag_[std::size_t(a_at)] > 0, ub = diag_[std::size_t(b_at)] > 0;
           if (!ua && !ub) {
             g.valid[d][fs] = 0;
             continue;
           }
           double dp;
           if (ua && ub) {
-            dp = p[b_cell] - p[a_cell];
+            dp = p[b_at] - p[a_at];
           } else if (ua) {
             // b is air (an open face next to an unknown is fluid or air): ghost p_b.
-            dp = -p[a_cell] / theta(g, a_cell, b_cell);
+            dp = -p[a_at] / theta(g, a_cell, b_cell);
           } else {
-            dp = p[b_cell] / theta(g, b_cell, a_cell);
+            dp = p[b_at] / theta(g, b_cell, a_cell);
           }
           g.u[d][fs] = T(double(g.u[d][fs]) - coef * dp);
           g.valid[d][fs] = 1;
@@ -384,11 +414,12 @@ class PressureSolver {
       double m = 0;
       for (std::int64_t row = lo; row < hi; ++row) {
         IVec i = row_coord(g.res, row);
+        const std::int64_t at0 = row_base(row);
         for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
           i[Dim - 1] = k;
           const std::int64_t c = row * nz_ + k;
-          if (is_unknown(c))
-            m = std::max(m, std::abs(double(open_flux_sum(g, i)) - (target_flux ? target_flux[c] : 0.0)) / double(g.dx));
+          if (diag_[std::size_t(at0 + k)] > 0)
+            m = std::max(m, std::abs(double(open_flux_sum(g, i)) - double(target_flux(c, std::as_const(i)))) / double(g.dx));
         }
       }
       return m;
@@ -481,8 +512,108 @@ class PressureSolver {
     });
   }
 
-  T* plus(int d) { return plus_[d].data() + pad_; }
-  const T* plus(int d) const { return plus_[d].data() + pad_; }
+  T* plus(int d) { return plus_[std::size_t(d)].data(); }
+  const T* plus(int d) const { return plus_[std::size_t(d)].data(); }
+
+  /// Packed index of cell k = 0 of row `row` (rows -rpad_ .. num_rows_ + rpad_ - 1).
+  std::int64_t row_base(std::int64_t row) const { return base_[std::size_t(row + rpad_)]; }
+
+  /// Packed index of cell c (full-grid index), -1 if it is not stored.
+  std::int64_t packed(std::int64_t c) const {
+    if (c < 0 || c >= num_cells_) return -1;
+    const std::int64_t row = c / nz_;
+    const int k = int(c - row * nz_);
+    const std::size_t r = std::size_t(row + rpad_);
+    return k >= win_lo_[r] && k < win_hi_[r] ? base_[r] + k : -1;
+  }
+
+  /// Offsets from a cell of row `row` to its neighbours c + e_d (up) and c - e_d (down) in the
+  /// packed vectors.
+  struct Neighbours {
+    std::array<std::int64_t, Dim> up{}, down{};
+  };
+  Neighbours neighbours(std::int64_t row) const {
+    Neighbours nb;
+    const std::int64_t base = row_base(row);
+    for (int d = 0; d < Dim - 1; ++d) {
+      nb.up[std::size_t(d)] = row_base(row + row_step_[std::size_t(d)]) - base;
+      nb.down[std::size_t(d)] = row_base(row - row_step_[std::size_t(d)]) - base;
+    }
+    nb.up[Dim - 1] = 1;
+    nb.down[Dim - 1] = -1;
+    return nb;
+  }
+
+  /// to = from over the unknowns (full grid to packed; 0 at the other cells of the spans).
+  void gather(const double* from, double* to) const {
+    parallel::parallel_for(0, num_rows_, [&](std::int64_t row) {
+      const std::int64_t at0 = row_base(row);
+      for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
+        const std::int64_t at = at0 + k;
+        to[at] = diag_[std::size_t(at)] > 0 ? from[row * nz_ + k] : 0.0;
+      }
+    });
+  }
+
+  /// to = from on the rows' spans, 0 elsewhere (packed to full grid).
+  void scatter(const double* from, std::vector<double>& to) const {
+    to.assign(std::size_t(num_cells_), 0.0);
+    parallel::parallel_for(0, num_rows_, [&](std::int64_t row) {
+      const std::int64_t at0 = row_base(row);
+      for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) to[std::size_t(row * nz_ + k)] = from[at0 + k];
+    });
+  }
+
+  /// v.size() >= n without keeping its old contents when it has to grow (then with 1/8 to
+  /// spare: the fluid's rows change every substep).
+  template <class V>
+  static void grow(V& v, std::int64_t n) {
+    if (std::int64_t(v.size()) >= n) return;
+    if (std::int64_t(v.capacity()) < n) {
+      V fresh;
+      fresh.reserve(std::size_t(n + n / 8));
+      v.swap(fresh);
+    }
+    v.resize(std::size_t(n));
+  }
+
+  /// Windows and packed offsets from the spans; sizes the packed vectors and zeroes them.
+  void compute_windows() {
+    const std::int64_t padded = num_rows_ + 2 * rpad_;
+    win_lo_.resize(std::size_t(padded));
+    win_hi_.resize(std::size_t(padded));
+    base_.resize(std::size_t(padded));
+    parallel::parallel_for(0, padded, [&](std::int64_t r) {
+      const std::int64_t row = r - rpad_;
+      int lo = nz_, hi = 0;
+      const auto add = [&](std::int64_t q) {
+        if (q < 0 || q >= num_rows_) return;
+        const int ql = span_lo_[std::size_t(q)], qh = span_hi_[std::size_t(q)];
+        if (ql < qh) lo = std::min(lo, ql), hi = std::max(hi, qh);
+      };
+      add(row);
+      for (int d = 0; d < Dim - 1; ++d) add(row + row_step_[std::size_t(d)]), add(row - row_step_[std::size_t(d)]);
+      win_lo_[std::size_t(r)] = lo < hi ? lo - 1 : 0;
+      win_hi_[std::size_t(r)] = lo < hi ? hi + 1 : 0;
+    });
+    std::int64_t next = 0;
+    for (std::int64_t r = 0; r < padded; ++r) {
+      base_[std::size_t(r)] = next - win_lo_[std::size_t(r)];
+      next += win_hi_[std::size_t(r)] - win_lo_[std::size_t(r)];
+    }
+    packed_size_ = next;
+    const std::int64_t n = packed_size_;
+    for (auto* v : {&diag_, &precon_, &x_, &r_, &z_, &p_, &q_, &rhs_}) grow(*v, n);
+    for (int d = 0; d < Dim; ++d) grow(plus_[std::size_t(d)], n);
+    grow(dirichlet_, n);
+    constexpr std::int64_t kBlock = std::int64_t(1) << 14;
+    parallel::parallel_for_grain(0, (n + kBlock - 1) / kBlock, 1, [&](std::int64_t blk) {
+      const std::int64_t lo = blk * kBlock, hi = std::min(n, lo + kBlock);
+      for (auto* v : {&diag_, &precon_, &x_, &r_, &z_, &p_, &q_, &rhs_}) std::fill(v->data() + lo, v->data() + hi, 0.0);
+      for (int d = 0; d < Dim; ++d) std::fill(plus_[std::size_t(d)].data() + lo, plus_[std::size_t(d)].data() + hi, T(0));
+      std::fill(dirichlet_.data() + lo, dirichlet_.data() + hi, std::uint8_t(0));
+    });
+  }
 
   void setup_layout(const Grid& g) {
     res_ = g.res;
@@ -492,28 +623,10 @@ class PressureSolver {
     n1_ = Dim == 3 ? res_[1] : 1;
     num_rows_ = num_cells_ / std::max(nz_, 1);
     for (int d = 0; d < Dim; ++d) stride_[d] = g.cell_stride(d);
-    pad_ = stride_[0];
+    for (int d = 0; d < Dim - 1; ++d) row_step_[std::size_t(d)] = stride_[d] / std::max(nz_, 1);
+    rpad_ = Dim > 1 ? row_step_[0] : 0;
     tiles0_ = (n0_ + kTile - 1) / kTile;
     tiles1_ = (n1_ + kTile - 1) / kTile;
-  }
-
-  /// Per row of cells along the last axis: the range [lo, hi) holding its unknowns.
-  void compute_spans() {
-    span_lo_.assign(std::size_t(num_rows_), 0);
-    span_hi_.assign(std::size_t(num_rows_), 0);
-    const double* diag = diag_.data() + pad_;
-    parallel::parallel_for(0, num_rows_, [&](std::int64_t row) {
-      int lo = nz_, hi = 0;
-      for (int k = 0; k < nz_; ++k)
-        if (diag[row * nz_ + k] > 0) lo = std::min(lo, k), hi = k + 1;
-      span_lo_[std::size_t(row)] = lo < hi ? lo : 0;
-      span_hi_[std::size_t(row)] = lo < hi ? hi : 0;
-    });
-    unknowns_ = rows_sum<std::int64_t>([&](std::int64_t row) {
-      std::int64_t m = 0;
-      for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) m += diag[row * nz_ + k] > 0;
-      return m;
-    });
   }
 
   /// Slab bounds along axis 0 for mic_blocks_ > 0: equal shares of the unknowns (a function of
@@ -522,10 +635,9 @@ class PressureSolver {
     block_start_.assign(1, 0);
     if (mic_blocks_ <= 0) return;
     std::vector<std::int64_t> per_i(std::size_t(n0_), 0);
-    const double* diag = diag_.data() + pad_;
     for (std::int64_t row = 0; row < num_rows_; ++row)
       for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k)
-        per_i[std::size_t(row / n1_)] += diag[row * nz_ + k] > 0;
+        per_i[std::size_t(row / n1_)] += diag_[std::size_t(row_base(row) + k)] > 0;
     std::int64_t acc = 0;
     int next = 1;
     for (int i = 0; i < n0_; ++i) {
@@ -543,37 +655,51 @@ class PressureSolver {
   void find_closed_components() {
     closed_cells_.clear();
     closed_start_.clear();
-    const std::int64_t n = num_cells_;
+    // The queues hold full-grid cell indices (a neighbour's packed index needs its row); seen
+    // is packed.
     std::vector<std::uint8_t>& seen = flood_seen_;  // members: no allocation per solve
     std::vector<std::int64_t>& queue = flood_queue_;
-    seen.assign(std::size_t(n), 0);
+    seen.assign(std::size_t(packed_size_), 0);
     queue.clear();
     const auto flood = [&](std::vector<std::int64_t>& q, std::size_t head) {
       while (head < q.size()) {
         const std::int64_t c = q[head++];
+        const std::int64_t at = packed(c);
         for (int d = 0; d < Dim; ++d) {
           const std::int64_t up = c + stride_[d], down = c - stride_[d];
-          if (plus(d)[c] != 0 && !seen[std::size_t(up)]) seen[std::size_t(up)] = 1, q.push_back(up);
-          if (down >= 0 && plus(d)[down] != 0 && !seen[std::size_t(down)]) seen[std::size_t(down)] = 1, q.push_back(down);
+          const std::int64_t up_at = packed(up), down_at = packed(down);
+          if (plus(d)[at] != 0 && !seen[std::size_t(up_at)]) seen[std::size_t(up_at)] = 1, q.push_back(up);
+          if (down_at >= 0 && plus(d)[down_at] != 0 && !seen[std::size_t(down_at)]) seen[std::size_t(down_at)] = 1, q.push_back(down);
         }
       }
     };
-    for (std::int64_t c = 0; c < n; ++c)
-      if (dirichlet_[std::size_t(c)] && is_unknown(c)) seen[std::size_t(c)] = 1, queue.push_back(c);
+    // fn(c, packed index) for every unknown, in increasing c.
+    const auto for_unknowns = [&](auto&& fn) {
+      for (std::int64_t row = 0; row < num_rows_; ++row)
+        for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
+          const std::int64_t at = row_base(row) + k;
+          if (diag_[std::size_t(at)] > 0) fn(row * nz_ + k, at);
+        }
+    };
+    for_unknowns([&](std::int64_t c, std::int64_t at) {
+      if (dirichlet_[std::size_t(at)]) seen[std::size_t(at)] = 1, queue.push_back(c);
+    });
     flood(queue, 0);
     if (std::int64_t(queue.size()) == unknowns_) return;
-    for (std::int64_t c = 0; c < n; ++c) {
-      if (!is_unknown(c) || seen[std::size_t(c)]) continue;
+    for_unknowns([&](std::int64_t c, std::int64_t at) {
+      if (seen[std::size_t(at)]) return;
       closed_start_.push_back(std::int64_t(closed_cells_.size()));
-      seen[std::size_t(c)] = 1;
+      seen[std::size_t(at)] = 1;
       const std::size_t head = closed_cells_.size();
       closed_cells_.push_back(c);
       flood(closed_cells_, head);
-    }
+    });
     closed_start_.push_back(std::int64_t(closed_cells_.size()));
+    for (std::int64_t& c : closed_cells_) c = packed(c);  // remove_closed_means() reads packed vectors
   }
 
-  /// v -= its mean over each closed component (serial: closed components are rare and small).
+  /// v -= its mean over each closed component (serial: closed components are rare and small);
+  /// v is packed.
   void remove_closed_means(double* v) const {
     for (std::size_t k = 0; k + 1 < closed_start_.size(); ++k) {
       const std::int64_t lo = closed_start_[k], hi = closed_start_[k + 1];
@@ -648,15 +774,17 @@ class PressureSolver {
 
   /// MIC(0) factor: precon_c = 1 / sqrt(e_c) (Bridson 2015, Fig. 5.3, any Dim).
   void build_mic0() {
-    const double* diag = diag_.data() + pad_;
-    double* pc = precon_.data() + pad_;
+    const double* diag = diag_.data();
+    double* pc = precon_.data();
     sweep(true, [&](std::int64_t row, bool cut_lo, bool cut_hi) {
+      const std::int64_t at0 = row_base(row);
+      const Neighbours nb = neighbours(row);
       for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
-        const std::int64_t c = row * nz_ + k;
+        const std::int64_t c = at0 + k;
         if (!(diag[c] > 0)) continue;
         double e = diag[c];
         for (int d = cut_lo ? 1 : 0; d < Dim; ++d) {
-          const std::int64_t m = c - stride_[d];
+          const std::int64_t m = c + nb.down[std::size_t(d)];
           const double a = plus(d)[m] * pc[m];
           double others = 0;
           // m shares c's axis-0 index for d > 0, so its +x coupling is cut with c's.
@@ -673,18 +801,22 @@ class PressureSolver {
 
   /// y = A x on the unknowns; returns x . y.
   double matvec(const double* x, double* y) const {
-    const double* diag = diag_.data() + pad_;
+    const double* diag = diag_.data();
     return rows_sum<double>([&](std::int64_t row) {
       double s = 0;
+      const std::int64_t at0 = row_base(row);
+      const Neighbours nb = neighbours(row);
       for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
-        const std::int64_t c = row * nz_ + k;
+        const std::int64_t c = at0 + k;
         if (!(diag[c] > 0)) {
           y[c] = 0;
           continue;
         }
         double v = diag[c] * x[c];
-        for (int d = 0; d < Dim; ++d)
-          v += plus(d)[c] * x[c + stride_[d]] + plus(d)[c - stride_[d]] * x[c - stride_[d]];
+        for (int d = 0; d < Dim; ++d) {
+          const std::int64_t up = c + nb.up[std::size_t(d)], down = c + nb.down[std::size_t(d)];
+          v += plus(d)[c] * x[up] + plus(d)[down] * x[down];
+        }
         y[c] = v;
         s += x[c] * v;
       }
@@ -692,26 +824,33 @@ class PressureSolver {
     });
   }
 
+  PackedRows packed_rows() const {
+    return PackedRows{base_.data() + rpad_, win_lo_.data() + rpad_, win_hi_.data() + rpad_};
+  }
+
   /// Multigrid hierarchy from the assembled system (level 0 in float).
   void build_multigrid() {
     std::array<const T*, Dim> plus_ptr{};
     std::array<const T*, Dim> open_ptr{};
     for (int d = 0; d < Dim; ++d) plus_ptr[d] = plus(d), open_ptr[d] = open_[d].data();
-    multigrid_.build(res_, diag_.data() + pad_, plus_ptr, kind_.data(), open_ptr, ghost_fluid_ ? phi_.data() : nullptr);
+    if (!kind_ready_)
+      throw std::logic_error("PressureSolver: the multigrid needs prepare_for(Preconditioner::Multigrid) before assemble()");
+    multigrid_.build(res_, packed_rows(), diag_.data(), plus_ptr, kind_.data(), open_ptr, ghost_fluid_ ? phi_.data() : nullptr);
   }
 
   /// z = M^-1 r; returns r . z.
   double precondition(const ProjectionOptions& opt, const double* r, double* z) {
     const Preconditioner kind = opt.preconditioner;
     if (kind == Preconditioner::Multigrid)
-      return multigrid_.apply(r, z, opt.multigrid_smoothing, opt.multigrid_boundary_smoothing);
-    const double* diag = diag_.data() + pad_;
+      return multigrid_.apply(packed_rows(), r, z, opt.multigrid_smoothing, opt.multigrid_boundary_smoothing);
+    const double* diag = diag_.data();
     if (kind != Preconditioner::MIC0) {
       const bool jacobi = kind == Preconditioner::Jacobi;
       return rows_sum<double>([&](std::int64_t row) {
         double s = 0;
+        const std::int64_t at0 = row_base(row);
         for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
-          const std::int64_t c = row * nz_ + k;
+          const std::int64_t c = at0 + k;
           z[c] = diag[c] > 0 ? (jacobi ? r[c] / diag[c] : r[c]) : 0.0;
           s += r[c] * z[c];
         }
@@ -720,17 +859,19 @@ class PressureSolver {
     }
     // pc > 0 exactly at the unknowns (build_mic0; zero elsewhere): the sweeps test it, which
     // they read anyway, instead of the diagonal.
-    const double* pc = precon_.data() + pad_;
+    const double* pc = precon_.data();
     sweep(true, [&](std::int64_t row, bool cut_lo, bool) {  // L q = r, q stored in z
+      const std::int64_t at0 = row_base(row);
+      const Neighbours nb = neighbours(row);
       for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
-        const std::int64_t c = row * nz_ + k;
+        const std::int64_t c = at0 + k;
         if (!(pc[c] > 0)) {
           z[c] = 0;
           continue;
         }
         double t = r[c];
         for (int d = cut_lo ? 1 : 0; d < Dim; ++d) {
-          const std::int64_t m = c - stride_[d];
+          const std::int64_t m = c + nb.down[std::size_t(d)];
           t -= plus(d)[m] * pc[m] * z[m];
         }
         z[c] = t * pc[c];
@@ -739,11 +880,13 @@ class PressureSolver {
     });
     return sweep(false, [&](std::int64_t row, bool, bool cut_hi) {  // L^T z = q in place
       double s = 0;
+      const std::int64_t at0 = row_base(row);
+      const Neighbours nb = neighbours(row);
       for (int k = span_hi_[std::size_t(row)] - 1; k >= span_lo_[std::size_t(row)]; --k) {
-        const std::int64_t c = row * nz_ + k;
+        const std::int64_t c = at0 + k;
         if (!(pc[c] > 0)) continue;
         double t = z[c];
-        for (int d = cut_hi ? 1 : 0; d < Dim; ++d) t -= plus(d)[c] * pc[c] * z[c + stride_[d]];
+        for (int d = cut_hi ? 1 : 0; d < Dim; ++d) t -= plus(d)[c] * pc[c] * z[c + nb.up[std::size_t(d)]];
         z[c] = t * pc[c];
         s += r[c] * z[c];
       }
@@ -767,7 +910,7 @@ class PressureSolver {
     }
     remove_closed_means(rhs_.data());
     ProjectionReport rep = pcg(rhs_.data(), opt);
-    remove_closed_means(x_.data() + pad_);
+    remove_closed_means(x_.data());
     return rep;
   }
 
@@ -775,26 +918,28 @@ class PressureSolver {
   ProjectionReport pcg(const double* b, const ProjectionOptions& opt) {
     ProjectionReport rep;
     rep.unknowns = unknowns_;
-    double* x = x_.data() + pad_;
-    double* r = r_.data() + pad_;
-    double* z = z_.data() + pad_;
-    double* p = p_.data() + pad_;
-    double* q = q_.data() + pad_;
+    double* x = x_.data();
+    double* r = r_.data();
+    double* z = z_.data();
+    double* p = p_.data();
+    double* q = q_.data();
     const double b_norm = std::sqrt(rows_sum<double>([&](std::int64_t row) {
       double s = 0;
-      for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) s += b[row * nz_ + k] * b[row * nz_ + k];
+      const std::int64_t at0 = row_base(row);
+      for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) s += b[at0 + k] * b[at0 + k];
       return s;
     }));
     if (b_norm == 0) {
-      std::fill(x_.begin(), x_.end(), 0.0);
+      std::fill(x_.begin(), x_.begin() + packed_size_, 0.0);
       rep.converged = true;
       return rep;
     }
     matvec(x, q);
     double rr = rows_sum<double>([&](std::int64_t row) {
       double s = 0;
+      const std::int64_t at0 = row_base(row);
       for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
-        const std::int64_t c = row * nz_ + k;
+        const std::int64_t c = at0 + k;
         r[c] = b[c] - q[c];
         s += r[c] * r[c];
       }
@@ -811,8 +956,9 @@ class PressureSolver {
       const double alpha = rz / pq;
       rr = rows_sum<double>([&](std::int64_t row) {
         double s = 0;
+        const std::int64_t at0 = row_base(row);
         for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
-          const std::int64_t c = row * nz_ + k;
+          const std::int64_t c = at0 + k;
           x[c] += alpha * p[c];
           r[c] -= alpha * q[c];
           s += r[c] * r[c];
@@ -829,8 +975,9 @@ class PressureSolver {
       const double beta = rz_new / rz;
       rz = rz_new;
       parallel::parallel_for(0, num_rows_, [&](std::int64_t row) {
+        const std::int64_t at0 = row_base(row);
         for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
-          const std::int64_t c = row * nz_ + k;
+          const std::int64_t c = at0 + k;
           p[c] = z[c] + beta * p[c];
         }
       });
@@ -840,34 +987,42 @@ class PressureSolver {
 
   void copy_rows(const double* from, double* to) const {
     parallel::parallel_for(0, num_rows_, [&](std::int64_t row) {
-      for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) to[row * nz_ + k] = from[row * nz_ + k];
+      const std::int64_t at0 = row_base(row);
+      for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) to[at0 + k] = from[at0 + k];
     });
   }
 
   IVec res_ = IVec::Zero();
-  std::int64_t num_cells_ = 0, num_rows_ = 0, pad_ = 0, unknowns_ = 0;
+  std::int64_t num_cells_ = 0, num_rows_ = 0, unknowns_ = 0;
   int nz_ = 0, n0_ = 0, n1_ = 0, tiles0_ = 0, tiles1_ = 0;
   mutable std::vector<int> wave_progress_;   ///< sweep(): the wavefront's per-row counters
   mutable std::vector<double> tile_sums_;    ///< sweep(): each tile's sum
   std::array<std::int64_t, Dim> stride_{};
+  std::array<std::int64_t, Dim> row_step_{};  ///< rows between a cell and its +e_d neighbour (d < Dim - 1)
   bool ghost_fluid_ = true;
   bool mic_built_ = false, multigrid_built_ = false;
   int mic_blocks_ = 0;
   std::vector<int> block_start_;
   Preconditioner preconditioner_wanted_ = ProjectionOptions().preconditioner;
-  // Padded by pad_ = stride_[0] cells on both ends so that neighbour reads never leave the
-  // arrays; the pads hold zeros, and so do coefficients across the domain boundary.
+  // The packed layout (see the file comment): row `row` holds cells k in
+  // [win_lo_, win_hi_) of its window at base_ + k, rows -rpad_ .. num_rows_ + rpad_ - 1 (stored
+  // at row + rpad_; the pad rows hold the neighbours of the first and last rows). Only the
+  // first packed_size_ entries of the packed vectors are in use.
+  std::int64_t rpad_ = 0, packed_size_ = 0;
+  std::vector<int> win_lo_, win_hi_;
+  std::vector<std::int64_t> base_;
   std::vector<double> diag_, precon_, x_, r_, z_, p_, q_;
   std::vector<double> rhs_;  ///< right-hand side of solve_in_place()
   /// A(c, c + e_d) = -w, stored at c in T: w is an open weight of type T, so -w is exact in T,
   /// and the products with the double vectors are those of the double value (half the bytes
   /// that the matrix-vector product and the MIC(0) sweeps read).
   std::array<std::vector<T>, Dim> plus_;
-  bool zero_all_ = true;  ///< assemble() zeroes the whole vectors (first use, new size, apply())
-  std::vector<std::uint8_t> dirichlet_;
+  std::vector<std::uint8_t> dirichlet_;  ///< packed: the unknown has a face open to air
   using Multigrid = MultigridPreconditioner<Dim, float>;
+  /// Full grid, filled by assemble() only for the multigrid (kind_ready_).
   std::vector<std::uint8_t> kind_;  ///< Multigrid::Kind per cell: unknown (kFluid), air or solid
   std::vector<T> phi_;              ///< g.phi, for the multigrid's coarse ghost-fluid terms
+  bool kind_ready_ = false;
   Multigrid multigrid_;
   std::array<std::vector<T>, Dim> open_;  ///< MacGrid::open_weight per face, cached by assemble()
   std::array<std::int64_t, Dim> face_up_{};  ///< axis-d face index step from a cell's lower to upper face

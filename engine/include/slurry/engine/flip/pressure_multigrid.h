@@ -56,6 +56,15 @@
 
 namespace slurry::flip {
 
+/// Where PressureSolver keeps the values of cell row `row` (cells k along the last axis) in its
+/// packed vectors: at base[row] + k for k in [lo[row], hi[row]); every other cell of the row is
+/// not stored and reads as zero.
+struct PackedRows {
+  const std::int64_t* base = nullptr;
+  const int* lo = nullptr;
+  const int* hi = nullptr;
+};
+
 template <int Dim, class S = float>
 class MultigridPreconditioner {
  public:
@@ -69,13 +78,13 @@ class MultigridPreconditioner {
   static constexpr S kCoarseThetaMin = S(0.05);  ///< ghost-fluid clamps on the coarse levels
   static constexpr S kCoarseThetaMax = S(4);
 
-  /// Sets up level 0 from the fine system and coarsens it. Fine arrays are row-major over
-  /// `res` (last axis fastest): diag[c] and plus[d][c] = A(c, c + e_d) as PressureSolver stores
-  /// them (zero outside the unknowns), kind[c] (kFluid exactly for the unknowns), and the open
-  /// weight of every axis-d face in MacGrid face layout (res + e_d faces per axis).
-  /// Allocates only when res changes.
+  /// Sets up level 0 from the fine system and coarsens it. diag and plus[d] = A(c, c + e_d)
+  /// are PressureSolver's packed vectors (laid out by `rows`, zero outside the unknowns); kind
+  /// (kFluid exactly for the unknowns) and phi are row-major over `res` (last axis fastest), and
+  /// open holds the open weight of every axis-d face in MacGrid face layout (res + e_d faces per
+  /// axis). Allocates only when res changes.
   template <class T, class P>
-  void build(const IVec& res, const double* diag, const std::array<const P*, Dim>& plus,
+  void build(const IVec& res, const PackedRows& rows, const double* diag, const std::array<const P*, Dim>& plus,
              const std::uint8_t* kind, const std::array<const T*, Dim>& open, const T* phi) {
     if (levels_.empty() || levels_[0].n != res) {
       levels_.clear();
@@ -87,7 +96,7 @@ class MultigridPreconditioner {
         for (int a = 0; a < Dim; ++a) n[a] = (n[a] + 1) / 2;
       }
     }
-    fill_level0(diag, plus, kind, open, phi);
+    fill_level0(rows, diag, plus, kind, open, phi);
     S scale = 1;  // level l's stencil carries 4^-l (see the file comment)
     active_ = 1;
     for (std::size_t l = 1; l < levels_.size(); ++l) {
@@ -120,14 +129,15 @@ class MultigridPreconditioner {
     return b;
   }
 
-  /// z = M^-1 r (one V-cycle from zero) over the unknowns; r and z are fine row-major arrays
-  /// (z is written on the unknowns' row spans only). Returns r . z, summed in fixed row chunks.
-  double apply(const double* r, double* z, int smoothing, int boundary_smoothing) {
+  /// z = M^-1 r (one V-cycle from zero) over the unknowns; r and z are PressureSolver's packed
+  /// vectors laid out by `rows` (z is written on the unknowns' row spans only). Returns r . z,
+  /// summed in fixed row chunks.
+  double apply(const PackedRows& rows, const double* r, double* z, int smoothing, int boundary_smoothing) {
     const int last = active_ - 1;
     Level& f = levels_[0];
     rows_for(f, [&](std::int64_t row) {  // b = r; x = 0, then the first red half-sweep
       const std::int64_t base = f.row_base[std::size_t(row)];
-      const std::int64_t c0 = row * f.n[Dim - 1];
+      const std::int64_t c0 = rows.base[row];
       const int p = f.parity[std::size_t(row)];
       for (int k = f.lo[std::size_t(row)]; k < f.hi[std::size_t(row)]; ++k) {
         const std::int64_t c = base + k;
@@ -160,7 +170,7 @@ class MultigridPreconditioner {
       double s = 0;
       for (std::int64_t row = lo; row < hi; ++row) {
         const std::int64_t base = f.row_base[std::size_t(row)];
-        const std::int64_t c0 = row * f.n[Dim - 1];
+        const std::int64_t c0 = rows.base[row];
         for (int k = f.lo[std::size_t(row)]; k < f.hi[std::size_t(row)]; ++k) {
           const double zv = double(f.x[std::size_t(base + k)]);
           z[c0 + k] = zv;
@@ -238,22 +248,25 @@ class MultigridPreconditioner {
   }
 
   template <class T, class P>
-  void fill_level0(const double* diag, const std::array<const P*, Dim>& plus, const std::uint8_t* kind,
-                   const std::array<const T*, Dim>& open, const T* phi) {
+  void fill_level0(const PackedRows& rows, const double* diag, const std::array<const P*, Dim>& plus,
+                   const std::uint8_t* kind, const std::array<const T*, Dim>& open, const T* phi) {
     Level& L = levels_[0];
     clear(L);
     const int nz = L.n[Dim - 1];
     rows_for(L, [&](std::int64_t row) {
       const std::int64_t base = L.row_base[std::size_t(row)], c0 = row * nz;
+      const std::int64_t at = rows.base[row];
+      const int lo = rows.lo[row], hi = rows.hi[row];
       for (int k = 0; k < nz; ++k) {
         const std::size_t c = std::size_t(base + k);
-        const double dg = diag[c0 + k];
+        const bool stored = k >= lo && k < hi;  // cells outside the solver's rows are zero
+        const double dg = stored ? diag[at + k] : 0.0;
         L.diag[c] = S(dg);
         L.inv_diag[c] = dg > 0 ? S(1.0 / dg) : S(0);
         L.kind[c] = kind[c0 + k];
         // Without a level set: the surface at the air cell centre (theta = 1).
         L.phi[c] = phi ? S(phi[c0 + k]) : L.kind[c] == kFluid ? S(-1) : S(1);
-        for (int d = 0; d < Dim; ++d) L.plus[d][c] = S(plus[d][c0 + k]);
+        for (int d = 0; d < Dim; ++d) L.plus[d][c] = stored ? S(plus[d][at + k]) : S(0);
       }
     });
     // Open weights of the interior faces below each cell (boundary faces are walls: 0).
