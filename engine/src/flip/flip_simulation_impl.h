@@ -103,7 +103,7 @@ template <class T, int Dim>
 std::size_t FlipSimulation<T, Dim>::bytes() const {
   std::size_t b = particles_.bytes() + permute_spare_.bytes() +
                   (sort_.key.capacity() + sort_.order.capacity()) * sizeof(std::uint32_t) +
-                  sort_.start.capacity() * sizeof(std::int64_t);
+                  sort_.start.capacity() * sizeof(std::uint32_t);
   const std::size_t cells = std::size_t(grid_.num_cells());
   b += cells * (2 + 2 * sizeof(T)) + holes_.capacity();
   b += pressure_.bytes() + extrapolator_.bytes();  // the pressure solve's vectors are most of the grid's memory
@@ -179,7 +179,11 @@ void FlipSimulation<T, Dim>::emit(T dt) {
 template <class T, int Dim>
 void FlipSimulation<T, Dim>::sort_particles() {
   sort_.build(particles_.x, grid_.origin, grid_.dx, grid_.res, true);
+  // The sort's keys are dead once `order` is built: their storage is the spare of the 32-bit
+  // channel (the ids), and the ids' old storage holds the next sort's keys (4 bytes a particle).
+  permute_spare_.u32.swap(sort_.key);
   particles_.permute(sort_.order, permute_spare_);
+  sort_.key.swap(permute_spare_.u32);
 }
 
 template <class T, int Dim>

@@ -24,7 +24,7 @@ struct CellSort {
   using IVec = Eigen::Matrix<int, Dim, 1>;
 
   std::vector<std::uint32_t> key;    ///< cell of each particle (input order)
-  std::vector<std::int64_t> start;   ///< particles of cell k are [start[k], start[k+1]) after sorting
+  std::vector<std::uint32_t> start;  ///< particles of cell k are [start[k], start[k+1]) after sorting
   std::vector<std::uint32_t> order;  ///< sorted position i holds input particle order[i]
 
   /// Cell containing x (clamped to the grid).
@@ -44,7 +44,8 @@ struct CellSort {
     const std::int64_t n = std::int64_t(x.size());
     std::int64_t cells = 1;
     for (int d = 0; d < Dim; ++d) cells *= res[d];
-    // 32-bit cell and particle indices (a dense FLIP grid of 2^32 cells would need a terabyte).
+    // 32-bit cell and particle indices and cell ranges (a dense FLIP grid of 2^32 cells would
+    // need a terabyte).
     if (cells > std::int64_t(std::numeric_limits<std::uint32_t>::max()) ||
         n > std::int64_t(std::numeric_limits<std::uint32_t>::max()))
       throw std::length_error("FLIP cell sort: more than 2^32 - 1 cells or particles");
@@ -65,7 +66,7 @@ struct CellSort {
   }
 
   /// Particles in cell k.
-  std::int64_t count(std::int64_t k) const { return start[k + 1] - start[k]; }
+  std::int64_t count(std::int64_t k) const { return std::int64_t(start[k + 1]) - std::int64_t(start[k]); }
 
 };
 

@@ -139,7 +139,7 @@ void particles_to_faces(MacGrid<T, Dim>& g, const FlipParticles<T, Dim>& P, cons
   const bool affine = P.affine;
   const Vec* X = P.x.data();
   const Vec* V = P.v.data();
-  const std::int64_t* start = sort.start.data();
+  const std::uint32_t* start = sort.start.data();
   std::array<T*, Dim> U, W;
   std::array<std::array<std::int64_t, Dim>, Dim> stride;  // stride[d][a]: axis-a step on axis-d faces
   std::array<std::array<int, Dim>, Dim> extent;           // extent[d][a]: axis-d faces along a

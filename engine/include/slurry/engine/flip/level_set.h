@@ -41,7 +41,7 @@ void label_cells(MacGrid<T, Dim>& g, const FlipParticles<T, Dim>& P, const CellS
   constexpr int L = Dim - 1;  // rows of cells run along the last axis
   const int row_len = g.res[L];
   const std::int64_t rows = cells / row_len;
-  const std::int64_t* start = sort.start.data();
+  const std::uint32_t* start = sort.start.data();
   const Vec* X = P.x.data();
   std::int64_t cstride[Dim];
   for (int d = 0; d < Dim; ++d) cstride[d] = g.cell_stride(d);

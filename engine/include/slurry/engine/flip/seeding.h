@@ -217,7 +217,7 @@ struct Reseeder {
     const auto& start = sort.start;
     // Remove the surplus of over-full cells (serial and stable: the highest indices go).
     bool crowded = false;
-    for (std::int64_t k = 0; k < cells && !crowded && max_per_cell > 0; ++k) crowded = start[k + 1] - start[k] > max_per_cell;
+    for (std::int64_t k = 0; k < cells && !crowded && max_per_cell > 0; ++k) crowded = sort.count(k) > max_per_cell;
     if (crowded) {
       seen.assign(std::size_t(cells), 0);
       std::size_t w = 0;
@@ -254,7 +254,7 @@ struct Reseeder {
     });
     need.assign(std::size_t(cells + 1), 0);
     parallel::parallel_for(0, cells, [&](std::int64_t k) {
-      const std::int64_t n = start[k + 1] - start[k];
+      const std::int64_t n = sort.count(k);
       if (n >= min_per_cell || g.label[k] == MacGrid<T, Dim>::Solid) return;
       if (hole[k] || enclosed(k, true)) need[k + 1] = min_per_cell - n;
     });
