@@ -37,7 +37,8 @@ FlipSimulation<T, Dim>::FlipSimulation(const Scene& scene) : scene_(scene) {
   IVec res;
   for (int d = 0; d < Dim; ++d) res[d] = int(std::ceil((dom.max[d] - dom.min[d]) / dom.dx - 1e-9));
   const Vec origin = dom.min.head<Dim>().template cast<T>();
-  grid_.resize(res, dx, origin);
+  solids_.colliders = slurry::detail::make_colliders<T, Dim>(scene_);
+  grid_.resize(res, dx, origin, !solids_.empty());  // weight and u_solid only with colliders
   const T margin = T(1e-3) * dx;
   x_lo_ = origin.array() + margin;
   x_hi_ = (origin + dx * res.template cast<T>()).array() - margin;
@@ -48,7 +49,6 @@ FlipSimulation<T, Dim>::FlipSimulation(const Scene& scene) : scene_(scene) {
     case TransferKind::FLIP: scheme_ = FaceScheme::FLIP; break;
     default: scheme_ = FaceScheme::APIC; break;
   }
-  solids_.colliders = slurry::detail::make_colliders<T, Dim>(scene_);
   const auto& pp = scene_.solver.pressure;
   projection_options_.preconditioner = pp.preconditioner == PressurePreconditioner::Multigrid ? Preconditioner::Multigrid
                                        : pp.preconditioner == PressurePreconditioner::MIC0   ? Preconditioner::MIC0
@@ -108,8 +108,8 @@ std::size_t FlipSimulation<T, Dim>::bytes() const {
   b += cells * (2 + 2 * sizeof(T)) + holes_.capacity();
   b += pressure_.bytes() + extrapolator_.bytes();  // the pressure solve's vectors are most of the grid's memory
   for (int d = 0; d < Dim; ++d)
-    b += grid_.u[d].capacity() * (4 * sizeof(T) + 1) + weight_sum_[d].capacity() * sizeof(T) +
-         old_u_[d].capacity() * sizeof(T);
+    b += (grid_.u[d].capacity() + grid_.weight[d].capacity() + grid_.u_solid[d].capacity() +
+          weight_sum_[d].capacity() + old_u_[d].capacity()) * sizeof(T) + grid_.valid[d].capacity();
   return b;
 }
 
@@ -281,7 +281,7 @@ void FlipSimulation<T, Dim>::project(T dt) {
         if (fd > 0 && fd < grid_.res[d]) {
           const std::int64_t below = side ? c : nb, above = side ? nb : c;
           if (label[below] != Grid::Solid && label[above] != Grid::Solid)
-            open_w = std::clamp(grid_.weight[d][std::size_t(f)], T(0), T(1));
+            open_w = std::clamp(grid_.face_weight(d, f), T(0), T(1));
           openness += double(open_w), ++inner;
         }
         if (open_w <= T(0)) continue;  // a wall face sees particles on one side only

@@ -126,8 +126,8 @@ class Extrapolator {
     std::array<std::int64_t, Dim> cstride{};
     for (int a = 0; a < Dim; ++a) cstride[a] = g.cell_stride(a);
     T* u = g.u[d].data();
-    const T* us = g.u_solid[d].data();
-    const T* w = g.weight[d].data();
+    const T* us = g.has_solid_faces() ? g.u_solid[d].data() : nullptr;  // none: weight 1, u_solid 0
+    const T* w = g.has_solid_faces() ? g.weight[d].data() : nullptr;
     std::uint8_t* valid = g.valid[d].data();
     const std::uint8_t* label = g.label.data();
     const auto row_coord = [&](std::int64_t r, IVec& i) {
@@ -158,11 +158,11 @@ class Extrapolator {
               closed = label[cell0 + j - cstride[d]] == MacGrid<T, Dim>::Solid ||
                        label[cell0 + j] == MacGrid<T, Dim>::Solid;
             }
-            closed = closed || !(w[f] > T(0));
+            closed = closed || (w && !(w[f] > T(0)));
           }
           if (closed) {
             stamp_[std::size_t(f)] = -2;
-            u[f] = us[f];
+            u[f] = us ? us[f] : T(0);
           } else {
             stamp_[std::size_t(f)] = valid[f] ? 0 : -1;
           }

@@ -24,11 +24,12 @@
 ///
 /// A is symmetric positive (semi)definite. It is stored in Bridson's compact form: per cell the
 /// diagonal and one off-diagonal per positive axis. Like every vector of the solve it is packed:
-/// only cell rows (along the last axis) next to the fluid are stored, each over the window
-/// [lo - 1, hi + 1) of the union of its own and its axis neighbours' spans of unknowns, so that
-/// every neighbour an unknown reads is stored (zero where it is not an unknown). The liquid of
-/// the 150 x 100 x 75 dam break fills about a tenth of the tank; the full-grid vectors it
-/// replaces held 85 MB there. The solve is PCG with a choice of preconditioner:
+/// only the cell rows (along the last axis) that hold unknowns are stored, each over its span
+/// of unknowns [lo, hi) and one cell more at each end. A neighbour that its row does not store
+/// is read from a zero row at the end of every vector: each span is cut into pieces over which
+/// every neighbour row stores all or none of the neighbours. The liquid of the 150 x 100 x 75
+/// dam break fills about a tenth of the tank; the full-grid vectors this replaces held 85 MB
+/// there. The solve is PCG with a choice of preconditioner:
 /// - None: plain CG;
 /// - Jacobi: z = r / diag(A);
 /// - MIC0: modified incomplete Cholesky with zero fill-in, tau = 0.97, safety sigma = 0.25
@@ -264,7 +265,7 @@ class PressureSolver {
     add(diag_), add(precon_), add(x_), add(r_), add(z_), add(p_);
     for (int d = 0; d < Dim; ++d) add(plus_[std::size_t(d)]), add(open_[std::size_t(d)]);
     add(dirichlet_), add(kind_), add(phi_), add(span_lo_), add(span_hi_), add(closed_cells_), add(closed_start_);
-    add(win_lo_), add(win_hi_), add(base_);
+    add(win_lo_), add(win_hi_), add(base_), add(pieces_), add(piece_start_);
     add(flood_seen_), add(flood_queue_), add(block_start_), add(wave_progress_), add(tile_sums_);
     return b;
   }
@@ -350,19 +351,16 @@ class PressureSolver {
           add_span((c0 - down) / nz_, 0);
         }
         if (j_lo >= j_hi) j_lo = j_hi = n;
-        // Packed index of the face's upper cell b = c0 + j and lower cell a = b - down: j lies in
-        // both cells' row windows (a window holds its neighbour rows' spans, and one more cell
-        // at each end along the last axis).
+        // Rows of the face's upper cell b = c0 + j and lower cell a = b - down.
         const std::int64_t b_row = c0 / nz_;
-        const std::int64_t b_at0 = row_base(b_row);
-        const std::int64_t a_at0 = d == Dim - 1 ? b_at0 - 1 : row_base(b_row - row_step_[std::size_t(d)]);
+        const std::int64_t a_row = d == Dim - 1 ? b_row : b_row - row_step_[std::size_t(d)];
+        const int a_shift = d == Dim - 1 ? 1 : 0;
         const auto open = [&](int j) { return open_weight(g, d, d == Dim - 1 ? j : fi[d], f0 + j, c0 + j); };
         const auto rest = [&](int j0, int j1) {
           T* u = g.u[d].data() + f0;
-          const T* us = g.u_solid[d].data() + f0;
           std::uint8_t* valid = g.valid[d].data() + f0;
           for (int j = j0; j < j1; ++j) {
-            u[j] = open(j) <= T(0) ? us[j] : u[j];
+            u[j] = open(j) <= T(0) ? g.face_u_solid(d, f0 + j) : u[j];
             valid[j] = 0;
           }
         };
@@ -372,13 +370,13 @@ class PressureSolver {
           const std::size_t fs = std::size_t(f0 + j);
           const T w = open(j);
           if (w <= T(0)) {
-            g.u[d][fs] = g.u_solid[d][fs];
+            g.u[d][fs] = g.face_u_solid(d, std::int64_t(fs));
             g.valid[d][fs] = 0;
             continue;
           }
           const std::int64_t b_cell = c0 + j;  // upper cell; open faces are interior
           const std::int64_t a_cell = b_cell - down;
-          const std::int64_t b_at = b_at0 + j, a_at = a_at0 + j;
+          const std::int64_t b_at = stored_or_zero(b_row, j), a_at = stored_or_zero(a_row, j - a_shift);
           const bool ua = diag_[std::size_t(a_at)] > 0, ub = diag_[std::size_t(b_at)] > 0;
           if (!ua && !ub) {
             g.valid[d][fs] = 0;
@@ -425,7 +423,7 @@ class PressureSolver {
         f[d] += side;
         const std::size_t fs = std::size_t(g.face(d, f));
         const T w = g.open_weight(d, f);
-        const T flux = w * g.u[d][fs] + (T(1) - w) * g.u_solid[d][fs];
+        const T flux = w * g.u[d][fs] + (T(1) - w) * g.face_u_solid(d, std::int64_t(fs));
         s += side ? flux : -flux;
       }
     }
@@ -434,13 +432,21 @@ class PressureSolver {
 
   /// flux_sum() of cell c (coordinates i) with open_weight().
   T open_flux_sum(const Grid& g, std::int64_t c, const IVec& i) const {
+    return g.has_solid_faces() ? open_flux_sum<true>(g, c, i) : open_flux_sum<false>(g, c, i);
+  }
+  /// The same, for a grid with or without solid faces: one expression per case, so that the
+  /// compiler's contraction of w u + (1 - w) u_solid stays what it was when every grid stored
+  /// u_solid (the frames of scenes with colliders are unchanged to the bit).
+  template <bool kSolidFaces>
+  T open_flux_sum(const Grid& g, std::int64_t c, const IVec& i) const {
     T s = T(0);
     for (int d = 0; d < Dim; ++d) {
       const std::int64_t lower = g.face(d, i);
       for (int side = 0; side < 2; ++side) {
         const std::size_t fs = std::size_t(side ? lower + face_up_[d] : lower);
         const T w = open_weight(g, d, i[d] + side, std::int64_t(fs), side ? c + g.cell_stride(d) : c);
-        const T flux = w * g.u[d][fs] + (T(1) - w) * g.u_solid[d][fs];
+        const T us = kSolidFaces ? g.u_solid[d][fs] : T(0);
+        const T flux = w * g.u[d][fs] + (T(1) - w) * us;
         s += side ? flux : -flux;
       }
     }
@@ -456,7 +462,7 @@ class PressureSolver {
     const std::int64_t a = b - g.cell_stride(d);
     return g.label[std::size_t(a)] == Grid::Solid || g.label[std::size_t(b)] == Grid::Solid
                ? T(0)
-               : std::clamp(g.weight[d][std::size_t(f)], T(0), T(1));
+               : std::clamp(g.face_weight(d, f), T(0), T(1));
   }
 
   /// Free-surface fraction between fluid cell c and air cell a: theta = phi_c / (phi_c - phi_a)
@@ -527,21 +533,30 @@ class PressureSolver {
     return k >= win_lo_[r] && k < win_hi_[r] ? base_[r] + k : -1;
   }
 
-  /// Offsets from a cell of row `row` to its neighbours c + e_d (up) and c - e_d (down) in the
-  /// packed vectors.
-  struct Neighbours {
+  /// Packed index of cell k (-1 <= k <= nz_) of row `row`, or of the zero row where the row
+  /// does not store k.
+  std::int64_t stored_or_zero(std::int64_t row, int k) const {
+    const std::size_t r = std::size_t(row + rpad_);
+    return k >= win_lo_[r] && k < win_hi_[r] ? base_[r] + k : zero_base_ + k;
+  }
+
+  /// A piece [k0, k1) of a row's span over which every axis neighbour row either stores the
+  /// neighbours or not: up[d] and down[d] are the offsets from a cell c of the piece to c + e_d
+  /// and c - e_d in the packed vectors (into the zero row for neighbours not stored).
+  struct Piece {
+    int k0 = 0, k1 = 0;
     std::array<std::int64_t, Dim> up{}, down{};
   };
-  Neighbours neighbours(std::int64_t row) const {
-    Neighbours nb;
-    const std::int64_t base = row_base(row);
-    for (int d = 0; d < Dim - 1; ++d) {
-      nb.up[std::size_t(d)] = row_base(row + row_step_[std::size_t(d)]) - base;
-      nb.down[std::size_t(d)] = row_base(row - row_step_[std::size_t(d)]) - base;
-    }
-    nb.up[Dim - 1] = 1;
-    nb.down[Dim - 1] = -1;
-    return nb;
+  struct Pieces {
+    const Piece* first;
+    const Piece* last;
+    const Piece* begin() const { return first; }
+    const Piece* end() const { return last; }
+  };
+  /// The pieces of row `row`'s span, in increasing k.
+  Pieces pieces(std::int64_t row) const {
+    const Piece* p = pieces_.data();
+    return Pieces{p + piece_start_[std::size_t(row)], p + piece_start_[std::size_t(row + 1)]};
   }
 
   /// to = from over the unknowns (full grid to packed; 0 at the other cells of the spans).
@@ -577,32 +592,74 @@ class PressureSolver {
     v.resize(std::size_t(n));
   }
 
-  /// Windows and packed offsets from the spans; sizes the packed vectors and zeroes them.
+  /// Windows (each row's span and one cell more at each end), packed offsets, the zero row
+  /// and the pieces of every span; sizes the packed vectors and zeroes them.
   void compute_windows() {
     const std::int64_t padded = num_rows_ + 2 * rpad_;
-    win_lo_.resize(std::size_t(padded));
-    win_hi_.resize(std::size_t(padded));
+    win_lo_.assign(std::size_t(padded), 0);
+    win_hi_.assign(std::size_t(padded), 0);
     base_.resize(std::size_t(padded));
-    parallel::parallel_for(0, padded, [&](std::int64_t r) {
-      const std::int64_t row = r - rpad_;
-      int lo = nz_, hi = 0;
-      const auto add = [&](std::int64_t q) {
-        if (q < 0 || q >= num_rows_) return;
-        const int ql = span_lo_[std::size_t(q)], qh = span_hi_[std::size_t(q)];
-        if (ql < qh) lo = std::min(lo, ql), hi = std::max(hi, qh);
-      };
-      add(row);
-      for (int d = 0; d < Dim - 1; ++d) add(row + row_step_[std::size_t(d)]), add(row - row_step_[std::size_t(d)]);
-      win_lo_[std::size_t(r)] = lo < hi ? lo - 1 : 0;
-      win_hi_[std::size_t(r)] = lo < hi ? hi + 1 : 0;
-    });
     std::int64_t next = 0;
-    for (std::int64_t r = 0; r < padded; ++r) {
-      base_[std::size_t(r)] = next - win_lo_[std::size_t(r)];
-      next += win_hi_[std::size_t(r)] - win_lo_[std::size_t(r)];
+    for (std::int64_t row = 0; row < num_rows_; ++row) {
+      const std::size_t r = std::size_t(row + rpad_);
+      const int lo = span_lo_[std::size_t(row)], hi = span_hi_[std::size_t(row)];
+      if (lo < hi) win_lo_[r] = lo - 1, win_hi_[r] = hi + 1;
+      base_[r] = next - win_lo_[r];
+      next += win_hi_[r] - win_lo_[r];
     }
     packed_size_ = next;
-    const std::int64_t n = packed_size_;
+    zero_base_ = next + 1;  // the zero row: cells -1 .. nz_, never written
+    // Pieces: cut each span where an axis neighbour row's window starts or ends.
+    piece_start_.assign(std::size_t(num_rows_ + 1), 0);
+    pieces_.clear();
+    {  // about one piece per row with a span: reserve twice that (a warm step allocates nothing)
+      std::int64_t rows = 0;
+      for (std::int64_t row = 0; row < num_rows_; ++row) rows += span_lo_[std::size_t(row)] < span_hi_[std::size_t(row)];
+      if (std::int64_t(pieces_.capacity()) < rows + rows / 2) pieces_.reserve(std::size_t(2 * rows + 16));
+    }
+    for (std::int64_t row = 0; row < num_rows_; ++row) {
+      piece_start_[std::size_t(row)] = std::int64_t(pieces_.size());
+      const int lo = span_lo_[std::size_t(row)], hi = span_hi_[std::size_t(row)];
+      if (lo >= hi) continue;
+      std::array<int, 2 + 4 * Dim> cut{};
+      int n = 0;
+      cut[std::size_t(n++)] = lo;
+      cut[std::size_t(n++)] = hi;
+      const auto window = [&](std::int64_t q, int& wl, int& wh) {
+        wl = wh = 0;
+        if (q < 0 || q >= num_rows_) return;
+        wl = win_lo_[std::size_t(q + rpad_)], wh = win_hi_[std::size_t(q + rpad_)];
+      };
+      for (int d = 0; d < Dim - 1; ++d)
+        for (int side = 0; side < 2; ++side) {
+          int wl, wh;
+          window(row + (side ? row_step_[std::size_t(d)] : -row_step_[std::size_t(d)]), wl, wh);
+          if (wl >= wh) continue;
+          if (wl > lo && wl < hi) cut[std::size_t(n++)] = wl;
+          if (wh > lo && wh < hi) cut[std::size_t(n++)] = wh;
+        }
+      std::sort(cut.begin(), cut.begin() + n);
+      n = int(std::unique(cut.begin(), cut.begin() + n) - cut.begin());
+      const std::int64_t base = row_base(row);
+      for (int t = 0; t + 1 < n; ++t) {
+        Piece piece;
+        piece.k0 = cut[std::size_t(t)], piece.k1 = cut[std::size_t(t + 1)];
+        for (int d = 0; d < Dim - 1; ++d)
+          for (int side = 0; side < 2; ++side) {
+            const std::int64_t q = row + (side ? row_step_[std::size_t(d)] : -row_step_[std::size_t(d)]);
+            int wl, wh;
+            window(q, wl, wh);
+            const bool stored = wl <= piece.k0 && piece.k1 <= wh;
+            const std::int64_t offset = (stored ? base_[std::size_t(q + rpad_)] : zero_base_) - base;
+            (side ? piece.up : piece.down)[std::size_t(d)] = offset;
+          }
+        piece.up[Dim - 1] = 1;
+        piece.down[Dim - 1] = -1;
+        pieces_.push_back(piece);
+      }
+    }
+    piece_start_[std::size_t(num_rows_)] = std::int64_t(pieces_.size());
+    const std::int64_t n = packed_size_ + nz_ + 2;
     for (auto* v : {&diag_, &precon_, &x_, &r_, &z_, &p_}) grow(*v, n);
     for (int d = 0; d < Dim; ++d) grow(plus_[std::size_t(d)], n);
     grow(dirichlet_, n);
@@ -659,7 +716,8 @@ class PressureSolver {
     // is packed.
     std::vector<std::uint8_t>& seen = flood_seen_;  // members: no allocation per solve
     std::vector<std::int64_t>& queue = flood_queue_;
-    seen.assign(std::size_t(packed_size_), 0);
+    grow(seen, packed_size_);  // with room to spare, as the packed vectors
+    std::fill(seen.begin(), seen.begin() + packed_size_, std::uint8_t(0));
     queue.clear();
     const auto flood = [&](std::vector<std::int64_t>& q, std::size_t head) {
       while (head < q.size()) {
@@ -778,8 +836,8 @@ class PressureSolver {
     double* pc = precon_.data();
     sweep(true, [&](std::int64_t row, bool cut_lo, bool cut_hi) {
       const std::int64_t at0 = row_base(row);
-      const Neighbours nb = neighbours(row);
-      for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
+      for (const Piece& nb : pieces(row))
+      for (int k = nb.k0; k < nb.k1; ++k) {
         const std::int64_t c = at0 + k;
         if (!(diag[c] > 0)) continue;
         double e = diag[c];
@@ -805,8 +863,8 @@ class PressureSolver {
     return rows_sum<double>([&](std::int64_t row) {
       double s = 0;
       const std::int64_t at0 = row_base(row);
-      const Neighbours nb = neighbours(row);
-      for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
+      for (const Piece& nb : pieces(row))
+      for (int k = nb.k0; k < nb.k1; ++k) {
         const std::int64_t c = at0 + k;
         if (!(diag[c] > 0)) {
           y[c] = 0;
@@ -862,8 +920,8 @@ class PressureSolver {
     const double* pc = precon_.data();
     sweep(true, [&](std::int64_t row, bool cut_lo, bool) {  // L q = r, q stored in z
       const std::int64_t at0 = row_base(row);
-      const Neighbours nb = neighbours(row);
-      for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
+      for (const Piece& nb : pieces(row))
+      for (int k = nb.k0; k < nb.k1; ++k) {
         const std::int64_t c = at0 + k;
         if (!(pc[c] > 0)) {
           z[c] = 0;
@@ -881,12 +939,13 @@ class PressureSolver {
     return sweep(false, [&](std::int64_t row, bool, bool cut_hi) {  // L^T z = q in place
       double s = 0;
       const std::int64_t at0 = row_base(row);
-      const Neighbours nb = neighbours(row);
-      for (int k = span_hi_[std::size_t(row)] - 1; k >= span_lo_[std::size_t(row)]; --k) {
+      const Pieces all = pieces(row);
+      for (const Piece* nb = all.end(); nb-- != all.begin();)
+      for (int k = nb->k1 - 1; k >= nb->k0; --k) {
         const std::int64_t c = at0 + k;
         if (!(pc[c] > 0)) continue;
         double t = z[c];
-        for (int d = cut_hi ? 1 : 0; d < Dim; ++d) t -= plus(d)[c] * pc[c] * z[c + nb.up[std::size_t(d)]];
+        for (int d = cut_hi ? 1 : 0; d < Dim; ++d) t -= plus(d)[c] * pc[c] * z[c + nb->up[std::size_t(d)]];
         z[c] = t * pc[c];
         s += r[c] * z[c];
       }
@@ -1012,8 +1071,11 @@ class PressureSolver {
   // at row + rpad_; the pad rows hold the neighbours of the first and last rows). Only the
   // first packed_size_ entries of the packed vectors are in use.
   std::int64_t rpad_ = 0, packed_size_ = 0;
+  std::int64_t zero_base_ = 0;  ///< packed index of cell k = 0 of the zero row (after packed_size_)
   std::vector<int> win_lo_, win_hi_;
   std::vector<std::int64_t> base_;
+  std::vector<Piece> pieces_;              ///< every row's pieces, row after row
+  std::vector<std::int64_t> piece_start_;  ///< row's pieces are [piece_start_[row], piece_start_[row + 1])
   std::vector<double> diag_, precon_, x_, r_, z_, p_;
   /// A(c, c + e_d) = -w, stored at c in T: w is an open weight of type T, so -w is exact in T,
   /// and the products with the double vectors are those of the double value (half the bytes

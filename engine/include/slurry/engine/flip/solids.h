@@ -14,6 +14,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <stdexcept>
 #include <vector>
 
 #include "slurry/engine/colliders.h"
@@ -98,6 +99,10 @@ struct Solids {
   /// Sets g.weight and g.u_solid for time t: domain-boundary faces closed (weight 0, u_solid 0),
   /// other faces open by the fraction of their area outside every collider.
   void update_faces(MacGrid<T, Dim>& g, T t) {
+    if (!g.has_solid_faces()) {
+      if (!colliders.empty()) throw std::logic_error("Solids::update_faces: colliders need a grid with solid faces");
+      return;  // no collider: every face inside the domain is open (MacGrid::face_weight)
+    }
     const IVec nres = g.res + IVec::Ones();
     std::int64_t nodes = 1;
     for (int d = 0; d < Dim; ++d) nodes *= nres[d];
