@@ -521,22 +521,22 @@ class PressureSolver {
   T* plus(int d) { return plus_[std::size_t(d)].data(); }
   const T* plus(int d) const { return plus_[std::size_t(d)].data(); }
 
-  /// Packed index of cell k = 0 of row `row` (rows -rpad_ .. num_rows_ + rpad_ - 1).
-  std::int64_t row_base(std::int64_t row) const { return base_[std::size_t(row + rpad_)]; }
+  /// Packed index of cell k = 0 of row `row` (meaningful for the k its window stores).
+  std::int64_t row_base(std::int64_t row) const { return base_[std::size_t(row)]; }
 
   /// Packed index of cell c (full-grid index), -1 if it is not stored.
   std::int64_t packed(std::int64_t c) const {
     if (c < 0 || c >= num_cells_) return -1;
     const std::int64_t row = c / nz_;
     const int k = int(c - row * nz_);
-    const std::size_t r = std::size_t(row + rpad_);
+    const std::size_t r = std::size_t(row);
     return k >= win_lo_[r] && k < win_hi_[r] ? base_[r] + k : -1;
   }
 
   /// Packed index of cell k (-1 <= k <= nz_) of row `row`, or of the zero row where the row
   /// does not store k.
   std::int64_t stored_or_zero(std::int64_t row, int k) const {
-    const std::size_t r = std::size_t(row + rpad_);
+    const std::size_t r = std::size_t(row);
     return k >= win_lo_[r] && k < win_hi_[r] ? base_[r] + k : zero_base_ + k;
   }
 
@@ -595,13 +595,12 @@ class PressureSolver {
   /// Windows (each row's span and one cell more at each end), packed offsets, the zero row
   /// and the pieces of every span; sizes the packed vectors and zeroes them.
   void compute_windows() {
-    const std::int64_t padded = num_rows_ + 2 * rpad_;
-    win_lo_.assign(std::size_t(padded), 0);
-    win_hi_.assign(std::size_t(padded), 0);
-    base_.resize(std::size_t(padded));
+    win_lo_.assign(std::size_t(num_rows_), 0);
+    win_hi_.assign(std::size_t(num_rows_), 0);
+    base_.resize(std::size_t(num_rows_));
     std::int64_t next = 0;
     for (std::int64_t row = 0; row < num_rows_; ++row) {
-      const std::size_t r = std::size_t(row + rpad_);
+      const std::size_t r = std::size_t(row);
       const int lo = span_lo_[std::size_t(row)], hi = span_hi_[std::size_t(row)];
       if (lo < hi) win_lo_[r] = lo - 1, win_hi_[r] = hi + 1;
       base_[r] = next - win_lo_[r];
@@ -628,7 +627,7 @@ class PressureSolver {
       const auto window = [&](std::int64_t q, int& wl, int& wh) {
         wl = wh = 0;
         if (q < 0 || q >= num_rows_) return;
-        wl = win_lo_[std::size_t(q + rpad_)], wh = win_hi_[std::size_t(q + rpad_)];
+        wl = win_lo_[std::size_t(q)], wh = win_hi_[std::size_t(q)];
       };
       for (int d = 0; d < Dim - 1; ++d)
         for (int side = 0; side < 2; ++side) {
@@ -650,7 +649,7 @@ class PressureSolver {
             int wl, wh;
             window(q, wl, wh);
             const bool stored = wl <= piece.k0 && piece.k1 <= wh;
-            const std::int64_t offset = (stored ? base_[std::size_t(q + rpad_)] : zero_base_) - base;
+            const std::int64_t offset = (stored ? base_[std::size_t(q)] : zero_base_) - base;
             (side ? piece.up : piece.down)[std::size_t(d)] = offset;
           }
         piece.up[Dim - 1] = 1;
@@ -681,7 +680,6 @@ class PressureSolver {
     num_rows_ = num_cells_ / std::max(nz_, 1);
     for (int d = 0; d < Dim; ++d) stride_[d] = g.cell_stride(d), face_up_[d] = g.face_stride(d, d);
     for (int d = 0; d < Dim - 1; ++d) row_step_[std::size_t(d)] = stride_[d] / std::max(nz_, 1);
-    rpad_ = Dim > 1 ? row_step_[0] : 0;
     tiles0_ = (n0_ + kTile - 1) / kTile;
     tiles1_ = (n1_ + kTile - 1) / kTile;
   }
@@ -883,7 +881,7 @@ class PressureSolver {
   }
 
   PackedRows packed_rows() const {
-    return PackedRows{base_.data() + rpad_, win_lo_.data() + rpad_, win_hi_.data() + rpad_};
+    return PackedRows{base_.data(), win_lo_.data(), win_hi_.data()};
   }
 
   /// Multigrid hierarchy from the assembled system (level 0 in float).
@@ -1066,11 +1064,10 @@ class PressureSolver {
   int mic_blocks_ = 0;
   std::vector<int> block_start_;
   Preconditioner preconditioner_wanted_ = ProjectionOptions().preconditioner;
-  // The packed layout (see the file comment): row `row` holds cells k in
-  // [win_lo_, win_hi_) of its window at base_ + k, rows -rpad_ .. num_rows_ + rpad_ - 1 (stored
-  // at row + rpad_; the pad rows hold the neighbours of the first and last rows). Only the
-  // first packed_size_ entries of the packed vectors are in use.
-  std::int64_t rpad_ = 0, packed_size_ = 0;
+  // The packed layout (see the file comment): row `row` stores cells k in its window
+  // [win_lo_[row], win_hi_[row]) at base_[row] + k. The first packed_size_ entries of the packed
+  // vectors are the rows' windows, the next nz_ + 2 the zero row.
+  std::int64_t packed_size_ = 0;
   std::int64_t zero_base_ = 0;  ///< packed index of cell k = 0 of the zero row (after packed_size_)
   std::vector<int> win_lo_, win_hi_;
   std::vector<std::int64_t> base_;
