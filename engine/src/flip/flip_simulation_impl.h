@@ -253,8 +253,7 @@ void FlipSimulation<T, Dim>::project(T dt) {
   // in the hydrostatic test without the band, 0.0175 m/s with 0.1, at rest from 0.2 on).
   constexpr T kSlack = T(0.3);
   const double flux_per_error = beta * double(grid_.dx) / double(dt);  // dx div u per unit density error
-  // Evaluated by the projection at its unknowns (Fluid cells) only; per face, the same open
-  // weight as MacGrid::open_weight.
+  // Evaluated by the projection at its unknowns (Fluid cells) only.
   std::int64_t cstride[Dim], fup[Dim];
   for (int d = 0; d < Dim; ++d) cstride[d] = grid_.cell_stride(d), fup[d] = grid_.face_stride(d, d);
   const std::uint8_t* label = grid_.label.data();
@@ -277,13 +276,8 @@ void FlipSimulation<T, Dim>::project(T dt) {
         if (nd >= 0 && nd < grid_.res[d] && label[nb] == Grid::Air) interior = false;
         const int fd = i[d] + side;  // the face's coordinate along d
         const std::int64_t f = lower + (side ? fup[d] : 0);
-        T open_w = T(0);  // MacGrid::open_weight
-        if (fd > 0 && fd < grid_.res[d]) {
-          const std::int64_t below = side ? c : nb, above = side ? nb : c;
-          if (label[below] != Grid::Solid && label[above] != Grid::Solid)
-            open_w = std::clamp(grid_.face_weight(d, f), T(0), T(1));
-          openness += double(open_w), ++inner;
-        }
+        const T open_w = grid_.open_weight(d, fd, f, side ? nb : c);
+        if (fd > 0 && fd < grid_.res[d]) openness += double(open_w), ++inner;
         if (open_w <= T(0)) continue;  // a wall face sees particles on one side only
         w += weight_sum_[d][std::size_t(f)];
         ++open;

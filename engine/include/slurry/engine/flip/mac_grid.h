@@ -14,8 +14,9 @@
 /// (normal velocity of the solid at the face) and `valid` (the velocity is known; extrapolation
 /// fills the others). A grid without colliders stores neither `weight` nor `u_solid` (both
 /// empty: every face inside the domain open, u_solid = 0; 27 MB on a 150 x 100 x 75 grid in
-/// float); read them through face_weight() and face_u_solid(). Per cell: `label` (Air / Fluid / Solid), `phi` (liquid signed distance,
-/// negative inside) and `pressure` (kept between steps to warm-start the solve).
+/// float); read them through face_weight() and face_u_solid(). Per cell: `label` (Air / Fluid /
+/// Solid), `phi` (liquid signed distance, negative inside) and `pressure` (kept between steps to
+/// warm-start the solve).
 #include <Eigen/Core>
 #include <algorithm>
 #include <array>
@@ -142,11 +143,14 @@ struct MacGrid {
   /// but 0 on the domain boundary (walls) and next to a cell labelled Solid. A face with open
   /// weight 0 is closed: its velocity is the solid's (u = u_solid).
   T open_weight(int d, const IVec& i) const {
-    if (i[d] <= 0 || i[d] >= res[d]) return T(0);
-    IVec below = i;
-    below[d] -= 1;
-    if (label[std::size_t(cell(below))] == Solid || label[std::size_t(cell(i))] == Solid) return T(0);
-    return std::clamp(face_weight(d, face(d, i)), T(0), T(1));
+    return open_weight(d, i[d], face(d, i), cell(i));  // cell(i) is only an index on the boundary
+  }
+  /// open_weight() from indices a loop already has: axis-d face f, whose coordinate along d is
+  /// fd, between cells b - cell_stride(d) and b (b is not read on the domain boundary).
+  T open_weight(int d, int fd, std::int64_t f, std::int64_t b) const {
+    if (fd <= 0 || fd >= res[d]) return T(0);
+    if (label[std::size_t(b - cell_stride(d))] == Solid || label[std::size_t(b)] == Solid) return T(0);
+    return std::clamp(face_weight(d, f), T(0), T(1));
   }
 
   /// Whether the grid stores `weight` and `u_solid` (a scene with colliders).

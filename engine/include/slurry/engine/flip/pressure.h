@@ -165,7 +165,7 @@ class PressureSolver {
         const std::int64_t lower = g.face(d, i);
         for (int side = 0; side < 2; ++side) {  // lower face (side 0) or upper face (side 1)
           const std::int64_t nb = side ? c + g.cell_stride(d) : c - g.cell_stride(d);
-          const double w = double(open_weight(g, d, i[d] + side, side ? lower + face_up_[d] : lower, side ? nb : c));
+          const double w = double(g.open_weight(d, i[d] + side, side ? lower + face_up_[d] : lower, side ? nb : c));
           if (w <= 0) continue;
           const auto nl = g.label[std::size_t(nb)];
           if (nl == Grid::Fluid) {
@@ -227,7 +227,7 @@ class PressureSolver {
         T* open = open_[d].data();
         for_each_face_row(g, d, [&](std::int64_t f0, std::int64_t c0, const IVec& fi) {
           const int n = g.res[Dim - 1] + (d == Dim - 1 ? 1 : 0);
-          for (int j = 0; j < n; ++j) open[f0 + j] = open_weight(g, d, d == Dim - 1 ? j : fi[d], f0 + j, c0 + j);
+          for (int j = 0; j < n; ++j) open[f0 + j] = g.open_weight(d, d == Dim - 1 ? j : fi[d], f0 + j, c0 + j);
         });
       }
       kind_.resize(std::size_t(num_cells_));
@@ -355,7 +355,7 @@ class PressureSolver {
         const std::int64_t b_row = c0 / nz_;
         const std::int64_t a_row = d == Dim - 1 ? b_row : b_row - row_step_[std::size_t(d)];
         const int a_shift = d == Dim - 1 ? 1 : 0;
-        const auto open = [&](int j) { return open_weight(g, d, d == Dim - 1 ? j : fi[d], f0 + j, c0 + j); };
+        const auto open = [&](int j) { return g.open_weight(d, d == Dim - 1 ? j : fi[d], f0 + j, c0 + j); };
         const auto rest = [&](int j0, int j1) {
           T* u = g.u[d].data() + f0;
           std::uint8_t* valid = g.valid[d].data() + f0;
@@ -430,7 +430,7 @@ class PressureSolver {
     return s;
   }
 
-  /// flux_sum() of cell c (coordinates i) with open_weight().
+  /// flux_sum() of cell c (coordinates i), with the face indices it has at hand.
   T open_flux_sum(const Grid& g, std::int64_t c, const IVec& i) const {
     return g.has_solid_faces() ? open_flux_sum<true>(g, c, i) : open_flux_sum<false>(g, c, i);
   }
@@ -444,25 +444,13 @@ class PressureSolver {
       const std::int64_t lower = g.face(d, i);
       for (int side = 0; side < 2; ++side) {
         const std::size_t fs = std::size_t(side ? lower + face_up_[d] : lower);
-        const T w = open_weight(g, d, i[d] + side, std::int64_t(fs), side ? c + g.cell_stride(d) : c);
+        const T w = g.open_weight(d, i[d] + side, std::int64_t(fs), side ? c + g.cell_stride(d) : c);
         const T us = kSolidFaces ? g.u_solid[d][fs] : T(0);
         const T flux = w * g.u[d][fs] + (T(1) - w) * us;
         s += side ? flux : -flux;
       }
     }
     return s;
-  }
-
-  /// MacGrid::open_weight of axis-d face f, whose coordinate along d is fd, between cells
-  /// b - cell_stride(d) and b: 0 on the domain boundary (b is not read there) and next to a Solid
-  /// cell, else the face weight clamped to [0, 1]. Computed where it is needed: a cache of it
-  /// on every face took 13.7 MB on the 150 x 100 x 75 dam break.
-  static T open_weight(const Grid& g, int d, int fd, std::int64_t f, std::int64_t b) {
-    if (fd <= 0 || fd >= g.res[d]) return T(0);
-    const std::int64_t a = b - g.cell_stride(d);
-    return g.label[std::size_t(a)] == Grid::Solid || g.label[std::size_t(b)] == Grid::Solid
-               ? T(0)
-               : std::clamp(g.face_weight(d, f), T(0), T(1));
   }
 
   /// Free-surface fraction between fluid cell c and air cell a: theta = phi_c / (phi_c - phi_a)
@@ -1085,7 +1073,9 @@ class PressureSolver {
   std::vector<T> phi_;              ///< g.phi, for the multigrid's coarse ghost-fluid terms
   bool kind_ready_ = false;
   Multigrid multigrid_;
-  std::array<std::vector<T>, Dim> open_;  ///< open_weight() per face, for the multigrid (kind_ready_)
+  /// MacGrid::open_weight per face, for the multigrid (kind_ready_). Elsewhere it is computed
+  /// where it is read: a cache on every face took 13.7 MB on the 150 x 100 x 75 dam break.
+  std::array<std::vector<T>, Dim> open_;
   std::array<std::int64_t, Dim> face_up_{};  ///< axis-d face index step from a cell's lower to upper face
   std::vector<int> span_lo_, span_hi_;
   std::vector<std::int64_t> closed_cells_, closed_start_;
