@@ -58,10 +58,42 @@ class VertexFrame {
     for (int d = 0; d < Dim; ++d) add(names[d], [&](std::size_t i) { return v[i][d]; });
   }
 
+  /// Columns read in place when the frame is written (io::PlyColumnRef), for a frame that is
+  /// written without a copy of the particles (SimulationBase::frame_view): valid while the
+  /// arrays are unchanged. Only for frames in storage order (no `rows`). A frame made of
+  /// borrowed columns alone keeps the order of the calls, as add() does.
+  template <class V>
+  void borrow_column(const char* name, const std::vector<V>& column) {
+    vertex().refs.push_back(io::PlyColumnRef::of(name, n_ ? column.data() : nullptr));
+  }
+  /// A column holding `value` on every row (read from one place: a stride of 0).
+  template <class V>
+  void borrow_constant(const char* name, const V& value) {
+    vertex().refs.push_back(io::PlyColumnRef::of(name, &value, 0));
+  }
+  /// Dim columns x, y(, z) (or vx, vy(, vz)), each reading one component of the vectors.
+  template <int Dim, class Vecs>
+  void borrow_positions(const Vecs& x) {
+    static const char* names[3] = {"x", "y", "z"};
+    borrow_components<Dim>(names, x);
+  }
+  template <int Dim, class Vecs>
+  void borrow_velocities(const Vecs& v) {
+    static const char* names[3] = {"vx", "vy", "vz"};
+    borrow_components<Dim>(names, v);
+  }
+
   io::PlyData& data() { return data_; }
 
  private:
   io::PlyElement& vertex() { return data_.elements.front(); }
+
+  template <int Dim, class Vecs>
+  void borrow_components(const char* const* names, const Vecs& x) {
+    using S = std::decay_t<decltype(x[0][0])>;
+    for (int d = 0; d < Dim; ++d)
+      vertex().refs.push_back(io::PlyColumnRef::of(names[d], n_ ? &x[0][d] : static_cast<const S*>(nullptr), sizeof(x[0])));
+  }
 
   io::PlyData data_;
   std::size_t n_;

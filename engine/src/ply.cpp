@@ -198,28 +198,30 @@ T load(const unsigned char* src, bool swap) {
   return swap ? load<T, true>(src) : load<T, false>(src);
 }
 
-// Copies n packed values of S bytes into every stride-th slot of dst, as little endian.
+// Copies n values of S bytes, src_stride bytes apart, into every stride-th slot of dst, as little
+// endian.
 template <std::size_t S>
-void scatter_le(const unsigned char* src, std::size_t n, unsigned char* dst, std::size_t stride) {
+void scatter_le(const unsigned char* src, std::size_t src_stride, std::size_t n, unsigned char* dst,
+                std::size_t stride) {
   for (std::size_t i = 0; i < n; ++i) {
     unsigned char b[S];
-    std::memcpy(b, src + i * S, S);
+    std::memcpy(b, src + i * src_stride, S);
     if constexpr (!kHostLittleEndian) std::reverse(b, b + S);
     std::memcpy(dst + i * stride, b, S);
   }
 }
 
-void scatter_le(std::size_t size, const unsigned char* src, std::size_t n, unsigned char* dst,
-                std::size_t stride) {
+void scatter_le(std::size_t size, const unsigned char* src, std::size_t src_stride, std::size_t n,
+                unsigned char* dst, std::size_t stride) {
   switch (size) {
     case 1:
-      return scatter_le<1>(src, n, dst, stride);
+      return scatter_le<1>(src, src_stride, n, dst, stride);
     case 2:
-      return scatter_le<2>(src, n, dst, stride);
+      return scatter_le<2>(src, src_stride, n, dst, stride);
     case 4:
-      return scatter_le<4>(src, n, dst, stride);
+      return scatter_le<4>(src, src_stride, n, dst, stride);
     default:
-      return scatter_le<8>(src, n, dst, stride);
+      return scatter_le<8>(src, src_stride, n, dst, stride);
   }
 }
 
@@ -237,18 +239,35 @@ void append_le(std::vector<unsigned char>& buf, T v) {
   buf.insert(buf.end(), b, b + sizeof(T));
 }
 
+// A column as the writers read it: row r's value is the `type` at data + r * stride.
 struct RawColumn {
   const unsigned char* data;
-  std::size_t size;
+  std::size_t size;    // bytes per value
+  std::size_t stride;  // bytes between rows
+  ScalarType type;
 };
 
 RawColumn raw(const PlyScalarData& d) {
   return std::visit(
-      [](const auto& v) {
-        return RawColumn{reinterpret_cast<const unsigned char*>(v.data()),
-                         sizeof(ValueType<decltype(v)>)};
+      [&d](const auto& v) {
+        constexpr std::size_t size = sizeof(ValueType<decltype(v)>);
+        return RawColumn{reinterpret_cast<const unsigned char*>(v.data()), size, size, type_of(d)};
       },
       d);
+}
+
+RawColumn raw(const PlyColumnRef& c) {
+  const auto t = static_cast<ScalarType>(c.type);
+  return RawColumn{static_cast<const unsigned char*>(c.first), info(t).size, c.stride, t};
+}
+
+// Every scalar column of an element in file order: the owned properties, then the borrowed ones.
+std::vector<RawColumn> raw_columns(const PlyElement& el) {
+  std::vector<RawColumn> cols;
+  cols.reserve(el.properties.size() + el.refs.size());
+  for (const PlyProperty& p : el.properties) cols.push_back(raw(p.data));
+  for (const PlyColumnRef& c : el.refs) cols.push_back(raw(c));
+  return cols;
 }
 
 // ---- writing --------------------------------------------------------------------------------
@@ -291,6 +310,15 @@ void validate(const fs::path& path, const PlyData& data) {
                        " values but the element count is " + std::to_string(el.count) +
                        " (expected every column to have count values)");
     }
+    for (const PlyColumnRef& c : el.refs) {
+      check_name(c.name);
+      if (c.type >= kTypes.size())
+        fail(path, where + " borrowed column " + show(c.name) + " has the type index " +
+                       std::to_string(c.type) + " (expected 0..7, as PlyColumnRef::of sets it)");
+      if (el.count > 0 && c.first == nullptr)
+        fail(path, where + " borrowed column " + show(c.name) + " points nowhere (expected the " +
+                       "address of its first value for " + std::to_string(el.count) + " rows)");
+    }
     for (const PlyListProperty& l : el.lists) {
       check_name(l.name);
       if (l.data.size() != el.count)
@@ -315,6 +343,8 @@ std::string make_header(const PlyData& data, PlyFormat format) {
     h += "element " + el.name + " " + std::to_string(el.count) + "\n";
     for (const PlyProperty& p : el.properties)
       h += "property " + std::string(info(type_of(p.data)).name) + " " + p.name + "\n";
+    for (const PlyColumnRef& c : el.refs)
+      h += "property " + std::string(info(static_cast<ScalarType>(c.type)).name) + " " + c.name + "\n";
     for (const PlyListProperty& l : el.lists) h += "property list uchar int " + l.name + "\n";
   }
   h += "end_header\n";
@@ -382,12 +412,9 @@ class AtomicFile {
 };
 
 void write_binary_element(AtomicFile& file, const PlyElement& el) {
-  std::vector<RawColumn> cols;
+  const std::vector<RawColumn> cols = raw_columns(el);
   std::size_t stride = 0;
-  for (const PlyProperty& p : el.properties) {
-    cols.push_back(raw(p.data));
-    stride += cols.back().size;
-  }
+  for (const RawColumn& c : cols) stride += c.size;
   if (el.count == 0) return;
 
   if (el.lists.empty()) {
@@ -399,7 +426,7 @@ void write_binary_element(AtomicFile& file, const PlyElement& el) {
       const std::size_t n = std::min(rows_per_chunk, el.count - r0);
       std::size_t offset = 0;
       for (const RawColumn& c : cols) {
-        scatter_le(c.size, c.data + r0 * c.size, n, buf.data() + offset, stride);
+        scatter_le(c.size, c.data + r0 * c.stride, c.stride, n, buf.data() + offset, stride);
         offset += c.size;
       }
       file.write(buf.data(), n * stride);
@@ -412,7 +439,7 @@ void write_binary_element(AtomicFile& file, const PlyElement& el) {
   for (std::size_t r = 0; r < el.count; ++r) {
     for (const RawColumn& c : cols) {
       const std::size_t at = buf.size();
-      buf.insert(buf.end(), c.data + r * c.size, c.data + (r + 1) * c.size);
+      buf.insert(buf.end(), c.data + r * c.stride, c.data + r * c.stride + c.size);
       if constexpr (!kHostLittleEndian) std::reverse(buf.begin() + at, buf.end());
     }
     for (const PlyListProperty& l : el.lists) {
@@ -442,23 +469,20 @@ void append_ascii(std::string& out, T v) {
 }
 
 template <class T>
-void append_ascii_at(std::string& out, const void* column, std::size_t row) {
-  append_ascii(out, static_cast<const T*>(column)[row]);
+void append_ascii_at(std::string& out, const unsigned char* value) {
+  T v;
+  std::memcpy(&v, value, sizeof(T));
+  append_ascii(out, v);
 }
 
 void write_ascii_element(AtomicFile& file, const PlyElement& el) {
   struct Column {
-    const void* data;
-    void (*append)(std::string&, const void*, std::size_t);
+    RawColumn raw;
+    void (*append)(std::string&, const unsigned char*);
   };
   std::vector<Column> cols;
-  for (const PlyProperty& p : el.properties) {
-    cols.push_back(std::visit(
-        [](const auto& v) {
-          return Column{v.data(), &append_ascii_at<ValueType<decltype(v)>>};
-        },
-        p.data));
-  }
+  for (const RawColumn& c : raw_columns(el))
+    cols.push_back({c, visit_type(c.type, [](auto tag) { return &append_ascii_at<decltype(tag)>; })});
   if (cols.empty() && el.lists.empty()) return;  // rows without properties take no space
 
   std::string buf;
@@ -471,7 +495,7 @@ void write_ascii_element(AtomicFile& file, const PlyElement& el) {
     };
     for (const Column& c : cols) {
       separate();
-      c.append(buf, c.data, r);
+      c.append(buf, c.raw.data + r * c.raw.stride);
     }
     for (const PlyListProperty& l : el.lists) {
       separate();
@@ -1055,6 +1079,26 @@ void PlyElement::throw_wrong_type(const PlyProperty& p, std::string_view wanted)
   fail(source, "property " + show(p.name) + " of element " + show(name) + " is stored as " +
                    std::string(info(type_of(p.data)).name) + ", not " + std::string(wanted) +
                    " (expected the stored type; column_as_double() converts)");
+}
+
+void PlyElement::own() {
+  for (const PlyColumnRef& c : refs) {
+    if (c.type >= kTypes.size() || (count > 0 && c.first == nullptr))
+      fail(source, "element " + show(name) + " borrowed column " + show(c.name) +
+                       " has no valid type or address (expected one made by PlyColumnRef::of)");
+    const RawColumn r = raw(c);
+    properties.push_back({c.name, visit_type(r.type, [&](auto tag) {
+                            using T = decltype(tag);
+                            std::vector<T> v(count);
+                            for (std::size_t i = 0; i < count; ++i) std::memcpy(&v[i], r.data + i * r.stride, sizeof(T));
+                            return PlyScalarData(std::move(v));
+                          })});
+  }
+  refs.clear();
+}
+
+void PlyData::own() {
+  for (PlyElement& e : elements) e.own();
 }
 
 const PlyElement* PlyData::find(std::string_view name) const {

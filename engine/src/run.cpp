@@ -498,7 +498,8 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
       if (per_rank) {
         io::write_ply(rank_frame_file(dir, f, comm->rank()), sim->own_frame(scene.output.attributes), format);
       } else if (files) {
-        const io::PlyData frame = sim->frame(scene.output.attributes);  // gathered to rank 0 in a split run
+        // Gathered to rank 0 in a split run; columns may point into the particle arrays (no copy).
+        const io::PlyData frame = sim->frame_view(scene.output.attributes);
         if (writer) io::write_ply(file, frame, format);
       }
     } catch (...) {

@@ -264,8 +264,8 @@ TEST_P(PlyRoundTrip, ListPropertiesAndSeveralElements) {
 
 TEST_P(PlyRoundTrip, EmptyElementsAndNoElements) {
   PlyData d;
-  d.elements.push_back({"vertex", 0, {{"x", std::vector<double>{}}}, {}, {}});
-  d.elements.push_back({"face", 0, {}, {{"vertex_indices", {}}}, {}});
+  d.elements.push_back({"vertex", 0, {{"x", std::vector<double>{}}}, {}, {}, {}});
+  d.elements.push_back({"face", 0, {}, {{"vertex_indices", {}}}, {}, {}});
   const fs::path path = dir_ / "empty.ply";
   write_ply(path, d, GetParam());
   expect_same(d, read_ply(path));
@@ -364,8 +364,8 @@ TEST_F(PlyTest, BinaryBodyIsPackedLittleEndianRows) {
                          {"m", std::vector<std::uint16_t>{0x0102, 0xA0B0}},
                          {"d", std::vector<double>{-2.25, 1.0}}},
                         {},
-                        {}});
-  d.elements.push_back({"face", 1, {}, {{"vertex_indices", {{1, -1}}}}, {}});
+                        {}, {}});
+  d.elements.push_back({"face", 1, {}, {{"vertex_indices", {{1, -1}}}}, {}, {}});
   const fs::path path = dir_ / "body.ply";
   write_ply(path, d);
   const std::string bytes = read_bytes(path);
@@ -396,8 +396,8 @@ TEST_F(PlyTest, AsciiHeaderAndBodyText) {
                          {"c", std::vector<std::int8_t>{-128, 65}},
                          {"J", std::vector<double>{1e300, 0.1}}},
                         {},
-                        {}});
-  d.elements.push_back({"face", 1, {}, {{"vertex_indices", {{0, 1, -1}}}}, {}});
+                        {}, {}});
+  d.elements.push_back({"face", 1, {}, {{"vertex_indices", {{0, 1, -1}}}}, {}, {}});
   const fs::path path = dir_ / "ascii.ply";
   write_ply(path, d, PlyFormat::Ascii);
   const std::string bytes = read_bytes(path);
@@ -736,6 +736,76 @@ TEST_F(PlyTest, WritingOntoADirectoryFailsAndRemovesNothing) {
   EXPECT_CONTAINS(msg, "it is a directory");
   EXPECT_TRUE(fs::is_directory(path));
   EXPECT_EQ(dir_entries(), std::vector<std::string>{"frame.ply"});
+}
+
+// Borrowed columns (PlyColumnRef) read packed vectors component by component, a constant with
+// stride 0, and a plain array; the file must be byte-identical to the one written from copies,
+// in both encodings, and own() must turn the borrowed frame into exactly those copies.
+TEST_F(PlyTest, BorrowedColumnsWriteTheSameBytesAsCopies) {
+  struct Vec3 {
+    float c[3];
+  };
+  const std::size_t n = 3000;  // several rows per chunk, and more than one chunk of ascii text
+  std::vector<Vec3> x(n);
+  std::vector<std::uint32_t> id(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    x[i] = {{0.1f * float(i), -2.5f + float(i) / 7.0f, float(i * i) * 1e-3f}};
+    id[i] = std::uint32_t(n - i) * 2654435761u;
+  }
+  const std::uint16_t material = 7;
+
+  PlyData copied;
+  copied.comments = {"borrowed"};
+  PlyElement& c = copied.elements.emplace_back();
+  c.name = "vertex";
+  c.count = n;
+  const char* names[3] = {"x", "y", "z"};
+  for (int d = 0; d < 3; ++d) {
+    std::vector<float> col(n);
+    for (std::size_t i = 0; i < n; ++i) col[i] = x[i].c[d];
+    c.properties.push_back({names[d], col});
+  }
+  c.properties.push_back({"material", std::vector<std::uint16_t>(n, material)});
+  c.properties.push_back({"id", id});
+
+  PlyData borrowed;
+  borrowed.comments = {"borrowed"};
+  PlyElement& b = borrowed.elements.emplace_back();
+  b.name = "vertex";
+  b.count = n;
+  for (int d = 0; d < 3; ++d) b.refs.push_back(PlyColumnRef::of(names[d], &x[0].c[d], sizeof(Vec3)));
+  b.refs.push_back(PlyColumnRef::of("material", &material, 0));
+  b.refs.push_back(PlyColumnRef::of("id", id.data()));
+
+  for (const PlyFormat format : {PlyFormat::BinaryLittleEndian, PlyFormat::Ascii}) {
+    write_ply(dir_ / "copied.ply", copied, format);
+    write_ply(dir_ / "borrowed.ply", borrowed, format);
+    const std::string want = read_bytes(dir_ / "copied.ply");
+    EXPECT_GT(want.size(), n * 18);
+    EXPECT_EQ(read_bytes(dir_ / "borrowed.ply"), want) << (format == PlyFormat::Ascii ? "ascii" : "binary");
+  }
+  // A borrowed column is not a property until it is owned; then it is the copy.
+  EXPECT_EQ(borrowed.elements[0].find("x"), nullptr);
+  PlyData owned = borrowed;
+  x[0].c[0] = 99.0f;  // the copy does not follow the array any more
+  owned.own();
+  x[0].c[0] = 0.0f;
+  ASSERT_TRUE(owned.elements[0].refs.empty());
+  ASSERT_EQ(owned.elements[0].properties.size(), 5u);
+  EXPECT_EQ(owned.elements[0].column<float>("x")[0], 99.0f);
+  owned.elements[0].properties[0] = c.properties[0];
+  for (std::size_t k = 0; k < 5; ++k) {
+    EXPECT_EQ(owned.elements[0].properties[k].name, c.properties[k].name);
+    EXPECT_EQ(owned.elements[0].properties[k].data, c.properties[k].data) << c.properties[k].name;
+  }
+  // Names are checked across owned and borrowed columns; a borrowed column must point somewhere.
+  PlyData clash = borrowed;
+  clash.elements[0].properties.push_back({"id", std::vector<std::uint8_t>(n)});
+  EXPECT_CONTAINS(io_error_of([&] { write_ply(dir_ / "bad.ply", clash); }), "two properties called 'id'");
+  PlyData dangling = borrowed;
+  dangling.elements[0].refs[1].first = nullptr;
+  EXPECT_CONTAINS(io_error_of([&] { write_ply(dir_ / "bad.ply", dangling); }), "borrowed column 'y' points nowhere");
+  EXPECT_FALSE(fs::exists(dir_ / "bad.ply"));
 }
 
 }  // namespace

@@ -538,17 +538,28 @@ void FlipSimulation<T, Dim>::load_state(std::string_view in, const std::string& 
 
 template <class T, int Dim>
 io::PlyData FlipSimulation<T, Dim>::frame(const std::vector<std::string>& attributes) const {
+  io::PlyData data = frame_view(attributes);
+  data.own();
+  return data;
+}
+
+template <class T, int Dim>
+io::PlyData FlipSimulation<T, Dim>::frame_view(const std::vector<std::string>& attributes) const {
+  static constexpr std::uint16_t kNoMaterial = 0;  // a scene of one liquid stores no material channel
   const auto& P = particles_;
   slurry::detail::VertexFrame out("flip ", time_, scene_.source, P.size());
   for (const auto& a : attributes) {
     if (a == "position") {
-      out.add_positions<Dim>(P.x);
+      out.borrow_positions<Dim>(P.x);
     } else if (a == "velocity") {
-      out.add_velocities<Dim>(P.v);
+      out.borrow_velocities<Dim>(P.v);
     } else if (a == "material") {
-      out.add_column("material", P.has_material ? P.material : std::vector<std::uint16_t>(P.size(), 0));
+      if (P.has_material)
+        out.borrow_column("material", P.material);
+      else
+        out.borrow_constant("material", kNoMaterial);
     } else if (a == "id") {
-      out.add_column("id", P.id);
+      out.borrow_column("id", P.id);
     }
   }
   return std::move(out.data());

@@ -61,6 +61,23 @@ struct PlyProperty {
   PlyScalarData data;
 };
 
+/// A scalar column that write_ply reads where it lies, without a copy: row r's value is the
+/// scalar of type `type` at byte offset r * stride from `first`. A stride larger than the type
+/// reads one component of an array of structs or vectors (the y of packed xyz positions: first =
+/// &x[0][1], stride = sizeof(x[0])); a stride of 0 repeats one value on every row. The memory must
+/// stay valid and unchanged until the write returns. Built with PlyColumnRef::of.
+struct PlyColumnRef {
+  std::string name;
+  std::size_t type = 0;  ///< the index of the value's alternative in PlyScalarData
+  const void* first = nullptr;
+  std::size_t stride = 0;  ///< bytes from one row's value to the next
+
+  template <class T>
+  static PlyColumnRef of(std::string name, const T* first, std::size_t stride = sizeof(T)) {
+    return {std::move(name), PlyScalarData(std::vector<T>()).index(), first, stride};
+  }
+};
+
 /// A list property, e.g. a face's vertex_indices: one list of indices per row. Written as
 /// `property list uchar int <name>` (so at most 255 items per row); read from any integer count
 /// type and any integer item type whose values fit in int32.
@@ -70,8 +87,8 @@ struct PlyListProperty {
 };
 
 /// One element (a table): `count` rows, each with every scalar property and every list property.
-/// write_ply writes the scalar properties first, then the lists; read_ply keeps the file's order
-/// within each of the two vectors.
+/// write_ply writes the scalar properties first, then the borrowed columns (`refs`), then the
+/// lists; read_ply keeps the file's order within `properties` and `lists` and fills no `refs`.
 struct PlyElement {
   std::string name;
   std::size_t count = 0;
@@ -79,6 +96,14 @@ struct PlyElement {
   std::vector<PlyListProperty> lists;
   /// The file this element was read from (empty if built in memory); named in error messages.
   std::filesystem::path source;
+  /// Scalar columns written from memory the element does not own (see PlyColumnRef). The
+  /// look-ups below (find, property, column...) see only `properties`; own() copies these into
+  /// it.
+  std::vector<PlyColumnRef> refs;
+
+  /// Copies every borrowed column into `properties` (after the ones there, in order) and clears
+  /// `refs`: the element then holds its data and writes the same file.
+  void own();
 
   /// The scalar property called `name`, or nullptr.
   const PlyProperty* find(std::string_view name) const;
@@ -119,11 +144,13 @@ struct PlyData {
   /// The element called `name`; throws IoError (naming the file and the elements it does have)
   /// if there is none.
   const PlyElement& element(std::string_view name) const;
+  /// PlyElement::own() on every element.
+  void own();
 };
 
 /// Writes `data` to `path` atomically: validates everything first (each column and list has
 /// `count` entries, names are non-empty, free of whitespace and unique, lists have at most 255
-/// items, comments have no line breaks), then writes `<path>.tmp-<pid>-<n>` in the same
+/// items, comments have no line breaks, borrowed columns of a non-empty element point somewhere), then writes `<path>.tmp-<pid>-<n>` in the same
 /// directory, closes it, checks the stream and renames it onto `path`. On any failure the
 /// temporary file is removed, an existing file at `path` is left untouched and IoError is
 /// thrown. The directory must exist; it is not created.

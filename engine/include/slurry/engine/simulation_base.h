@@ -102,6 +102,12 @@ class SimulationBase {
   /// frame's own comment (merge_rank_frames() in run.h joins the parts). Not collective. A run
   /// that is not split returns frame(attributes).
   virtual io::PlyData own_frame(const std::vector<std::string>& attributes) const { return frame(attributes); }
+  /// frame(attributes) for writing at once: the same file, but columns may be borrowed from the
+  /// particle arrays (io::PlyColumnRef) instead of copied, so the frame is valid only until the
+  /// simulation next changes. The run loop writes frames through it (the FLIP solver's frame
+  /// then costs no copy of the particles: 21 MB on the 3D dam break). Collective where frame()
+  /// is.
+  virtual io::PlyData frame_view(const std::vector<std::string>& attributes) const { return frame(attributes); }
   /// One line on the last substep's linear solve (iterations, relative residual), for the CLI's
   /// per-frame log; empty for solvers without one (explicit MPM and FEM).
   virtual std::string solver_status() const { return {}; }

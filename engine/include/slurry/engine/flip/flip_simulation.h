@@ -72,6 +72,7 @@ class FlipSimulation final : public SimulationBase {
   std::int64_t advance_to(double t_end) override;
   /// position, velocity, material, id (the persistent particle id, uint32).
   io::PlyData frame(const std::vector<std::string>& attributes) const override;
+  io::PlyData frame_view(const std::vector<std::string>& attributes) const override;
 
   FlipParticles<T, Dim>& particles() { return particles_; }
   const FlipParticles<T, Dim>& particles() const { return particles_; }
