@@ -924,22 +924,32 @@ class PressureSolver {
     }
     // pc > 0 exactly at the unknowns (build_mic0; zero elsewhere): the sweeps test it, which
     // they read anyway, instead of the diagonal.
+    // Along a row each value depends on the one before it (the last axis' coupling): that
+    // chain sets the sweeps' speed. So the previous value is carried in a register (the row's
+    // cells are consecutive in the packed vectors: k - 1 and k + 1 are always stored, zero
+    // outside the span) and enters last, through one multiply-add, z_c = pc_c t - g_c z_prev
+    // with the off-chain products t (the other axes' terms) and g_c.
     const double* pc = precon_.data();
+    constexpr int kLast = Dim - 1;
+    const T* plus_last = plus(kLast);
     sweep(true, [&](std::int64_t row, bool cut_lo, bool) {  // L q = r, q stored in z
       const std::int64_t at0 = row_base(row);
-      for (const Piece& nb : pieces(row))
-      for (int k = nb.k0; k < nb.k1; ++k) {
-        const std::int64_t c = at0 + k;
-        if (!(pc[c] > 0)) {
-          z[c] = 0;
-          continue;
+      for (const Piece& nb : pieces(row)) {
+        double z_prev = z[at0 + nb.k0 - 1];
+        for (int k = nb.k0; k < nb.k1; ++k) {
+          const std::int64_t c = at0 + k;
+          if (!(pc[c] > 0)) {
+            z[c] = z_prev = 0;
+            continue;
+          }
+          double t = r[c];
+          for (int d = cut_lo ? 1 : 0; d < kLast; ++d) {
+            const std::int64_t m = c + nb.down[std::size_t(d)];
+            t -= plus(d)[m] * pc[m] * z[m];
+          }
+          const double g = plus_last[c - 1] * pc[c - 1] * pc[c];
+          z[c] = z_prev = t * pc[c] - g * z_prev;
         }
-        double t = r[c];
-        for (int d = cut_lo ? 1 : 0; d < Dim; ++d) {
-          const std::int64_t m = c + nb.down[std::size_t(d)];
-          t -= plus(d)[m] * pc[m] * z[m];
-        }
-        z[c] = t * pc[c];
       }
       return 0.0;
     });
@@ -947,14 +957,20 @@ class PressureSolver {
       double s = 0;
       const std::int64_t at0 = row_base(row);
       const Pieces all = pieces(row);
-      for (const Piece* nb = all.end(); nb-- != all.begin();)
-      for (int k = nb->k1 - 1; k >= nb->k0; --k) {
-        const std::int64_t c = at0 + k;
-        if (!(pc[c] > 0)) continue;
-        double t = z[c];
-        for (int d = cut_hi ? 1 : 0; d < Dim; ++d) t -= plus(d)[c] * pc[c] * z[c + nb->up[std::size_t(d)]];
-        z[c] = t * pc[c];
-        s += r[c] * z[c];
+      for (const Piece* nb = all.end(); nb-- != all.begin();) {
+        double z_next = z[at0 + nb->k1];
+        for (int k = nb->k1 - 1; k >= nb->k0; --k) {
+          const std::int64_t c = at0 + k;
+          if (!(pc[c] > 0)) {
+            z_next = z[c];  // 0 (the forward sweep wrote it)
+            continue;
+          }
+          double t = z[c];
+          for (int d = cut_hi ? 1 : 0; d < kLast; ++d) t -= plus(d)[c] * pc[c] * z[c + nb->up[std::size_t(d)]];
+          const double g = plus_last[c] * pc[c] * pc[c];
+          z[c] = z_next = t * pc[c] - g * z_next;
+          s += r[c] * z_next;
+        }
       }
       return s;
     });
