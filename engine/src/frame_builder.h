@@ -24,6 +24,9 @@ inline std::string fmt(double x) {
 /// bin order and writes them in seeding order), or in row i when `rows` is null.
 class VertexFrame {
  public:
+  static constexpr const char* kPositionNames[3] = {"x", "y", "z"};
+  static constexpr const char* kVelocityNames[3] = {"vx", "vy", "vz"};
+
   VertexFrame(const std::string& kind, double t, const std::string& source, std::size_t n,
               const std::uint32_t* rows = nullptr)
       : n_(n), rows_(rows) {
@@ -49,13 +52,11 @@ class VertexFrame {
   /// Dim columns x, y(, z) from positions or vx, vy(, vz) from velocities.
   template <int Dim, class Vecs>
   void add_positions(const Vecs& x) {
-    static const char* names[3] = {"x", "y", "z"};
-    for (int d = 0; d < Dim; ++d) add(names[d], [&](std::size_t i) { return x[i][d]; });
+    for (int d = 0; d < Dim; ++d) add(kPositionNames[d], [&](std::size_t i) { return x[i][d]; });
   }
   template <int Dim, class Vecs>
   void add_velocities(const Vecs& v) {
-    static const char* names[3] = {"vx", "vy", "vz"};
-    for (int d = 0; d < Dim; ++d) add(names[d], [&](std::size_t i) { return v[i][d]; });
+    for (int d = 0; d < Dim; ++d) add(kVelocityNames[d], [&](std::size_t i) { return v[i][d]; });
   }
 
   /// Columns read in place when the frame is written (io::PlyColumnRef), for a frame that is
@@ -74,13 +75,11 @@ class VertexFrame {
   /// Dim columns x, y(, z) (or vx, vy(, vz)), each reading one component of the vectors.
   template <int Dim, class Vecs>
   void borrow_positions(const Vecs& x) {
-    static const char* names[3] = {"x", "y", "z"};
-    borrow_components<Dim>(names, x);
+    borrow_components<Dim>(kPositionNames, x);
   }
   template <int Dim, class Vecs>
   void borrow_velocities(const Vecs& v) {
-    static const char* names[3] = {"vx", "vy", "vz"};
-    borrow_components<Dim>(names, v);
+    borrow_components<Dim>(kVelocityNames, v);
   }
 
   io::PlyData& data() { return data_; }

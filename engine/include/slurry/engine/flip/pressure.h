@@ -332,7 +332,6 @@ class PressureSolver {
       for (int k = 0; k < nz_; ++k) pr[k] = k >= lo && k < hi ? T(p[at0 + k]) : T(0);
     });
     const double coef = double(dt) / (opt.density * double(g.dx));
-    const bool solid_faces = g.has_solid_faces();
     for (int d = 0; d < Dim; ++d) {
       const std::int64_t down = g.cell_stride(d);
       for_each_face_row(g, d, [&](std::int64_t f0, std::int64_t c0, const IVec& fi) {
@@ -362,13 +361,8 @@ class PressureSolver {
           T* u = g.u[d].data() + f0;
           std::fill(g.valid[d].data() + f0 + j0, g.valid[d].data() + f0 + j1, std::uint8_t(0));
           // Only closed faces change (most faces are open: a store on each cost a full pass).
-          if (solid_faces) {
-            for (int j = j0; j < j1; ++j)
-              if (open(j) <= T(0)) u[j] = g.face_u_solid(d, f0 + j);
-          } else {
-            for (int j = j0; j < j1; ++j)
-              if (open(j) <= T(0)) u[j] = T(0);
-          }
+          for (int j = j0; j < j1; ++j)
+            if (open(j) <= T(0)) u[j] = g.face_u_solid(d, f0 + j);
         };
         rest(0, j_lo);
         rest(j_hi, n);
@@ -522,7 +516,12 @@ class PressureSolver {
   std::int64_t packed(std::int64_t c) const {
     if (c < 0 || c >= num_cells_) return -1;
     const std::int64_t row = c / nz_;
-    const int k = int(c - row * nz_);
+    return stored(row, int(c - row * nz_));
+  }
+
+  /// Packed index of cell k of row `row`, -1 if the row is outside the grid or does not store k.
+  std::int64_t stored(std::int64_t row, int k) const {
+    if (row < 0 || row >= num_rows_) return -1;
     const std::size_t r = std::size_t(row);
     return k >= win_lo_[r] && k < win_hi_[r] ? base_[r] + k : -1;
   }
@@ -711,13 +710,8 @@ class PressureSolver {
     grow(seen, packed_size_);  // with room to spare, as the packed vectors
     std::fill(seen.begin(), seen.begin() + packed_size_, std::uint8_t(0));
     queue.clear();
-    // Packed index of cell k of row `row`, -1 where the row does not store it or the row is
-    // outside the grid (a cell before the first row or wrapped into another row is never coupled).
-    const auto stored = [&](std::int64_t row, int k) -> std::int64_t {
-      if (row < 0 || row >= num_rows_) return -1;
-      const std::size_t r = std::size_t(row);
-      return k >= win_lo_[r] && k < win_hi_[r] ? base_[r] + k : -1;
-    };
+    // Neighbours are found from (row, k) with stored(): a cell before the first row or wrapped
+    // into another row is never coupled, as with packed().
     const auto flood = [&](std::vector<std::int64_t>& q, std::size_t head) {
       while (head < q.size()) {
         const std::int64_t c = q[head++];
