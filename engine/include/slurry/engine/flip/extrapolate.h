@@ -126,7 +126,10 @@ class Extrapolator {
     std::array<std::int64_t, Dim> cstride{};
     for (int a = 0; a < Dim; ++a) cstride[a] = g.cell_stride(a);
     T* u = g.u[d].data();
+    const T* us = g.has_solid_faces() ? g.u_solid[d].data() : nullptr;  // none: weight 1, u_solid 0
+    const T* w = g.has_solid_faces() ? g.weight[d].data() : nullptr;
     std::uint8_t* valid = g.valid[d].data();
+    const std::uint8_t* label = g.label.data();
     const auto row_coord = [&](std::int64_t r, IVec& i) {
       for (int a = L - 1; a >= 0; --a) {
         i[a] = int(r % fr_[a]);
@@ -139,15 +142,27 @@ class Extrapolator {
       IVec i;
       for (std::int64_t r = r0; r < r1; ++r) {
         row_coord(r, i);
-        std::int64_t cell0 = 0;  // the upper cell of the row's face j is cell0 + j (read only inside the domain)
+        bool row_closed = false;
+        std::int64_t cell0 = 0;  // cell i (with i[L] = 0) when the row's faces are interior along d
         for (int a = 0; a < L; ++a) cell0 += std::int64_t(i[a]) * cstride[a];
+        if (d != L) row_closed = i[d] <= 0 || i[d] >= g.res[d];
         const std::int64_t f0 = r * row_len;
         for (std::int64_t j = 0; j < row_len; ++j) {
           const std::int64_t f = f0 + j;
-          const int fd = d == L ? int(j) : i[d];  // the face's coordinate along d
-          if (!(g.open_weight(d, fd, f, cell0 + j) > T(0))) {
+          bool closed = row_closed;
+          if (!closed) {
+            if (d == L) {
+              closed = j <= 0 || j >= g.res[L] || label[cell0 + j - 1] == MacGrid<T, Dim>::Solid ||
+                       label[cell0 + j] == MacGrid<T, Dim>::Solid;
+            } else {
+              closed = label[cell0 + j - cstride[d]] == MacGrid<T, Dim>::Solid ||
+                       label[cell0 + j] == MacGrid<T, Dim>::Solid;
+            }
+            closed = closed || (w && !(w[f] > T(0)));
+          }
+          if (closed) {
             stamp_[std::size_t(f)] = -2;
-            u[f] = g.face_u_solid(d, f);
+            u[f] = us ? us[f] : T(0);
           } else {
             stamp_[std::size_t(f)] = valid[f] ? 0 : -1;
           }
