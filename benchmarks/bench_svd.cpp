@@ -1,7 +1,8 @@
 // 3x3 SVD throughput: slurry::constitutive::svd against Eigen::JacobiSVD, float and double,
 // on a pool of deformation-gradient-like matrices (identity plus uniform noise of size 0.3,
 // i.e. rotations, stretches and shears of tens of percent). Counter "svd/s": decompositions per
-// second on one core.
+// second on one core. BM_LanesSvd3 is the batched SVD of svd_lanes.h, a batch of 16 floats or 8
+// doubles per call, gathering each batch from the pool as the MPM's P2G does.
 #include <benchmark/benchmark.h>
 
 #include <Eigen/SVD>
@@ -9,6 +10,7 @@
 #include <vector>
 
 #include "slurry/constitutive/svd.h"
+#include "slurry/constitutive/svd_lanes.h"
 
 namespace {
 
@@ -53,6 +55,27 @@ void BM_SlurrySvd3(benchmark::State& state) {
 }
 
 template <class T>
+void BM_LanesSvd3(benchmark::State& state) {
+  namespace lanes = slurry::constitutive::lanes;
+  constexpr int W = lanes::kWidth<T>;
+  const auto pool = make_pool<T>();
+  std::int64_t n = 0;
+  for (auto _ : state) {
+    for (std::size_t b = 0; b + W <= pool.size(); b += W) {
+      lanes::Mat3<T, W> F, U, V;
+      lanes::Vec3<T, W> sigma;
+      for (int l = 0; l < W; ++l) F.put(l, pool[b + std::size_t(l)]);
+      lanes::svd(F, U, sigma, V);
+      benchmark::DoNotOptimize(&U);
+      benchmark::DoNotOptimize(&V);
+      benchmark::DoNotOptimize(&sigma);
+    }
+    n += std::int64_t(pool.size());
+  }
+  state.counters["svd/s"] = benchmark::Counter(double(n), benchmark::Counter::kIsRate);
+}
+
+template <class T>
 void BM_EigenJacobiSvd3(benchmark::State& state) {
   time_pool(state, make_pool<T>(), [](const auto& F) {
     Eigen::JacobiSVD<Eigen::Matrix<T, 3, 3>> svd(F, Eigen::ComputeFullU | Eigen::ComputeFullV);
@@ -85,8 +108,10 @@ void BM_SlurrySvd2(benchmark::State& state) {
 }
 
 BENCHMARK_TEMPLATE(BM_SlurrySvd3, float);
+BENCHMARK_TEMPLATE(BM_LanesSvd3, float);
 BENCHMARK_TEMPLATE(BM_EigenJacobiSvd3, float);
 BENCHMARK_TEMPLATE(BM_SlurrySvd3, double);
+BENCHMARK_TEMPLATE(BM_LanesSvd3, double);
 BENCHMARK_TEMPLATE(BM_EigenJacobiSvd3, double);
 BENCHMARK_TEMPLATE(BM_SlurryPolar3, float);
 BENCHMARK_TEMPLATE(BM_SlurryPolar3, double);

@@ -17,6 +17,7 @@
 #include "frame_builder.h"
 #include "geometry/scene_meshes.h"
 #include "implicit_update.h"
+#include "sand_lanes.h"
 #include "state_io.h"
 #include "slurry/engine/simulation.h"
 #include "slurry/transfer/parallel.h"
@@ -463,6 +464,11 @@ void Simulation<T, Dim>::project_and_stress(int material, std::uint32_t begin, s
   const std::size_t vol0_mask = P.vol0.read_mask();
   const auto& dp = mat.drucker_prager;
   std::int64_t n = 0;
+  if constexpr (Dim == 3 && constitutive::lanes::kPays<T>) {
+    yielded += detail::project_and_stress_lanes<T>(dp, mat.mu, mat.lambda, dt, order, begin, end, P.F.data(),
+                                                   P.plastic.data(), vol0, vol0_mask, K);
+    return;
+  }
   Mat tau;
   for (auto i = begin; i < end; ++i) {
     const auto p = order[i];

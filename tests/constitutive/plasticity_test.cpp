@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <limits>
 #include <random>
+#include <vector>
 
 #include "slurry/constitutive/hencky_stvk.h"
 #include "slurry/constitutive/plasticity.h"
@@ -393,5 +394,68 @@ TEST(Plasticity, FloatInstantiation) {
   float Jp = 1;
   EXPECT_TRUE(snow.project(G, Jp));
 }
+
+// The batched Drucker-Prager projection (project_with_stress over SIMD lanes, the 3D P2G's sand
+// path) against the scalar one, lane by lane, on the scalar test's inputs: the same branch in
+// every lane, Fe, state and tau to round-off (relative 1e-11 in double; 2e-5 in float, where
+// the logs and exps of the Hencky strain each add an ulp or so), Fe bitwise unchanged where
+// nothing yielded, and each lane's bits independent of its position and neighbours (the batch
+// reversed gives the same bits).
+template <class T>
+void check_drucker_prager_lanes(double tol) {
+  constexpr int W = sc::lanes::kWidth<T>;
+  using M = Eigen::Matrix<T, 3, 3>;
+  const sc::DruckerPrager<T> dp;
+  std::mt19937 rng(28);
+  std::uniform_real_distribution<double> u(-0.3, 0.3);
+  std::uniform_real_distribution<double> st(0, 1);
+  int counts[3] = {0, 0, 0};  // inside, cone, tip
+  for (int batch = 0; batch < 3000 / W; ++batch) {
+    sc::lanes::Mat3<T, W> F, F_rev, tau, tau_rev;
+    sc::lanes::Lane<T, W> state, state_rev;
+    std::vector<M> F0(W);
+    for (int l = 0; l < W; ++l) {
+      const int k = batch * W + l;
+      Eigen::Vector3d eps;
+      for (int i = 0; i < 3; ++i) eps(i) = u(rng);
+      if (k % 100 == 0) eps(2) = std::log(1e-6);           // floored
+      if (k % 7 == 0) eps.array() = eps.sum() / 3 - 0.01;  // pure compression: inside
+      F0[std::size_t(l)] = with_singular_values<3>(eps.array().exp().matrix(), rng).template cast<T>();
+      F.put(l, F0[std::size_t(l)]);
+      F_rev.put(W - 1 - l, F0[std::size_t(l)]);
+      state[l] = state_rev[W - 1 - l] = T(st(rng));
+    }
+    const sc::lanes::Lane<T, W> state0 = state;
+    const auto yielded = dp.project_with_stress(F, state, T(kMu), T(kLambda), tau);
+    const auto yielded_rev = dp.project_with_stress(F_rev, state_rev, T(kMu), T(kLambda), tau_rev);
+    for (int l = 0; l < W; ++l) {
+      M Fs = F0[std::size_t(l)], tau_s;
+      T ss = state0[l];
+      const bool ys = dp.project_with_stress(Fs, ss, T(kMu), T(kLambda), tau_s);
+      const bool yl = yielded.bits[l] != T(0);
+      ASSERT_EQ(yl, ys) << "lane " << l << " of batch " << batch << "\nF =\n" << F0[std::size_t(l)];
+      const M Fl = F.get(l), taul = tau.get(l);
+      if (!yl) {
+        EXPECT_EQ(Fl, F0[std::size_t(l)]) << "unchanged where nothing yielded";
+      }
+      EXPECT_LT(double((Fl - Fs).norm()), tol * double(Fs.norm()));
+      EXPECT_NEAR(double(state[l]), double(ss), tol * (1 + double(ss)));
+      EXPECT_LT(double((taul - tau_s).norm()), tol * kMu * (1 + double(tau_s.norm())));
+      EXPECT_EQ(taul, taul.transpose());
+      // Independent of the lane it sits in.
+      EXPECT_EQ(Fl, F_rev.get(W - 1 - l));
+      EXPECT_EQ(taul, tau_rev.get(W - 1 - l));
+      EXPECT_EQ(state[l], state_rev[W - 1 - l]);
+      EXPECT_EQ(yielded.bits[l] != T(0), yielded_rev.bits[W - 1 - l] != T(0));
+      ++counts[!ys ? 0 : (tau_s.norm() == 0 ? 2 : 1)];
+    }
+    if (::testing::Test::HasFailure()) return;
+  }
+  EXPECT_GT(counts[0], 300);
+  EXPECT_GT(counts[1], 300);
+  EXPECT_GT(counts[2], 300);
+}
+TEST(DruckerPragerLanes, AgreesWithTheScalarProjectionDouble) { check_drucker_prager_lanes<double>(1e-11); }
+TEST(DruckerPragerLanes, AgreesWithTheScalarProjectionFloat) { check_drucker_prager_lanes<float>(2e-5); }
 
 }  // namespace

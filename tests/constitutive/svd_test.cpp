@@ -1,5 +1,6 @@
 // Tests for constitutive/svd.h: the rotation-variant SVD and polar decomposition, 2x2 and 3x3,
-// float and double, against their defining properties and against Eigen::JacobiSVD.
+// float and double, against their defining properties and against Eigen::JacobiSVD; and for
+// svd_lanes.h, the batched 3x3 SVD, which runs the same SVD tests (cases with lanes = true).
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
@@ -11,6 +12,7 @@
 
 #include "slurry/constitutive/kinematics.h"
 #include "slurry/constitutive/svd.h"
+#include "slurry/constitutive/svd_lanes.h"
 #include "test_util.h"
 
 namespace {
@@ -20,10 +22,11 @@ constexpr double kPi = 3.14159265358979323846;
 using slurry::constitutive::polar;
 using slurry::constitutive::svd;
 
-template <class T, int D>
+template <class T, int D, bool Lanes = false>
 struct Case {
   using Scalar = T;
   static constexpr int dim = D;
+  static constexpr bool lanes = Lanes;  ///< through svd_lanes.h instead of svd.h
 };
 
 /// Relative tolerance of every identity checked here. A backward-stable SVD gets
@@ -59,9 +62,45 @@ Eigen::Matrix<double, D, D> with_singular_values(const Eigen::Matrix<double, D, 
   return random_rotation<D>(rng) * s.asDiagonal() * random_rotation<D>(rng).transpose();
 }
 
+/// svd(F) of svd.h, or with Lanes that of svd_lanes.h: F in one lane (a different one at each
+/// call) of a batch whose other lanes hold other matrices. The lanes version also checks that
+/// F's bits come out the same in every lane (a batch filled with F).
+template <class T, int D, bool Lanes>
+void decompose(const Eigen::Matrix<T, D, D>& F, Eigen::Matrix<T, D, D>& U, Eigen::Matrix<T, D, 1>& sigma,
+               Eigen::Matrix<T, D, D>& V) {
+  if constexpr (!Lanes) {
+    svd(F, U, sigma, V);
+  } else {
+    static_assert(D == 3, "svd_lanes.h is 3x3");
+    namespace lanes = slurry::constitutive::lanes;
+    constexpr int W = lanes::kWidth<T>;
+    static int slot = 0;
+    slot = (slot + 5) % W;
+    lanes::Mat3<T, W> Fl, Ul, Vl;
+    lanes::Vec3<T, W> sl;
+    for (int l = 0; l < W; ++l) {
+      Eigen::Matrix<T, 3, 3> other = Eigen::Matrix<T, 3, 3>::Identity();
+      other(0, 1) = T(0.1 * l);
+      other(2, 2) = T(l % 3 - 1);  // neighbours of every kind: singular, inverted, plain
+      Fl.put(l, l == slot ? F : other);
+    }
+    lanes::svd(Fl, Ul, sl, Vl);
+    U = Ul.get(slot);
+    V = Vl.get(slot);
+    for (int i = 0; i < 3; ++i) sigma(i) = sl.c[i][slot];
+    for (int l = 0; l < W; ++l) Fl.put(l, F);
+    lanes::svd(Fl, Ul, sl, Vl);
+    for (int l = 0; l < W; ++l) {
+      EXPECT_EQ(Ul.get(l), U) << "lane " << l;
+      EXPECT_EQ(Vl.get(l), V) << "lane " << l;
+      for (int i = 0; i < 3; ++i) EXPECT_EQ(sl.c[i][l], sigma(i)) << "lane " << l;
+    }
+  }
+}
+
 /// Checks every property of the decomposition of F (given in double, rounded to T) and returns
 /// the relative reconstruction error.
-template <class T, int D>
+template <class T, int D, bool Lanes = false>
 double check_svd(const Eigen::Matrix<double, D, D>& F_in, const char* what) {
   using Mat = Eigen::Matrix<T, D, D>;
   using MatD = Eigen::Matrix<double, D, D>;
@@ -69,7 +108,7 @@ double check_svd(const Eigen::Matrix<double, D, D>& F_in, const char* what) {
   const MatD Fd = F.template cast<double>();  // the matrix actually decomposed
   Mat U, V;
   Eigen::Matrix<T, D, 1> sigma;
-  svd(F, U, sigma, V);
+  decompose<T, D, Lanes>(F, U, sigma, V);
   const MatD Ud = U.template cast<double>(), Vd = V.template cast<double>();
   const Eigen::Matrix<double, D, 1> s = sigma.template cast<double>();
   const double scale = std::max(Fd.norm(), std::numeric_limits<double>::min());
@@ -127,7 +166,8 @@ void check_polar(const Eigen::Matrix<double, D, D>& F_in, const char* what) {
 
 template <class C>
 class SvdTest : public ::testing::Test {};
-using Cases = ::testing::Types<Case<float, 2>, Case<double, 2>, Case<float, 3>, Case<double, 3>>;
+using Cases = ::testing::Types<Case<float, 2>, Case<double, 2>, Case<float, 3>, Case<double, 3>, Case<float, 3, true>,
+                               Case<double, 3, true>>;
 TYPED_TEST_SUITE(SvdTest, Cases);
 
 TYPED_TEST(SvdTest, RandomMatrices) {
@@ -139,7 +179,7 @@ TYPED_TEST(SvdTest, RandomMatrices) {
   for (int k = 0; k < 2000; ++k) {
     Eigen::Matrix<double, D, D> F;
     for (int i = 0; i < D * D; ++i) F(i) = u(rng);
-    worst = std::max(worst, check_svd<T, D>(F, "random"));
+    worst = std::max(worst, check_svd<T, D, TypeParam::lanes>(F, "random"));
     if (::testing::Test::HasFailure()) break;
   }
   ::testing::Test::RecordProperty("worst_reconstruction", std::to_string(worst));
@@ -155,8 +195,8 @@ TYPED_TEST(SvdTest, DeformationGradientsNearRotations) {
     for (int k = 0; k < 300; ++k) {
       Eigen::Matrix<double, D, 1> s;
       for (int i = 0; i < D; ++i) s(i) = 1 + spread * u(rng);
-      check_svd<T, D>(with_singular_values<D>(s, rng), "near rotation");
-      check_polar<T, D>(with_singular_values<D>(s, rng), "near rotation");
+      check_svd<T, D, TypeParam::lanes>(with_singular_values<D>(s, rng), "near rotation");
+      if constexpr (!TypeParam::lanes) check_polar<T, D>(with_singular_values<D>(s, rng), "near rotation");
     }
   }
 }
@@ -170,13 +210,13 @@ TYPED_TEST(SvdTest, NearlySingular) {
     Eigen::Matrix<double, D, 1> s;
     for (int i = 0; i < D; ++i) s(i) = u(rng);
     s(D - 1) = 1e-8;
-    check_svd<T, D>(with_singular_values<D>(s, rng), "one singular value 1e-8");
+    check_svd<T, D, TypeParam::lanes>(with_singular_values<D>(s, rng), "one singular value 1e-8");
     if (D == 3) {
       // Two small singular values of different sizes: F^T F cannot separate them, the final
       // 2x2 step of the 3x3 SVD must.
       s(1) = 1e-4 * u(rng);
       s(2) = 1e-7 * u(rng);
-      check_svd<T, D>(with_singular_values<D>(s, rng), "two small singular values");
+      check_svd<T, D, TypeParam::lanes>(with_singular_values<D>(s, rng), "two small singular values");
     }
   }
 }
@@ -190,22 +230,22 @@ TYPED_TEST(SvdTest, SingularAndRankOne) {
     Eigen::Matrix<double, D, D> F;
     for (int i = 0; i < D * D; ++i) F(i) = u(rng);
     F.row(D - 1) = F.row(0);  // exactly singular: two equal rows
-    check_svd<T, D>(F, "two equal rows");
+    check_svd<T, D, TypeParam::lanes>(F, "two equal rows");
     Eigen::Matrix<double, D, 1> a, b;
     for (int i = 0; i < D; ++i) {
       a(i) = u(rng);
       b(i) = u(rng);
     }
-    check_svd<T, D>(a * b.transpose(), "rank one");
-    check_svd<T, D>(Eigen::Matrix<double, D, D>::Zero(), "zero");
+    check_svd<T, D, TypeParam::lanes>(a * b.transpose(), "rank one");
+    check_svd<T, D, TypeParam::lanes>(Eigen::Matrix<double, D, D>::Zero(), "zero");
   }
   // Exactly representable rank deficiency, with zero columns and rows.
   Eigen::Matrix<double, D, D> F = Eigen::Matrix<double, D, D>::Zero();
   F(0, D - 1) = 2;
-  check_svd<T, D>(F, "single entry");
+  check_svd<T, D, TypeParam::lanes>(F, "single entry");
   Eigen::Matrix<T, D, D> U, V;
   Eigen::Matrix<T, D, 1> sigma;
-  svd<T>(F.template cast<T>(), U, sigma, V);
+  decompose<T, D, TypeParam::lanes>(F.template cast<T>(), U, sigma, V);
   EXPECT_EQ(sigma(0), T(2));
   for (int i = 1; i < D; ++i) EXPECT_EQ(sigma(i), T(0));
 }
@@ -221,11 +261,11 @@ TYPED_TEST(SvdTest, Inverted) {
     s(k % D) *= -1;  // one negative factor anywhere: det < 0
     const Eigen::Matrix<double, D, D> F = with_singular_values<D>(s, rng);
     ASSERT_LT(F.determinant(), 0);
-    check_svd<T, D>(F, "inverted");
-    check_polar<T, D>(F, "inverted");
+    check_svd<T, D, TypeParam::lanes>(F, "inverted");
+    if constexpr (!TypeParam::lanes) check_polar<T, D>(F, "inverted");
     Eigen::Matrix<T, D, D> U, V;
     Eigen::Matrix<T, D, 1> sigma;
-    svd<T>(F.template cast<T>(), U, sigma, V);
+    decompose<T, D, TypeParam::lanes>(F.template cast<T>(), U, sigma, V);
     EXPECT_LT(sigma(D - 1), 0);
   }
 }
@@ -235,28 +275,28 @@ TYPED_TEST(SvdTest, IdentityRotationsAndReflections) {
   constexpr int D = TypeParam::dim;
   using MatD = Eigen::Matrix<double, D, D>;
   std::mt19937 rng(6);
-  check_svd<T, D>(MatD::Identity(), "identity");
-  check_svd<T, D>(-MatD::Identity(), "minus identity");
+  check_svd<T, D, TypeParam::lanes>(MatD::Identity(), "identity");
+  check_svd<T, D, TypeParam::lanes>(-MatD::Identity(), "minus identity");
   for (int k = 0; k < 200; ++k) {
     const MatD R = random_rotation<D>(rng);
-    check_svd<T, D>(R, "rotation");
-    check_polar<T, D>(R, "rotation");
+    check_svd<T, D, TypeParam::lanes>(R, "rotation");
+    if constexpr (!TypeParam::lanes) check_polar<T, D>(R, "rotation");
     Eigen::Matrix<T, D, D> U, V, Rp, S;
     Eigen::Matrix<T, D, 1> sigma;
-    svd<T>(R.template cast<T>(), U, sigma, V);
+    decompose<T, D, TypeParam::lanes>(R.template cast<T>(), U, sigma, V);
     for (int i = 0; i < D; ++i) EXPECT_NEAR(sigma(i), 1, tol<T>());
     // A reflection: det = -1, singular values (1, ..., 1, -1).
     MatD Q = R;
     Q.col(0) *= -1;
-    svd<T>(Q.template cast<T>(), U, sigma, V);
+    decompose<T, D, TypeParam::lanes>(Q.template cast<T>(), U, sigma, V);
     for (int i = 0; i + 1 < D; ++i) EXPECT_NEAR(sigma(i), 1, tol<T>());
     EXPECT_NEAR(sigma(D - 1), -1, tol<T>());
-    check_svd<T, D>(Q, "reflection");
+    check_svd<T, D, TypeParam::lanes>(Q, "reflection");
   }
   // Identity: exact.
   Eigen::Matrix<T, D, D> U, V;
   Eigen::Matrix<T, D, 1> sigma;
-  svd<T>(Eigen::Matrix<T, D, D>::Identity(), U, sigma, V);
+  decompose<T, D, TypeParam::lanes>(Eigen::Matrix<T, D, D>::Identity(), U, sigma, V);
   EXPECT_EQ(sigma, (Eigen::Matrix<T, D, 1>::Ones()));
 }
 
@@ -277,8 +317,8 @@ TYPED_TEST(SvdTest, RepeatedSingularValues) {
   s(D - 1) = -2;
   cases.push_back(s);  // inverted, |sigma| all equal
   for (const auto& c : cases) {
-    check_svd<T, D>(Eigen::Matrix<double, D, D>(c.asDiagonal()), "diagonal repeated");
-    for (int k = 0; k < 100; ++k) check_svd<T, D>(with_singular_values<D>(c, rng), "repeated");
+    check_svd<T, D, TypeParam::lanes>(Eigen::Matrix<double, D, D>(c.asDiagonal()), "diagonal repeated");
+    for (int k = 0; k < 100; ++k) check_svd<T, D, TypeParam::lanes>(with_singular_values<D>(c, rng), "repeated");
   }
 }
 
@@ -293,7 +333,7 @@ TYPED_TEST(SvdTest, Scale) {
     for (int k = 0; k < 100; ++k) {
       Eigen::Matrix<double, D, D> F;
       for (int i = 0; i < D * D; ++i) F(i) = scale * u(rng);
-      check_svd<T, D>(F, "scaled");
+      check_svd<T, D, TypeParam::lanes>(F, "scaled");
     }
   }
 }
@@ -366,6 +406,7 @@ TEST(Svd3x3, IdentityToAFewUlpsFromTheSandColumn) {
   F << 0x1.fffffep-1f, 0x1p-23f, -0x1p-25f, -0x1.8p-24f, 0x1.fffffep-1f, -0x1p-25f, 0x1p-24f, 0.0f,
       0x1.fffffep-1f;
   check_svd<float, 3>(F.cast<double>(), "sand column particle");
+  check_svd<float, 3, true>(F.cast<double>(), "sand column particle, batched");
 }
 
 // The same failure over many matrices of that kind: s I (s = 1, 0.75, 1.5) plus a few ulps on
@@ -393,3 +434,35 @@ void check_identity_to_a_few_ulps(int count) {
 }
 TEST(Svd3x3, IdentityToAFewUlpsFloat) { check_identity_to_a_few_ulps<float>(2000000); }
 TEST(Svd3x3, IdentityToAFewUlpsDouble) { check_identity_to_a_few_ulps<double>(2000000); }
+
+// The same matrices through the batched SVD (svd_lanes.h), a full batch of them at a time.
+template <class T>
+void check_identity_to_a_few_ulps_lanes(int count) {
+  namespace lanes = slurry::constitutive::lanes;
+  constexpr int W = lanes::kWidth<T>;
+  std::mt19937 rng(3);
+  std::uniform_int_distribution<int> pick(0, 3);
+  int bad = 0;
+  double worst = 0;
+  for (int n = 0; n < count; n += W) {
+    lanes::Mat3<T, W> F, U, V;
+    lanes::Vec3<T, W> s;
+    for (int l = 0; l < W; ++l) {
+      const int which = pick(rng);
+      const T sc = which == 0 ? T(1) : (which == 1 ? T(0.75) : T(1.5));
+      F.put(l, slurry::test::near_identity_by_ulps<T>(rng, sc));
+    }
+    lanes::svd(F, U, s, V);
+    for (int l = 0; l < W; ++l) {
+      const Eigen::Matrix<T, 3, 3> Fl = F.get(l), Ul = U.get(l), Vl = V.get(l);
+      const Eigen::Matrix<T, 3, 1> sl(s.c[0][l], s.c[1][l], s.c[2][l]);
+      const double e = double((Ul * sl.asDiagonal() * Vl.transpose() - Fl).norm() / Fl.norm());
+      if (!(e < tol<T>()) || !Ul.allFinite() || !Vl.allFinite()) ++bad;
+      else worst = std::max(worst, e);
+    }
+  }
+  EXPECT_EQ(bad, 0) << "matrices with a non-finite or inaccurate decomposition";
+  EXPECT_LT(worst, tol<T>());
+}
+TEST(Svd3x3Lanes, IdentityToAFewUlpsFloat) { check_identity_to_a_few_ulps_lanes<float>(2000000); }
+TEST(Svd3x3Lanes, IdentityToAFewUlpsDouble) { check_identity_to_a_few_ulps_lanes<double>(2000000); }

@@ -23,6 +23,7 @@
 
 #include "kinematics.h"
 #include "svd.h"
+#include "svd_lanes.h"
 
 namespace slurry::constitutive {
 
@@ -177,6 +178,68 @@ struct DruckerPrager {
                            Eigen::Matrix<T, Dim, Dim>& tau) const {
     return project_impl<Dim>(Fe, state, mu, lambda, &tau);
   }
+
+  /// project_with_stress() for W 3x3 matrices at once, one per SIMD lane (lanes.h): the same
+  /// return mapping on the batched SVD of svd_lanes.h, with packet log and exp. Results agree
+  /// with the scalar project_with_stress() to round-off, not bitwise; each lane depends only on
+  /// its own Fe and state. Fe is left bitwise unchanged in the lanes that do not yield. Returns
+  /// the lanes that yielded (the scalar function's return value, per lane).
+#if defined(__GNUC__) && !defined(__clang__)
+// GCC 12 reports -Wuninitialized inside its AVX-512 intrinsics (the _mm512_undefined_ps()
+// pass-through of unmasked operations, GCC bug 105593) when Eigen's packet log and exp are
+// inlined here: a false positive, silenced for this function.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#endif
+  template <int W>
+  lanes::Mask<T, W> project_with_stress(lanes::Mat3<T, W>& Fe, lanes::Lane<T, W>& state, T mu, T lambda,
+                                        lanes::Mat3<T, W>& tau) const {
+    using L = lanes::Lane<T, W>;
+    using lanes::select;
+    lanes::Mat3<T, W> U, V;
+    lanes::Vec3<T, W> sigma;
+    lanes::svd(Fe, U, sigma, V);
+    L eps[3];
+    for (int i = 0; i < 3; ++i) eps[i] = select(lanes::lt(sigma.c[i], min_singular_value), min_singular_value, sigma.c[i]).log();
+    const L tr = eps[0] + eps[1] + eps[2];
+    L eps_hat[3];
+    for (int i = 0; i < 3; ++i) eps_hat[i] = eps[i] - tr / T(3);
+    const L eps_hat_norm = lanes::sqrt(L(eps_hat[0] * eps_hat[0] + eps_hat[1] * eps_hat[1] + eps_hat[2] * eps_hat[2]));
+    const L delta_gamma = eps_hat_norm + (T(3) * lambda + T(2) * mu) / (T(2) * mu) * tr * alpha();
+    const lanes::Mask<T, W> inside = lanes::le(delta_gamma, T(0));
+    const lanes::Mask<T, W> tip = ~inside & (lanes::gt(tr, T(0)) | ~lanes::gt(eps_hat_norm, T(0)));
+    const lanes::Mask<T, W> cone = ~inside & ~tip;
+    const lanes::Mask<T, W> yielded = ~inside | lanes::lt(sigma.c[2], min_singular_value);
+    // Onto the cone (eps - 0 eps^ = eps bitwise in the other lanes); the tip's strain is 0.
+    const L scale = select(cone, L(delta_gamma / eps_hat_norm), T(0));
+    L e[3];
+    for (int i = 0; i < 3; ++i) e[i] = eps[i] - scale * eps_hat[i];
+    const L eps_norm = lanes::sqrt(L(eps[0] * eps[0] + eps[1] * eps[1] + eps[2] * eps[2]));
+    state += select(tip, eps_norm, select(cone, delta_gamma, T(0)));
+    // tau = U diag(2 mu e + lambda tr(e)) U^T, 0 at the tip; Fe = U diag(exp e) V^T, U V^T at
+    // the tip, where it yielded.
+    const L tr_e = e[0] + e[1] + e[2];
+    L k[3], x[3];
+    for (int i = 0; i < 3; ++i) {
+      k[i] = select(tip, T(0), L(T(2) * mu * e[i] + lambda * tr_e));
+      x[i] = select(tip, T(1), L(e[i].exp()));
+    }
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j) {
+        if (j >= i)
+          tau.a[i][j] = U.a[i][0] * k[0] * U.a[j][0] + U.a[i][1] * k[1] * U.a[j][1] + U.a[i][2] * k[2] * U.a[j][2];
+        else
+          tau.a[i][j] = tau.a[j][i];
+        Fe.a[i][j] = select(yielded,
+                            L(U.a[i][0] * x[0] * V.a[j][0] + U.a[i][1] * x[1] * V.a[j][1] + U.a[i][2] * x[2] * V.a[j][2]),
+                            Fe.a[i][j]);
+      }
+    }
+    return yielded;
+  }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic pop
+#endif
 
   /// y(tau) = ||dev tau||_F + alpha tr(tau) for principal Kirchhoff stresses tau; <= 0 inside.
   template <int Dim>
