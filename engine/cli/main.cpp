@@ -248,7 +248,13 @@ int main(int argc, char** argv) {
   };
 
 #ifdef SLURRY_WITH_IO
-  if (surface.app->parsed()) return slurry::cli::run_surface_command(surface);
+  if (surface.app->parsed()) {
+    try {
+      return slurry::cli::pipeline_module().run_surface_command(surface);
+    } catch (const slurry::IoError& e) {
+      return report(false, 3, e.what());
+    }
+  }
 #endif
 
   if (merge->parsed()) {
@@ -308,7 +314,10 @@ int main(int argc, char** argv) {
                    threads > 0 ? threads : slurry::parallel::max_threads(),
                    ranks > 1 ? (" per process, " + std::to_string(ranks) + " MPI processes").c_str() : "");
 #ifdef SLURRY_WITH_IO
-    const slurry::cli::FrameOutputWriter pipeline(scene);
+    // The module (and OpenVDB) is loaded only for a scene that asks for its outputs.
+    const slurry::cli::FrameOutputFn pipeline =
+        slurry::cli::wants_pipeline_outputs(scene) ? slurry::cli::pipeline_module().frame_output_writer(scene)
+                                                   : slurry::cli::FrameOutputFn();
 #else
     if (!scene.output.surface.empty() || scene.output.vdb_points)
       throw slurry::SceneError(scene_path + ": " + (scene.output.vdb_points ? "output.vdb_points" : "output.surface") +
@@ -318,7 +327,7 @@ int main(int argc, char** argv) {
     Progress progress(quiet);
     const auto on_frame = [&](const slurry::FrameReport& r) {
 #ifdef SLURRY_WITH_IO
-      if (rank == 0) {  // a split run's rank 0 holds every particle of the frame (simulation.h)
+      if (rank == 0 && pipeline) {  // a split run's rank 0 holds every particle of the frame (simulation.h)
         const std::string line = pipeline(r);
         if (!quiet && !line.empty() && !isatty(fileno(stderr))) std::fprintf(stderr, "frame %d: %s\n", r.frame, line.c_str());
       }

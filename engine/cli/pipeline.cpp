@@ -1,4 +1,4 @@
-// The effects-pipeline part of the slurry CLI (pipeline.h).
+// The effects-pipeline part of the slurry CLI (pipeline.h): the slurry_pipeline module.
 #include "pipeline.h"
 
 #include <unistd.h>
@@ -63,29 +63,6 @@ std::string seconds(double s) {
 }
 
 }  // namespace
-
-void add_surface_command(CLI::App& app, SurfaceCommand& c) {
-  c.app = app.add_subcommand(
-      "surface",
-      "Surface a PLY frame sequence already written: level sets (.vdb) and meshes (.ply, .obj)");
-  c.app->add_option("dir", c.dir, "Directory of frame_NNNN.ply files (the outputs go beside them)")
-      ->required();
-  c.app->add_option(
-      "--scene", c.scene,
-      "Scene of the frames: its domain.dx, particles_per_cell and output.surface_* settings "
-      "(default: the scene named in the frames)");
-  c.app->add_option("--voxel-size", c.voxel_size,
-                    "Level-set voxel size in m (default: the scene's domain.dx)");
-  c.app->add_option("--spacing", c.spacing,
-                    "Particle spacing in m (default: dx / particles_per_cell^(1/3))");
-  c.app->add_option("--smoothing", c.smoothing,
-                    "Gaussian smoothing passes (default: output.surface_smoothing, 2)");
-  c.app->add_option("--formats", c.formats,
-                    "Comma-separated surface formats: vdb, ply, obj (default: all three)");
-  c.app->add_flag("--points", c.points, "Also write OpenVDB points (points_NNNN.vdb)");
-  c.app->add_option("--threads,-t", c.threads, "Worker threads (0 = all cores)");
-  c.app->add_flag("--quiet,-q", c.quiet, "No progress output");
-}
 
 int run_surface_command(const SurfaceCommand& c) {
   try {
@@ -222,3 +199,12 @@ std::string FrameOutputWriter::operator()(const FrameReport& r) const {
 }
 
 }  // namespace slurry::cli
+
+extern "C" __attribute__((visibility("default"))) const slurry::cli::PipelineModule* slurry_pipeline_module() {
+  static const slurry::cli::PipelineModule module{
+      slurry::cli::kPipelineAbi, &slurry::cli::run_surface_command, [](const slurry::Scene& scene) {
+        const slurry::cli::FrameOutputWriter writer(scene);
+        return slurry::cli::FrameOutputFn(writer);
+      }};
+  return &module;
+}
