@@ -314,10 +314,11 @@ int main(int argc, char** argv) {
                    threads > 0 ? threads : slurry::parallel::max_threads(),
                    ranks > 1 ? (" per process, " + std::to_string(ranks) + " MPI processes").c_str() : "");
 #ifdef SLURRY_WITH_IO
-    // The module (and OpenVDB) is loaded only for a scene that asks for its outputs.
-    const slurry::cli::FrameOutputFn pipeline =
-        slurry::cli::wants_pipeline_outputs(scene) ? slurry::cli::pipeline_module().frame_output_writer(scene)
-                                                   : slurry::cli::FrameOutputFn();
+    // The module (and OpenVDB) is loaded only for a scene that asks for its outputs, and only by
+    // rank 0, which writes them.
+    const slurry::cli::FrameOutputFn pipeline = rank == 0 && slurry::cli::wants_pipeline_outputs(scene)
+                                                    ? slurry::cli::pipeline_module().frame_output_writer(scene)
+                                                    : slurry::cli::FrameOutputFn();
 #else
     if (!scene.output.surface.empty() || scene.output.vdb_points)
       throw slurry::SceneError(scene_path + ": " + (scene.output.vdb_points ? "output.vdb_points" : "output.surface") +
@@ -327,7 +328,7 @@ int main(int argc, char** argv) {
     Progress progress(quiet);
     const auto on_frame = [&](const slurry::FrameReport& r) {
 #ifdef SLURRY_WITH_IO
-      if (rank == 0 && pipeline) {  // a split run's rank 0 holds every particle of the frame (simulation.h)
+      if (pipeline) {  // rank 0's: a split run's rank 0 holds every particle of the frame (simulation.h)
         const std::string line = pipeline(r);
         if (!quiet && !line.empty() && !isatty(fileno(stderr))) std::fprintf(stderr, "frame %d: %s\n", r.frame, line.c_str());
       }

@@ -4,7 +4,8 @@
 /// each step: F = Fe Fp, and project() replaces the trial Fe in place by its projection onto
 /// the yield surface, updating one scalar of plastic state per particle. Each returns whether the
 /// particle yielded. All use the rotation-variant SVD of svd.h; the projection only changes the
-/// singular values, so U and V (the rotations) are kept.
+/// singular values, so U and V (the rotations) are kept. DruckerPrager also projects 16 float (8
+/// double) 3x3 Fe at once over SIMD lanes, on the batched SVD of svd_lanes.h.
 ///
 /// - SnowPlasticity: singular value clamping of Stomakhin et al. 2013.
 /// - DruckerPrager: cohesionless Drucker-Prager in Hencky strain, Klar et al. 2016.
