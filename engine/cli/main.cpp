@@ -40,6 +40,11 @@
 
 namespace {
 
+/// Whether the scene asks for effects-pipeline outputs (output.surface or output.vdb_points).
+bool wants_pipeline_outputs(const slurry::Scene& scene) {
+  return !scene.output.surface.empty() || scene.output.vdb_points;
+}
+
 std::string human_seconds(double s) {
   char buf[32];
   if (s < 60)
@@ -316,11 +321,11 @@ int main(int argc, char** argv) {
 #ifdef SLURRY_WITH_IO
     // The module (and OpenVDB) is loaded only for a scene that asks for its outputs, and only by
     // rank 0, which writes them.
-    const slurry::cli::FrameOutputFn pipeline = rank == 0 && slurry::cli::wants_pipeline_outputs(scene)
+    const slurry::cli::FrameOutputFn pipeline = rank == 0 && wants_pipeline_outputs(scene)
                                                     ? slurry::cli::pipeline_module().frame_output_writer(scene)
                                                     : slurry::cli::FrameOutputFn();
 #else
-    if (!scene.output.surface.empty() || scene.output.vdb_points)
+    if (wants_pipeline_outputs(scene))
       throw slurry::SceneError(scene_path + ": " + (scene.output.vdb_points ? "output.vdb_points" : "output.surface") +
                                ": this slurry was built without OpenVDB (SLURRY_BUILD_IO=OFF); expected no pipeline outputs");
 #endif

@@ -29,9 +29,6 @@ void add_surface_command(CLI::App& app, SurfaceCommand& c);
 /// Runs it (after a successful parse); returns the exit code: 0, 2 (usage), 3 (files).
 int run_surface_command(const SurfaceCommand& c);
 
-/// Whether the scene asks for pipeline outputs (output.surface or output.vdb_points).
-bool wants_pipeline_outputs(const Scene& scene);
-
 /// Writes the scene's pipeline outputs beside a frame just written; returns a log line.
 using FrameOutputFn = std::function<std::string(const FrameReport&)>;
 

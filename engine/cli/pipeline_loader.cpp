@@ -39,8 +39,6 @@ void add_surface_command(CLI::App& app, SurfaceCommand& c) {
   c.app->add_flag("--quiet,-q", c.quiet, "No progress output");
 }
 
-bool wants_pipeline_outputs(const Scene& scene) { return !scene.output.surface.empty() || scene.output.vdb_points; }
-
 namespace {
 
 /// SLURRY_PIPELINE_MODULE, or the module's place relative to this executable.

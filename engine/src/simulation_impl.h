@@ -463,12 +463,12 @@ void Simulation<T, Dim>::project_and_stress(int material, std::uint32_t begin, s
   const T* vol0 = P.vol0.read_base();
   const std::size_t vol0_mask = P.vol0.read_mask();
   const auto& dp = mat.drucker_prager;
-  std::int64_t n = 0;
   if constexpr (Dim == 3 && constitutive::lanes::kPays<T>) {
     yielded += detail::project_and_stress_lanes<T>(dp, mat.mu, mat.lambda, dt, order, begin, end, P.F.data(),
                                                    P.plastic.data(), vol0, vol0_mask, K);
     return;
   }
+  std::int64_t n = 0;
   Mat tau;
   for (auto i = begin; i < end; ++i) {
     const auto p = order[i];

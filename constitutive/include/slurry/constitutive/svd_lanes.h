@@ -43,12 +43,6 @@ struct Mat3 {
   void set_col(int j, const Vec3<T, W>& v) {
     for (int i = 0; i < 3; ++i) a[i][j] = v.c[i];
   }
-  static Mat3 identity() {
-    Mat3 m;
-    for (int i = 0; i < 3; ++i)
-      for (int j = 0; j < 3; ++j) m.a[i][j] = Lane<T, W>::Constant(i == j ? T(1) : T(0));
-    return m;
-  }
   /// Lane l as an Eigen matrix, and back.
   Eigen::Matrix<T, 3, 3> get(int l) const {
     Eigen::Matrix<T, 3, 3> m;
@@ -178,12 +172,10 @@ inline Mat3<T, W> sym_eigen3(const Lane<T, W>& a00, const Lane<T, W>& a11, const
   const V3 larger = combine(cb, u, sb, w), smaller = combine(L(-sb), u, cb, w);
   const V3 v0 = select(smallest, larger, v), v1 = select(smallest, smaller, larger);
   const V3 v2 = cross(v0, v1);
-  Mat3<T, W> V;
-  const V3 e0{{L::Constant(T(1)), L::Zero(), L::Zero()}}, e1{{L::Zero(), L::Constant(T(1)), L::Zero()}},
-      e2{{L::Zero(), L::Zero(), L::Constant(T(1))}};
-  V.set_col(0, select(found, v0, e0));
-  V.set_col(1, select(found, v1, e1));
-  V.set_col(2, select(found, v2, e2));
+  Mat3<T, W> V;  // the identity where no eigenvector was found
+  const V3* cols[3] = {&v0, &v1, &v2};
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) V.a[i][j] = lanes::select(found, cols[j]->c[i], T(i == j));
   return V;
 }
 
@@ -294,10 +286,9 @@ inline void svd(const Mat3<T, W>& F, Mat3<T, W>& U, Vec3<T, W>& sigma, Mat3<T, W
     sigma.c[1] = select(finish, t0, sigma.c[1]);
     sigma.c[2] = select(finish, t1, sigma.c[2]);
   }
-  const Mat3<T, W> I = Mat3<T, W>::identity();
   for (int i = 0; i < 3; ++i) {
     sigma.c[i] = select(nonzero, sigma.c[i], T(0));
-    for (int j = 0; j < 3; ++j) U.a[i][j] = select(nonzero, U.a[i][j], I.a[i][j]);
+    for (int j = 0; j < 3; ++j) U.a[i][j] = select(nonzero, U.a[i][j], T(i == j));
   }
 }
 
