@@ -27,9 +27,23 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <type_traits>
+#include <utility>
 
 #include "slurry/transfer/kernels.h"
 #include "slurry/transfer/parallel.h"
+
+#if defined(__SSE2__)
+#include <immintrin.h>
+#endif
+
+/// Forces a function or lambda inline (GCC, Clang); empty elsewhere. For the small per-particle
+/// callbacks of the hot loops, whose arguments must stay in registers.
+#if defined(__GNUC__)
+#define SLURRY_ALWAYS_INLINE __attribute__((always_inline))
+#else
+#define SLURRY_ALWAYS_INLINE
+#endif
 
 namespace slurry::transfer {
 
@@ -43,7 +57,52 @@ struct NonDeduced {
 };
 template <class T, int Dim>
 using MatPtr = typename NonDeduced<Eigen::Matrix<T, Dim, Dim>>::type;
+
+/// The Dim values at `p` followed by `last` (zero by default), as one (Dim+1)-vector.
+/// Assembling such a vector from scalars (`n << col, 0`) makes GCC 12 write the pieces to the
+/// stack and read them back as one vector, a store-to-load forwarding stall on every particle (perf put a quarter of the 3D
+/// scatter's samples on those loads). Where the vector is a machine register (3D float: SSE;
+/// 3D double: AVX), it is loaded as a pair and a single and joined in registers; the values are
+/// the same. `p` must not be read past its Dim values: it is the last column of a particle's
+/// matrix.
+template <class T, int Dim>
+inline Eigen::Matrix<T, Dim + 1, 1> padded(const T* p, T last = T(0)) {
+  Eigen::Matrix<T, Dim + 1, 1> n;
+#if defined(__SSE2__)
+  if constexpr (Dim == 3 && std::is_same_v<T, float>) {
+    const __m128 xy = _mm_castsi128_ps(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));  // x y 0 0
+    const __m128 zw = _mm_unpacklo_ps(_mm_load_ss(p + 2), _mm_set_ss(last));                  // z last 0 0
+    _mm_store_ps(n.data(), _mm_movelh_ps(xy, zw));
+    return n;
+  }
+#endif
+#if defined(__AVX__)
+  if constexpr (Dim == 3 && std::is_same_v<T, double>) {
+    const __m128d zw = _mm_unpacklo_pd(_mm_load_sd(p + 2), _mm_set_sd(last));
+    const __m256d v = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p)), zw, 1);
+    _mm256_store_pd(n.data(), v);
+    return n;
+  }
+#endif
+  for (int d = 0; d < Dim; ++d) n[d] = p[d];
+  n[Dim] = last;
+  return n;
+}
 }  // namespace detail
+
+/// A particle's velocity gradient handed to G2P's `state` callback: column d of the Dim x Dim
+/// matrix in the first Dim entries of col[d]; the last entry holds no value.
+template <class T, int Dim>
+struct GradientColumns {
+  using Node = Eigen::Matrix<T, Dim + 1, 1>;
+  Node col[Dim];
+  /// The Dim x Dim matrix.
+  Eigen::Matrix<T, Dim, Dim> matrix() const {
+    Eigen::Matrix<T, Dim, Dim> M;
+    for (int d = 0; d < Dim; ++d) M.col(d) = col[d].template head<Dim>();
+    return M;
+  }
+};
 
 /// Whether particles of this scheme carry an affine matrix C.
 constexpr bool carries_affine(Scheme s) {
@@ -84,35 +143,33 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
     lo = lo.cwiseMin(base);
     hi = hi.cwiseMax(base);
     const T mp = m[p & mass_mask];
-    Mat A = Mat::Zero();  // affine momentum, applied to (x_i - x_p)
-    Mat G = Mat::Zero();  // stress impulse (and linear-kernel B_p), applied to grad w
-    if constexpr (carries_affine(S)) {
-      if constexpr (Order > 1)
-        A = mp * C[p];
-      else
-        G = mp * C[p];
-    }
-    if (K) {
-      if constexpr (S == Scheme::MLS)
-        A += Dinv * K[i - begin];
-      else
-        G += K[i - begin];
-    }
-    // Per node: n_i += w (m v + A (x_i - x_p), m) + G grad w. With x_i - x_p = (ox_a, oy_b, oz_c)
+    // Per node: n_i += w (m v + A (x_i - x_p), m) + G grad w, with A the affine momentum and G
+    // the stress impulse (and the linear kernel's B_p). With x_i - x_p = (ox_a, oy_b, oz_c)
     // and grad w = (dwx_a wy_b wz_c, wx_a dwy_b wz_c, wx_a wy_b dwz_c) the affine and gradient
     // terms are summed axis by axis (hoisted out of the inner loops), and every node update is a
-    // few (Dim+1)-wide multiply-adds.
+    // few (Dim+1)-wide multiply-adds. The columns a[d] of A and g[d] of G are (Dim+1)-vectors
+    // with a zero last entry (the mass takes no affine or stress term), loaded whole.
     // MLS needs Order > 1, so every MLS particle has an affine term.
     constexpr bool has_A = carries_affine(S) && Order > 1;
     const bool has_G = S != Scheme::MLS && ((carries_affine(S) && Order == 1) || K != nullptr);
+    const Mat* Kp = K ? &K[i - begin] : nullptr;
     Node u0, a[Dim], g[Dim];
-    u0.template head<Dim>() = mp * v[p];
-    u0[Dim] = mp;
+    u0 = mp * detail::padded<T, Dim>(v[p].data(), T(1));  // (m v, m)
     for (int d = 0; d < Dim; ++d) {
-      a[d].template head<Dim>() = A.col(d);
-      a[d][Dim] = T(0);
-      g[d].template head<Dim>() = G.col(d);
-      g[d][Dim] = T(0);
+      a[d].setZero();
+      g[d].setZero();
+      if constexpr (carries_affine(S)) {
+        if constexpr (Order > 1)
+          a[d] = mp * detail::padded<T, Dim>(C[p].col(d).data());
+        else
+          g[d] = mp * detail::padded<T, Dim>(C[p].col(d).data());
+      }
+      if (Kp) {
+        if constexpr (S == Scheme::MLS)
+          a[d] += Dinv * detail::padded<T, Dim>(Kp->col(d).data());
+        else
+          g[d] += detail::padded<T, Dim>(Kp->col(d).data());
+      }
     }
     Node* n0 = nodes + grid.index(s.base);
     constexpr int N = St::N;
@@ -162,7 +219,8 @@ void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
 
 /// Gathers velocity (and C for APIC/MLS) back to particles ids[begin, end) (or [begin, end)
 /// when ids is null), advects them by dt * (PIC velocity), and calls `state(p, grad_v)` for the
-/// caller's deformation update. Reads the grid velocity from the node's first Dim entries and,
+/// caller's deformation update: grad_v is a `const GradientColumns<T, Dim>&` if `state` takes
+/// one (the engine's hot path), else the Dim x Dim matrix. Reads the grid velocity from the node's first Dim entries and,
 /// for FLIP, the pre-update velocity from `grid.old_velocity(k)`. Serial; each particle writes
 /// only itself, so callers run disjoint ranges in parallel. Returns the largest squared particle
 /// speed, or +infinity if any velocity is not finite or any particle left the box [x_lo, x_hi]
@@ -259,29 +317,35 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
       }
     }
     const Vec vpic = vp.template head<Dim>();
-    Mat B, gv;
+    // The velocity gradient goes to `state` as columns, (Dim+1)-vectors whose last entry is
+    // to be ignored: MLS's C = D^-1 B, the others' grad v. C is stored from the same vectors.
+    // (Assembling a Dim x Dim matrix from them and reading C back made every particle wait on
+    // store-to-load forwarding; see detail::padded.)
+    GradientColumns<T, Dim> grad;
     for (int d = 0; d < Dim; ++d) {
-      if constexpr (need_B) B.col(d) = bc[d].template head<Dim>();
-      if constexpr (need_grad) gv.col(d) = gc[d].template head<Dim>();
+      if constexpr (S == Scheme::MLS)
+        grad.col[d] = Dinv * bc[d];
+      else if constexpr (need_grad)
+        grad.col[d] = gc[d];
+      if constexpr (carries_affine(S)) {
+        if constexpr (Order > 1)
+          C[p].col(d) = (S == Scheme::MLS ? grad.col[d] : Node(Dinv * bc[d])).template head<Dim>();
+        else
+          C[p].col(d) = bc[d].template head<Dim>();
+      }
     }
     Vec dv = Vec::Zero();
     if constexpr (S == Scheme::FLIP) dv = vpic - old_sum;
-    if constexpr (carries_affine(S)) {
-      if constexpr (Order > 1)
-        C[p] = Dinv * B;
-      else
-        C[p] = B;
-    }
     Vec vnew = vpic;
     if constexpr (S == Scheme::FLIP) vnew = flip_ratio * (v[p] + dv) + (T(1) - flip_ratio) * vpic;
     v[p] = vnew;
     x[p] += dt * vpic;
     if (!((x[p].array() >= x_lo.array()).all() && (x[p].array() <= x_hi.array()).all()))
       return std::numeric_limits<T>::infinity();
-    if constexpr (S == Scheme::MLS)
-      state(p, C[p]);
+    if constexpr (std::is_invocable_v<StateFn&, std::int64_t, const GradientColumns<T, Dim>&>)
+      state(p, std::as_const(grad));
     else
-      state(p, gv);
+      state(p, grad.matrix());
     const T s2 = vnew.squaredNorm();
     if (!(s2 <= std::numeric_limits<T>::max())) return std::numeric_limits<T>::infinity();
     vmax2 = std::max(vmax2, s2);
