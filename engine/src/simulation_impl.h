@@ -17,6 +17,7 @@
 #include "frame_builder.h"
 #include "geometry/scene_meshes.h"
 #include "implicit_update.h"
+#include "corotated_lanes.h"
 #include "sand_lanes.h"
 #include "state_io.h"
 #include "slurry/engine/simulation.h"
@@ -498,6 +499,19 @@ void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::
     return;
   }
   mat.visit_elastic([&](const auto& model) {
+    using Model = std::decay_t<decltype(model)>;
+    if constexpr (Dim == 3 && constitutive::lanes::kPays<T> &&
+                  std::is_same_v<Model, constitutive::FixedCorotated<T, Dim>>) {
+      // Jelly and snow: the stress over SIMD lanes (corotated_lanes.h); snow's hardening factors
+      // first, one per particle.
+      const bool snow = mat.plastic_kind == PlasticModel::Snow;
+      T factor[kStressChunk];
+      if (snow)
+        for (auto i = begin; i < end; ++i) factor[i - begin] = mat.hardening_factor(P.plastic[order[i]]);
+      detail::fixed_corotated_stress_lanes<T>(model.mu, model.lambda, snow ? factor : nullptr, dt, order, begin, end,
+                                              P.F.data(), vol0, vol0_mask, K);
+      return;
+    }
     if (mat.plastic_kind == PlasticModel::Snow) {
       for (auto i = begin; i < end; ++i) {
         const auto p = order[i];
@@ -887,13 +901,14 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
   const bool split = bool(split_);
   const int axis = split ? split_->axis : 0, own_lo = split ? split_->lo : 0, own_hi = split ? split_->hi : 0;
   // F <- (I + dt grad v) F for solids, J <- det(I + dt grad v) J for fluids.
-  // Both take grad v as columns (transfers.h). F's update is a product of column vectors, in the
+  // In 3D both take grad v as columns (transfers.h), and are inlined into the gather: called out
+  // of line, the columns crossed the call through memory, and reading them back as one wide load
+  // waited on the stores that wrote them. F's update is a product of column vectors, in the
   // order of the matrix product it replaces: column j of A F is A_0 F_0j + A_1 F_1j + A_2 F_2j.
+  // 2D keeps the matrix product (its 3-vectors are no machine registers).
   using Grad = transfer::GradientColumns<T, Dim>;
   using Node = typename Grad::Node;
-  // Both are inlined into the gather: called out of line, `g` crossed the call through memory,
-  // and reading its columns back as one wide load waited on the stores that wrote them.
-  auto solid_state = [=](std::int64_t p, const Grad& g) SLURRY_ALWAYS_INLINE {
+  auto solid_columns = [=](std::int64_t p, const Grad& g) SLURRY_ALWAYS_INLINE {
     Node a[Dim];
     for (int k = 0; k < Dim; ++k) a[k] = Node::Unit(k) + dt * g.col[k];
     Mat& Fp = F[p];
@@ -904,9 +919,22 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
     }
     for (int j = 0; j < Dim; ++j) Fp.col(j) = out[j].template head<Dim>();
   };
-  auto fluid_state = [=](std::int64_t p, const Grad& g) SLURRY_ALWAYS_INLINE {
+  auto fluid_columns = [=](std::int64_t p, const Grad& g) SLURRY_ALWAYS_INLINE {
     J[p] *= (Mat::Identity() + dt * g.matrix()).determinant();
   };
+  auto solid_matrix = [=](std::int64_t p, const Mat& gv) {
+    const Mat A = Mat::Identity() + dt * gv;
+    F[p] = A * F[p];
+  };
+  auto fluid_matrix = [=](std::int64_t p, const Mat& gv) { J[p] *= (Mat::Identity() + dt * gv).determinant(); };
+  auto pick = [](auto columns, auto matrix) {
+    if constexpr (Dim == 3)
+      return columns;
+    else
+      return matrix;
+  };
+  auto solid_state = pick(solid_columns, solid_matrix);
+  auto fluid_state = pick(fluid_columns, fluid_matrix);
   auto gather = [&](auto scheme) {
     constexpr Scheme S = decltype(scheme)::value;
     if constexpr (S == Scheme::MLS && Order == 1) {

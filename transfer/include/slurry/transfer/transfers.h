@@ -154,21 +154,47 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
     const bool has_G = S != Scheme::MLS && ((carries_affine(S) && Order == 1) || K != nullptr);
     const Mat* Kp = K ? &K[i - begin] : nullptr;
     Node u0, a[Dim], g[Dim];
-    u0 = mp * detail::padded<T, Dim>(v[p].data(), T(1));  // (m v, m)
-    for (int d = 0; d < Dim; ++d) {
-      a[d].setZero();
-      g[d].setZero();
+    if constexpr (Dim == 3) {
+      u0 = mp * detail::padded<T, Dim>(v[p].data(), T(1));  // (m v, m)
+      for (int d = 0; d < Dim; ++d) {
+        a[d].setZero();
+        g[d].setZero();
+        if constexpr (carries_affine(S)) {
+          if constexpr (Order > 1)
+            a[d] = mp * detail::padded<T, Dim>(C[p].col(d).data());
+          else
+            g[d] = mp * detail::padded<T, Dim>(C[p].col(d).data());
+        }
+        if (Kp) {
+          if constexpr (S == Scheme::MLS)
+            a[d] += Dinv * detail::padded<T, Dim>(Kp->col(d).data());
+          else
+            g[d] += detail::padded<T, Dim>(Kp->col(d).data());
+        }
+      }
+    } else {
+      // 2D: the matrices first, then their columns. A 3-vector is no machine register, and
+      // summing by columns changed GCC's fused multiply-adds, and the last bits of 2D APIC runs.
+      Mat A = Mat::Zero(), G = Mat::Zero();
       if constexpr (carries_affine(S)) {
         if constexpr (Order > 1)
-          a[d] = mp * detail::padded<T, Dim>(C[p].col(d).data());
+          A = mp * C[p];
         else
-          g[d] = mp * detail::padded<T, Dim>(C[p].col(d).data());
+          G = mp * C[p];
       }
       if (Kp) {
         if constexpr (S == Scheme::MLS)
-          a[d] += Dinv * detail::padded<T, Dim>(Kp->col(d).data());
+          A += Dinv * *Kp;
         else
-          g[d] += detail::padded<T, Dim>(Kp->col(d).data());
+          G += *Kp;
+      }
+      u0.template head<Dim>() = mp * v[p];
+      u0[Dim] = mp;
+      for (int d = 0; d < Dim; ++d) {
+        a[d].template head<Dim>() = A.col(d);
+        a[d][Dim] = T(0);
+        g[d].template head<Dim>() = G.col(d);
+        g[d][Dim] = T(0);
       }
     }
     Node* n0 = nodes + grid.index(s.base);
@@ -219,8 +245,8 @@ void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
 
 /// Gathers velocity (and C for APIC/MLS) back to particles ids[begin, end) (or [begin, end)
 /// when ids is null), advects them by dt * (PIC velocity), and calls `state(p, grad_v)` for the
-/// caller's deformation update: grad_v is a `const GradientColumns<T, Dim>&` if `state` takes
-/// one (the engine's hot path), else the Dim x Dim matrix. Reads the grid velocity from the node's first Dim entries and,
+/// caller's deformation update: in 3D grad_v is a `const GradientColumns<T, Dim>&` if `state`
+/// takes one (the engine's hot path), else (and in 2D) the Dim x Dim matrix. Reads the grid velocity from the node's first Dim entries and,
 /// for FLIP, the pre-update velocity from `grid.old_velocity(k)`. Serial; each particle writes
 /// only itself, so callers run disjoint ranges in parallel. Returns the largest squared particle
 /// speed, or +infinity if any velocity is not finite or any particle left the box [x_lo, x_hi]
@@ -317,35 +343,57 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
       }
     }
     const Vec vpic = vp.template head<Dim>();
-    // The velocity gradient goes to `state` as columns, (Dim+1)-vectors whose last entry is
-    // to be ignored: MLS's C = D^-1 B, the others' grad v. C is stored from the same vectors.
-    // (Assembling a Dim x Dim matrix from them and reading C back made every particle wait on
-    // store-to-load forwarding; see detail::padded.)
-    GradientColumns<T, Dim> grad;
-    for (int d = 0; d < Dim; ++d) {
-      if constexpr (S == Scheme::MLS)
-        grad.col[d] = Dinv * bc[d];
-      else if constexpr (need_grad)
-        grad.col[d] = gc[d];
-      if constexpr (carries_affine(S)) {
-        if constexpr (Order > 1)
-          C[p].col(d) = (S == Scheme::MLS ? grad.col[d] : Node(Dinv * bc[d])).template head<Dim>();
-        else
-          C[p].col(d) = bc[d].template head<Dim>();
-      }
-    }
     Vec dv = Vec::Zero();
     if constexpr (S == Scheme::FLIP) dv = vpic - old_sum;
     Vec vnew = vpic;
     if constexpr (S == Scheme::FLIP) vnew = flip_ratio * (v[p] + dv) + (T(1) - flip_ratio) * vpic;
-    v[p] = vnew;
-    x[p] += dt * vpic;
-    if (!((x[p].array() >= x_lo.array()).all() && (x[p].array() <= x_hi.array()).all()))
-      return std::numeric_limits<T>::infinity();
-    if constexpr (std::is_invocable_v<StateFn&, std::int64_t, const GradientColumns<T, Dim>&>)
-      state(p, std::as_const(grad));
-    else
-      state(p, grad.matrix());
+    if constexpr (Dim == 3) {
+      // 3D: the velocity gradient goes to `state` as columns, (Dim+1)-vectors whose last entry
+      // is to be ignored: MLS's C = D^-1 B, the others' grad v. C is stored from the same
+      // vectors. (Assembling a 3x3 matrix from them and reading C back made every particle wait
+      // on store-to-load forwarding; see detail::padded.)
+      GradientColumns<T, Dim> grad;
+      for (int d = 0; d < Dim; ++d) {
+        if constexpr (S == Scheme::MLS)
+          grad.col[d] = Dinv * bc[d];
+        else if constexpr (need_grad)
+          grad.col[d] = gc[d];
+        if constexpr (carries_affine(S)) {
+          if constexpr (Order > 1)
+            C[p].col(d) = (S == Scheme::MLS ? grad.col[d] : Node(Dinv * bc[d])).template head<Dim>();
+          else
+            C[p].col(d) = bc[d].template head<Dim>();
+        }
+      }
+      v[p] = vnew;
+      x[p] += dt * vpic;
+      if (!((x[p].array() >= x_lo.array()).all() && (x[p].array() <= x_hi.array()).all()))
+        return std::numeric_limits<T>::infinity();
+      if constexpr (std::is_invocable_v<StateFn&, std::int64_t, const GradientColumns<T, Dim>&>)
+        state(p, std::as_const(grad));
+      else
+        state(p, grad.matrix());
+    } else {
+      Mat B, gv;
+      for (int d = 0; d < Dim; ++d) {
+        if constexpr (need_B) B.col(d) = bc[d].template head<Dim>();
+        if constexpr (need_grad) gv.col(d) = gc[d].template head<Dim>();
+      }
+      if constexpr (carries_affine(S)) {
+        if constexpr (Order > 1)
+          C[p] = Dinv * B;
+        else
+          C[p] = B;
+      }
+      v[p] = vnew;
+      x[p] += dt * vpic;
+      if (!((x[p].array() >= x_lo.array()).all() && (x[p].array() <= x_hi.array()).all()))
+        return std::numeric_limits<T>::infinity();
+      if constexpr (S == Scheme::MLS)
+        state(p, C[p]);
+      else
+        state(p, gv);
+    }
     const T s2 = vnew.squaredNorm();
     if (!(s2 <= std::numeric_limits<T>::max())) return std::numeric_limits<T>::infinity();
     vmax2 = std::max(vmax2, s2);
