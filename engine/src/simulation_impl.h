@@ -901,23 +901,15 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
   const bool split = bool(split_);
   const int axis = split ? split_->axis : 0, own_lo = split ? split_->lo : 0, own_hi = split ? split_->hi : 0;
   // F <- (I + dt grad v) F for solids, J <- det(I + dt grad v) J for fluids.
-  // In 3D both take grad v as columns (transfers.h), and are inlined into the gather: called out
-  // of line, the columns crossed the call through memory, and reading them back as one wide load
-  // waited on the stores that wrote them. F's update is a product of column vectors, in the
-  // order of the matrix product it replaces: column j of A F is A_0 F_0j + A_1 F_1j + A_2 F_2j.
-  // 2D keeps the matrix product (its 3-vectors are no machine registers).
+  // The 3D gather hands grad v over as columns (transfers.h), to updates inlined into it: called
+  // out of line, the columns crossed the call through memory, and reading them back as one wide
+  // load waited on the stores that wrote them. F's update stays the matrix product (a product
+  // of column vectors rounds differently), and 2D keeps its updates as they were (forced inline,
+  // GCC fused their multiply-adds differently: other last bits).
   using Grad = transfer::GradientColumns<T, Dim>;
-  using Node = typename Grad::Node;
   auto solid_columns = [=](std::int64_t p, const Grad& g) SLURRY_ALWAYS_INLINE {
-    Node a[Dim];
-    for (int k = 0; k < Dim; ++k) a[k] = Node::Unit(k) + dt * g.col[k];
-    Mat& Fp = F[p];
-    Node out[Dim];
-    for (int j = 0; j < Dim; ++j) {
-      out[j] = a[0] * Fp(0, j);
-      for (int k = 1; k < Dim; ++k) out[j] = a[k] * Fp(k, j) + out[j];
-    }
-    for (int j = 0; j < Dim; ++j) Fp.col(j) = out[j].template head<Dim>();
+    const Mat A = Mat::Identity() + dt * g.matrix();
+    F[p] = A * F[p];
   };
   auto fluid_columns = [=](std::int64_t p, const Grad& g) SLURRY_ALWAYS_INLINE {
     J[p] *= (Mat::Identity() + dt * g.matrix()).determinant();

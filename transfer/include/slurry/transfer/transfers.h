@@ -343,10 +343,7 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
       }
     }
     const Vec vpic = vp.template head<Dim>();
-    Vec dv = Vec::Zero();
-    if constexpr (S == Scheme::FLIP) dv = vpic - old_sum;
     Vec vnew = vpic;
-    if constexpr (S == Scheme::FLIP) vnew = flip_ratio * (v[p] + dv) + (T(1) - flip_ratio) * vpic;
     if constexpr (Dim == 3) {
       // 3D: the velocity gradient goes to `state` as columns, (Dim+1)-vectors whose last entry
       // is to be ignored: MLS's C = D^-1 B, the others' grad v. C is stored from the same
@@ -365,6 +362,9 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
             C[p].col(d) = bc[d].template head<Dim>();
         }
       }
+      Vec dv = Vec::Zero();
+      if constexpr (S == Scheme::FLIP) dv = vpic - old_sum;
+      if constexpr (S == Scheme::FLIP) vnew = flip_ratio * (v[p] + dv) + (T(1) - flip_ratio) * vpic;
       v[p] = vnew;
       x[p] += dt * vpic;
       if (!((x[p].array() >= x_lo.array()).all() && (x[p].array() <= x_hi.array()).all()))
@@ -379,12 +379,15 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
         if constexpr (need_B) B.col(d) = bc[d].template head<Dim>();
         if constexpr (need_grad) gv.col(d) = gc[d].template head<Dim>();
       }
+      Vec dv = Vec::Zero();
+      if constexpr (S == Scheme::FLIP) dv = vpic - old_sum;
       if constexpr (carries_affine(S)) {
         if constexpr (Order > 1)
           C[p] = Dinv * B;
         else
           C[p] = B;
       }
+      if constexpr (S == Scheme::FLIP) vnew = flip_ratio * (v[p] + dv) + (T(1) - flip_ratio) * vpic;
       v[p] = vnew;
       x[p] += dt * vpic;
       if (!((x[p].array() >= x_lo.array()).all() && (x[p].array() <= x_hi.array()).all()))
