@@ -901,32 +901,11 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
   const bool split = bool(split_);
   const int axis = split ? split_->axis : 0, own_lo = split ? split_->lo : 0, own_hi = split ? split_->hi : 0;
   // F <- (I + dt grad v) F for solids, J <- det(I + dt grad v) J for fluids.
-  // The 3D gather hands grad v over as columns (transfers.h), to updates inlined into it: called
-  // out of line, the columns crossed the call through memory, and reading them back as one wide
-  // load waited on the stores that wrote them. F's update stays the matrix product (a product
-  // of column vectors rounds differently), and 2D keeps its updates as they were (forced inline,
-  // GCC fused their multiply-adds differently: other last bits).
-  using Grad = transfer::GradientColumns<T, Dim>;
-  auto solid_columns = [=](std::int64_t p, const Grad& g) SLURRY_ALWAYS_INLINE {
-    const Mat A = Mat::Identity() + dt * g.matrix();
-    F[p] = A * F[p];
-  };
-  auto fluid_columns = [=](std::int64_t p, const Grad& g) SLURRY_ALWAYS_INLINE {
-    J[p] *= (Mat::Identity() + dt * g.matrix()).determinant();
-  };
-  auto solid_matrix = [=](std::int64_t p, const Mat& gv) {
+  auto solid_state = [=](std::int64_t p, const Mat& gv) {
     const Mat A = Mat::Identity() + dt * gv;
     F[p] = A * F[p];
   };
-  auto fluid_matrix = [=](std::int64_t p, const Mat& gv) { J[p] *= (Mat::Identity() + dt * gv).determinant(); };
-  auto pick = [](auto columns, auto matrix) {
-    if constexpr (Dim == 3)
-      return columns;
-    else
-      return matrix;
-  };
-  auto solid_state = pick(solid_columns, solid_matrix);
-  auto fluid_state = pick(fluid_columns, fluid_matrix);
+  auto fluid_state = [=](std::int64_t p, const Mat& gv) { J[p] *= (Mat::Identity() + dt * gv).determinant(); };
   auto gather = [&](auto scheme) {
     constexpr Scheme S = decltype(scheme)::value;
     if constexpr (S == Scheme::MLS && Order == 1) {

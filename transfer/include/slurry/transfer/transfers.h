@@ -28,21 +28,12 @@
 #include <cstdint>
 #include <limits>
 #include <type_traits>
-#include <utility>
 
 #include "slurry/transfer/kernels.h"
 #include "slurry/transfer/parallel.h"
 
 #if defined(__SSE2__)
 #include <immintrin.h>
-#endif
-
-/// Forces a function or lambda inline (GCC, Clang); empty elsewhere. For the small per-particle
-/// callbacks of the hot loops, whose arguments must stay in registers.
-#if defined(__GNUC__)
-#define SLURRY_ALWAYS_INLINE __attribute__((always_inline))
-#else
-#define SLURRY_ALWAYS_INLINE
 #endif
 
 namespace slurry::transfer {
@@ -60,8 +51,8 @@ using MatPtr = typename NonDeduced<Eigen::Matrix<T, Dim, Dim>>::type;
 
 /// The Dim values at `p` followed by `last` (zero by default), as one (Dim+1)-vector.
 /// Assembling such a vector from scalars (`n << col, 0`) makes GCC 12 write the pieces to the
-/// stack and read them back as one vector, a store-to-load forwarding stall on every particle (perf put a quarter of the 3D
-/// scatter's samples on those loads). Where the vector is a machine register (3D float: SSE;
+/// stack and read them back as one vector, a store-to-load forwarding stall on every particle
+/// (perf put a quarter of the 3D scatter's samples on those loads). Where the vector is a machine register (3D float: SSE;
 /// 3D double: AVX), it is loaded as a pair and a single and joined in registers; the values are
 /// the same. `p` must not be read past its Dim values: it is the last column of a particle's
 /// matrix.
@@ -89,20 +80,6 @@ inline Eigen::Matrix<T, Dim + 1, 1> padded(const T* p, T last = T(0)) {
   return n;
 }
 }  // namespace detail
-
-/// A particle's velocity gradient handed to G2P's `state` callback: column d of the Dim x Dim
-/// matrix in the first Dim entries of col[d]; the last entry holds no value.
-template <class T, int Dim>
-struct GradientColumns {
-  using Node = Eigen::Matrix<T, Dim + 1, 1>;
-  Node col[Dim];
-  /// The Dim x Dim matrix.
-  Eigen::Matrix<T, Dim, Dim> matrix() const {
-    Eigen::Matrix<T, Dim, Dim> M;
-    for (int d = 0; d < Dim; ++d) M.col(d) = col[d].template head<Dim>();
-    return M;
-  }
-};
 
 /// Whether particles of this scheme carry an affine matrix C.
 constexpr bool carries_affine(Scheme s) {
@@ -245,8 +222,7 @@ void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
 
 /// Gathers velocity (and C for APIC/MLS) back to particles ids[begin, end) (or [begin, end)
 /// when ids is null), advects them by dt * (PIC velocity), and calls `state(p, grad_v)` for the
-/// caller's deformation update: in 3D grad_v is a `const GradientColumns<T, Dim>&` if `state`
-/// takes one (the engine's hot path), else (and in 2D) the Dim x Dim matrix. Reads the grid velocity from the node's first Dim entries and,
+/// caller's deformation update. Reads the grid velocity from the node's first Dim entries and,
 /// for FLIP, the pre-update velocity from `grid.old_velocity(k)`. Serial; each particle writes
 /// only itself, so callers run disjoint ranges in parallel. Returns the largest squared particle
 /// speed, or +infinity if any velocity is not finite or any particle left the box [x_lo, x_hi]
@@ -343,60 +319,29 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
       }
     }
     const Vec vpic = vp.template head<Dim>();
-    Vec vnew = vpic;
-    if constexpr (Dim == 3) {
-      // 3D: the velocity gradient goes to `state` as columns, (Dim+1)-vectors whose last entry
-      // is to be ignored: MLS's C = D^-1 B, the others' grad v. C is stored from the same
-      // vectors. (Assembling a 3x3 matrix from them and reading C back made every particle wait
-      // on store-to-load forwarding; see detail::padded.)
-      GradientColumns<T, Dim> grad;
-      for (int d = 0; d < Dim; ++d) {
-        if constexpr (S == Scheme::MLS)
-          grad.col[d] = Dinv * bc[d];
-        else if constexpr (need_grad)
-          grad.col[d] = gc[d];
-        if constexpr (carries_affine(S)) {
-          if constexpr (Order > 1)
-            C[p].col(d) = (S == Scheme::MLS ? grad.col[d] : Node(Dinv * bc[d])).template head<Dim>();
-          else
-            C[p].col(d) = bc[d].template head<Dim>();
-        }
-      }
-      Vec dv = Vec::Zero();
-      if constexpr (S == Scheme::FLIP) dv = vpic - old_sum;
-      if constexpr (S == Scheme::FLIP) vnew = flip_ratio * (v[p] + dv) + (T(1) - flip_ratio) * vpic;
-      v[p] = vnew;
-      x[p] += dt * vpic;
-      if (!((x[p].array() >= x_lo.array()).all() && (x[p].array() <= x_hi.array()).all()))
-        return std::numeric_limits<T>::infinity();
-      if constexpr (std::is_invocable_v<StateFn&, std::int64_t, const GradientColumns<T, Dim>&>)
-        state(p, std::as_const(grad));
-      else
-        state(p, grad.matrix());
-    } else {
-      Mat B, gv;
-      for (int d = 0; d < Dim; ++d) {
-        if constexpr (need_B) B.col(d) = bc[d].template head<Dim>();
-        if constexpr (need_grad) gv.col(d) = gc[d].template head<Dim>();
-      }
-      Vec dv = Vec::Zero();
-      if constexpr (S == Scheme::FLIP) dv = vpic - old_sum;
-      if constexpr (carries_affine(S)) {
-        if constexpr (Order > 1)
-          C[p] = Dinv * B;
-        else
-          C[p] = B;
-      }
-      if constexpr (S == Scheme::FLIP) vnew = flip_ratio * (v[p] + dv) + (T(1) - flip_ratio) * vpic;
-      v[p] = vnew;
-      x[p] += dt * vpic;
-      if (!((x[p].array() >= x_lo.array()).all() && (x[p].array() <= x_hi.array()).all()))
-        return std::numeric_limits<T>::infinity();
-      if constexpr (S == Scheme::MLS)
-        state(p, C[p]);
-      else
-        state(p, gv);
+    Mat B, gv;
+    for (int d = 0; d < Dim; ++d) {
+      if constexpr (need_B) B.col(d) = bc[d].template head<Dim>();
+      if constexpr (need_grad) gv.col(d) = gc[d].template head<Dim>();
     }
+    Vec dv = Vec::Zero();
+    if constexpr (S == Scheme::FLIP) dv = vpic - old_sum;
+    if constexpr (carries_affine(S)) {
+      if constexpr (Order > 1)
+        C[p] = Dinv * B;
+      else
+        C[p] = B;
+    }
+    Vec vnew = vpic;
+    if constexpr (S == Scheme::FLIP) vnew = flip_ratio * (v[p] + dv) + (T(1) - flip_ratio) * vpic;
+    v[p] = vnew;
+    x[p] += dt * vpic;
+    if (!((x[p].array() >= x_lo.array()).all() && (x[p].array() <= x_hi.array()).all()))
+      return std::numeric_limits<T>::infinity();
+    if constexpr (S == Scheme::MLS)
+      state(p, C[p]);
+    else
+      state(p, gv);
     const T s2 = vnew.squaredNorm();
     if (!(s2 <= std::numeric_limits<T>::max())) return std::numeric_limits<T>::infinity();
     vmax2 = std::max(vmax2, s2);
