@@ -10,8 +10,9 @@ namespace slurry::detail {
 
 template <class T>
 void fixed_corotated_stress_lanes(T mu, T lambda, const T* factor, T dt, const std::uint32_t* order,
-                                  std::uint32_t begin, std::uint32_t end, const Eigen::Matrix<T, 3, 3>* F,
-                                  const T* vol0, std::size_t vol0_mask, Eigen::Matrix<T, 3, 3>* K) {
+                                  std::uint32_t begin, std::uint32_t end,
+                                  const Eigen::Matrix<T, 3, 3>* F, const T* vol0,
+                                  std::size_t vol0_mask, Eigen::Matrix<T, 3, 3>* K) {
   namespace lanes = constitutive::lanes;
   constexpr int W = lanes::kWidth<T>;
   lanes::Mat3<T, W> Fl, tau;
@@ -28,19 +29,22 @@ void fixed_corotated_stress_lanes(T mu, T lambda, const T* factor, T dt, const s
     const auto scalar = lanes::fixed_corotated_kirchhoff(Fl, mul, lambdal, tau);
     for (int l = 0; l < count; ++l) {
       const auto p = order[i0 + l];
-      const Eigen::Matrix<T, 3, 3> t = scalar.bits[l] != T(0)
-                                           ? constitutive::FixedCorotated<T, 3>{mul[l], lambdal[l]}.kirchhoff(F[p])
-                                           : tau.get(l);
+      const Eigen::Matrix<T, 3, 3> t =
+          scalar.bits[l] != T(0)
+              ? constitutive::FixedCorotated<T, 3>{mul[l], lambdal[l]}.kirchhoff(F[p])
+              : tau.get(l);
       K[i0 + l - begin] = (-dt * vol0[p & vol0_mask]) * t;
     }
   }
 }
 
-template void fixed_corotated_stress_lanes<float>(float, float, const float*, float, const std::uint32_t*,
-                                                  std::uint32_t, std::uint32_t, const Eigen::Matrix3f*, const float*,
-                                                  std::size_t, Eigen::Matrix3f*);
-template void fixed_corotated_stress_lanes<double>(double, double, const double*, double, const std::uint32_t*,
-                                                   std::uint32_t, std::uint32_t, const Eigen::Matrix3d*,
+template void fixed_corotated_stress_lanes<float>(float, float, const float*, float,
+                                                  const std::uint32_t*, std::uint32_t,
+                                                  std::uint32_t, const Eigen::Matrix3f*,
+                                                  const float*, std::size_t, Eigen::Matrix3f*);
+template void fixed_corotated_stress_lanes<double>(double, double, const double*, double,
+                                                   const std::uint32_t*, std::uint32_t,
+                                                   std::uint32_t, const Eigen::Matrix3d*,
                                                    const double*, std::size_t, Eigen::Matrix3d*);
 
 }  // namespace slurry::detail

@@ -18,15 +18,19 @@ namespace slurry::detail {
 /// in the spare lanes and drops their results.
 template <class T>
 void fixed_corotated_stress_lanes(T mu, T lambda, const T* factor, T dt, const std::uint32_t* order,
-                                  std::uint32_t begin, std::uint32_t end, const Eigen::Matrix<T, 3, 3>* F,
-                                  const T* vol0, std::size_t vol0_mask, Eigen::Matrix<T, 3, 3>* K);
+                                  std::uint32_t begin, std::uint32_t end,
+                                  const Eigen::Matrix<T, 3, 3>* F, const T* vol0,
+                                  std::size_t vol0_mask, Eigen::Matrix<T, 3, 3>* K);
 
-extern template void fixed_corotated_stress_lanes<float>(float, float, const float*, float, const std::uint32_t*,
-                                                         std::uint32_t, std::uint32_t, const Eigen::Matrix3f*,
-                                                         const float*, std::size_t, Eigen::Matrix3f*);
+extern template void fixed_corotated_stress_lanes<float>(float, float, const float*, float,
+                                                         const std::uint32_t*, std::uint32_t,
+                                                         std::uint32_t, const Eigen::Matrix3f*,
+                                                         const float*, std::size_t,
+                                                         Eigen::Matrix3f*);
 extern template void fixed_corotated_stress_lanes<double>(double, double, const double*, double,
-                                                          const std::uint32_t*, std::uint32_t, std::uint32_t,
-                                                          const Eigen::Matrix3d*, const double*, std::size_t,
+                                                          const std::uint32_t*, std::uint32_t,
+                                                          std::uint32_t, const Eigen::Matrix3d*,
+                                                          const double*, std::size_t,
                                                           Eigen::Matrix3d*);
 
 }  // namespace slurry::detail

@@ -23,7 +23,8 @@ namespace lanes = slurry::constitutive::lanes;
 template <class T>
 Eigen::Matrix<T, 3, 3> sample(std::mt19937& rng, int kind) {
   std::uniform_real_distribution<double> u(0, 1);
-  const Eigen::Matrix3d R = slurry::test::random_rotation<3>(rng), Q = slurry::test::random_rotation<3>(rng);
+  const Eigen::Matrix3d R = slurry::test::random_rotation<3>(rng),
+                        Q = slurry::test::random_rotation<3>(rng);
   Eigen::Vector3d s;
   switch (kind) {
     case 0:  // elastic, near rest
@@ -92,13 +93,19 @@ void check_fixed_corotated_lanes(T tol) {
         continue;
       }
       ++taken;
-      const Eigen::Matrix<T, 3, 3> expect = FixedCorotated<T, 3>{mul[std::size_t(l)], laml[std::size_t(l)]}.kirchhoff(Fp);
+      const Eigen::Matrix<T, 3, 3> expect =
+          FixedCorotated<T, 3>{mul[std::size_t(l)], laml[std::size_t(l)]}.kirchhoff(Fp);
       const Eigen::Matrix<T, 3, 3> got = tau.get(l);
       // Relative agreement, or round-off of the cancelling F - R (near a rotation tau is
       // 2 mu (F - R) F^T, of the size of that round-off): 64 eps mu |F|^2 + 64 eps lambda |J|.
       const T eps = std::numeric_limits<T>::epsilon();
-      const T cancel = T(64) * eps * (mul[std::size_t(l)] * Fp.squaredNorm() + laml[std::size_t(l)] * std::abs(Fp.determinant()));
-      EXPECT_LE((got - expect).norm(), tol * expect.norm() + cancel) << "lane " << l << "\nF =\n" << Fp << "\nexpected\n" << expect << "\ngot\n" << got;
+      const T cancel = T(64) * eps *
+                       (mul[std::size_t(l)] * Fp.squaredNorm() +
+                        laml[std::size_t(l)] * std::abs(Fp.determinant()));
+      EXPECT_LE((got - expect).norm(), tol * expect.norm() + cancel) << "lane " << l << "\nF =\n"
+                                                                     << Fp << "\nexpected\n"
+                                                                     << expect << "\ngot\n"
+                                                                     << got;
       // Lanes do not interact: the same F in another lane gives the same bits.
       EXPECT_TRUE((got.array() == tau_rev.get(W - 1 - l).array()).all()) << "lane " << l;
     }
@@ -107,7 +114,11 @@ void check_fixed_corotated_lanes(T tol) {
   EXPECT_GT(flagged, 400);
 }
 
-TEST(FixedCorotatedLanes, AgreesWithTheScalarStressFloat) { check_fixed_corotated_lanes<float>(2e-5f); }
-TEST(FixedCorotatedLanes, AgreesWithTheScalarStressDouble) { check_fixed_corotated_lanes<double>(1e-12); }
+TEST(FixedCorotatedLanes, AgreesWithTheScalarStressFloat) {
+  check_fixed_corotated_lanes<float>(2e-5f);
+}
+TEST(FixedCorotatedLanes, AgreesWithTheScalarStressDouble) {
+  check_fixed_corotated_lanes<double>(1e-12);
+}
 
 }  // namespace

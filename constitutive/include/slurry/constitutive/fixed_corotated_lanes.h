@@ -22,8 +22,8 @@ namespace slurry::constitutive::lanes {
 /// Sets tau to the fixed corotated Kirchhoff stress of F in every lane; returns the lanes left to
 /// the scalar path (their tau is not meaningful).
 template <class T, int W>
-inline Mask<T, W> fixed_corotated_kirchhoff(const Mat3<T, W>& F, const Lane<T, W>& mu, const Lane<T, W>& lambda,
-                                            Mat3<T, W>& tau) {
+inline Mask<T, W> fixed_corotated_kirchhoff(const Mat3<T, W>& F, const Lane<T, W>& mu,
+                                            const Lane<T, W>& lambda, Mat3<T, W>& tau) {
   using L = Lane<T, W>;
   using detail::cross;
   using detail::dot;
@@ -48,7 +48,8 @@ inline Mask<T, W> fixed_corotated_kirchhoff(const Mat3<T, W>& F, const Lane<T, W
   for (int i = 0; i < 3; ++i) {
     L A[3];
     for (int k = 0; k < 3; ++k) A[k] = (T(2) * mu) * (F.a[i][k] - X.a[i][k]);
-    for (int j = 0; j < 3; ++j) tau.a[i][j] = A[0] * F.a[j][0] + A[1] * F.a[j][1] + A[2] * F.a[j][2];
+    for (int j = 0; j < 3; ++j)
+      tau.a[i][j] = A[0] * F.a[j][0] + A[1] * F.a[j][1] + A[2] * F.a[j][2];
   }
   const L pressure = lambda * (J - T(1)) * J;
   for (int i = 0; i < 3; ++i) tau.a[i][i] += pressure;

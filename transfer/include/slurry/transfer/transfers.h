@@ -52,17 +52,18 @@ using MatPtr = typename NonDeduced<Eigen::Matrix<T, Dim, Dim>>::type;
 /// The Dim values at `p` followed by `last` (zero by default), as one (Dim+1)-vector.
 /// Assembling such a vector from scalars (`n << col, 0`) makes GCC 12 write the pieces to the
 /// stack and read them back as one vector, a store-to-load forwarding stall on every particle
-/// (perf put a quarter of the 3D scatter's samples on those loads). Where the vector is a machine register (3D float: SSE;
-/// 3D double: AVX), it is loaded as a pair and a single and joined in registers; the values are
-/// the same. `p` must not be read past its Dim values: it is the last column of a particle's
-/// matrix.
+/// (perf put a quarter of the 3D scatter's samples on those loads). Where the vector is a
+/// machine register (3D float: SSE; 3D double: AVX), it is loaded as a pair and a single and
+/// joined in registers; the values are the same. `p` is not read past its Dim values (it may
+/// be the last column of a particle's matrix).
 template <class T, int Dim>
 inline Eigen::Matrix<T, Dim + 1, 1> padded(const T* p, T last = T(0)) {
   Eigen::Matrix<T, Dim + 1, 1> n;
 #if defined(__SSE2__)
   if constexpr (Dim == 3 && std::is_same_v<T, float>) {
-    const __m128 xy = _mm_castsi128_ps(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));  // x y 0 0
-    const __m128 zw = _mm_unpacklo_ps(_mm_load_ss(p + 2), _mm_set_ss(last));                  // z last 0 0
+    // (x, y, 0, 0) and (z, last, 0, 0), joined.
+    const __m128 xy = _mm_castsi128_ps(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));
+    const __m128 zw = _mm_unpacklo_ps(_mm_load_ss(p + 2), _mm_set_ss(last));
     _mm_store_ps(n.data(), _mm_movelh_ps(xy, zw));
     return n;
   }
