@@ -22,9 +22,8 @@ void fixed_corotated_stress_lanes(T mu, T lambda, const T* factor, T dt, const s
     for (int l = 0; l < W; ++l) {
       const auto i = i0 + (l < count ? l : 0);
       Fl.put(l, F[order[i]]);
-      const T h = factor ? factor[i - begin] : T(1);
-      mul[l] = factor ? mu * h : mu;
-      lambdal[l] = factor ? lambda * h : lambda;
+      mul[l] = factor ? mu * factor[i - begin] : mu;
+      lambdal[l] = factor ? lambda * factor[i - begin] : lambda;
     }
     const auto scalar = lanes::fixed_corotated_kirchhoff(Fl, mul, lambdal, tau);
     for (int l = 0; l < count; ++l) {

@@ -13,11 +13,11 @@
 #include <type_traits>
 #include <unordered_map>
 
+#include "corotated_lanes.h"
 #include "domain_split.h"
 #include "frame_builder.h"
 #include "geometry/scene_meshes.h"
 #include "implicit_update.h"
-#include "corotated_lanes.h"
 #include "sand_lanes.h"
 #include "state_io.h"
 #include "slurry/engine/simulation.h"

@@ -14,6 +14,7 @@
 /// round-off (tests/constitutive/fixed_corotated_lanes_test.cpp).
 #include <limits>
 
+#include "kinematics.h"
 #include "lanes.h"
 #include "svd_lanes.h"
 
@@ -29,10 +30,10 @@ inline Mask<T, W> fixed_corotated_kirchhoff(const Mat3<T, W>& F, const Lane<T, W
   using detail::dot;
   constexpr T tol = std::numeric_limits<T>::epsilon();
   const L J = dot(F.col(0), cross(F.col(1), F.col(2)));
-  const Mask<T, W> newton = gt(J, T(1e-2));
+  const Mask<T, W> newton = gt(J, polar_newton::min_det<T>);
   Mask<T, W> active = newton;
   Mat3<T, W> X = F;
-  for (int it = 0; it < 8 && any(active); ++it) {
+  for (int it = 0; it < polar_newton::max_iterations && any(active); ++it) {
     const auto x0 = X.col(0), x1 = X.col(1), x2 = X.col(2);
     const Vec3<T, W> c[3] = {cross(x1, x2), cross(x2, x0), cross(x0, x1)};  // cof(X), by columns
     const L d = dot(x0, c[0]);

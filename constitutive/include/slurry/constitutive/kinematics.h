@@ -149,6 +149,14 @@ inline void validate_lame(const char* model, T mu, T lambda) {
 
 }  // namespace detail
 
+/// The limits of polar_rotation's Newton iteration, shared with its lanes form
+/// (fixed_corotated_lanes.h): it runs where det F > min_det, at most max_iterations times.
+namespace polar_newton {
+template <class T>
+inline constexpr T min_det = T(1e-2);
+inline constexpr int max_iterations = 8;
+}  // namespace polar_newton
+
 /// Rotation R of the polar decomposition F = R S by Newton's iteration
 /// X_{k+1} = (X_k + X_k^{-T}) / 2, X_0 = F (Higham 1986, "Computing the polar decomposition -
 /// with applications", SIAM J. Sci. Stat. Comput. 7(4)), which converges quadratically to R
@@ -161,9 +169,9 @@ inline void polar_rotation(const Eigen::Matrix<T, Dim, Dim>& F, Eigen::Matrix<T,
   using Mat = Eigen::Matrix<T, Dim, Dim>;
   // ||X_{k+1} - X_k||^2 < eps means the next error is about eps: converged to round-off.
   constexpr T tol = std::numeric_limits<T>::epsilon();
-  if (determinant(F) > T(1e-2)) {
+  if (determinant(F) > polar_newton::min_det<T>) {
     Mat X = F;
-    for (int it = 0; it < 8; ++it) {
+    for (int it = 0; it < polar_newton::max_iterations; ++it) {
       const Mat Y = T(0.5) * (X + cofactor(X) / determinant(X));
       const T change = (Y - X).squaredNorm();
       X = Y;
