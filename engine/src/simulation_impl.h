@@ -104,7 +104,7 @@ void keep_out_of_colliders(Particles<T, Dim>& P, const std::vector<Collider<T, D
 /// scatter, since at rest nothing else changes.
 template <class T, int Dim>
 struct Simulation<T, Dim>::SleepState {
-  using Node = Eigen::Matrix<T, Dim + 1, 1>;
+  using Node = transfer::GridNode<T, Dim>;
   struct Block {
     std::uint32_t count = 0;  ///< particles in the block when it fell asleep
     T hardening = T(1);       ///< largest snow hardening factor of its particles (time-step limit)

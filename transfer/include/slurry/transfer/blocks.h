@@ -40,6 +40,13 @@ struct BlockShape {
   static constexpr int colours = 1 << Dim;
 };
 
+/// The values of one grid node: momentum (or, after the grid update, velocity) in entries
+/// [0, Dim), mass in entry Dim. A 2D node carries a fourth entry, always zero, so that a node is
+/// one vector register in both dimensions (SSE for float, AVX for double): the transfers add or
+/// read a node with one vector instruction instead of three scalar ones.
+template <class T, int Dim>
+using GridNode = Eigen::Matrix<T, 4, 1>;
+
 /// Particle indices sorted by the block of their stencil base node, and within a block by
 /// material: bins are (block, material) pairs, block-major, so the bins of one block are
 /// adjacent ("groups") and each bin is one material (the model is dispatched once per bin).
@@ -273,7 +280,7 @@ struct Patch {
   static constexpr int count = Dim == 3 ? extent * extent * extent : extent * extent;
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using IVec = Eigen::Matrix<int, Dim, 1>;
-  using Node = Eigen::Matrix<T, Dim + 1, 1>;
+  using Node = GridNode<T, Dim>;
 
   std::array<Node, count> nodes;
   std::array<Vec, count> old;  ///< pre-update velocities (FLIP only)

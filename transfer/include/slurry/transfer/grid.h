@@ -2,8 +2,9 @@
 /// \file grid.h
 /// Dense background grid of MPM nodes: node i sits at origin + i dx.
 ///
-/// Each node stores (momentum or velocity, mass) packed in one Dim+1 vector, so that P2G adds one
-/// small vector per node (the layout of Hu et al. 2018's mls-mpm88). The grid tracks the box of
+/// Each node stores (momentum or velocity, mass) packed in one 4-vector (GridNode, blocks.h; a 2D
+/// node pads it with a zero), so that P2G adds one small vector per node (the layout of Hu et al.
+/// 2018's mls-mpm88). The grid tracks the box of
 /// nodes touched since the last clear, so clearing and the grid update cost the occupied box,
 /// not the whole domain.
 ///
@@ -29,7 +30,7 @@ class DenseGrid {
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using IVec = Eigen::Matrix<int, Dim, 1>;
   /// (m v_x, m v_y[, m v_z], m) during P2G; (v_x, v_y[, v_z], m) after the grid update.
-  using Node = Eigen::Matrix<T, Dim + 1, 1>;
+  using Node = GridNode<T, Dim>;
 
   DenseGrid() = default;
   /// `res` nodes per axis, spaced dx apart from `origin`.

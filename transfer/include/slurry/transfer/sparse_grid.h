@@ -31,7 +31,7 @@ class SparseGrid {
  public:
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using IVec = Eigen::Matrix<int, Dim, 1>;
-  using Node = Eigen::Matrix<T, Dim + 1, 1>;
+  using Node = GridNode<T, Dim>;
   using Shape = BlockShape<Dim>;
   using Bin = typename ParticleBins<Dim>::Bin;
 

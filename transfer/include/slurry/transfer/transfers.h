@@ -49,36 +49,61 @@ struct NonDeduced {
 template <class T, int Dim>
 using MatPtr = typename NonDeduced<Eigen::Matrix<T, Dim, Dim>>::type;
 
-/// The Dim values at `p` followed by `last` (zero by default), as one (Dim+1)-vector.
-/// Assembling such a vector from scalars (`n << col, 0`) makes GCC 12 write the pieces to the
-/// stack and read them back as one vector, a store-to-load forwarding stall on every particle
-/// (perf put a quarter of the 3D scatter's samples on those loads). Where the vector is a
-/// machine register (3D float: SSE; 3D double: AVX), it is loaded as a pair and a single and
-/// joined in registers; the values are the same. `p` is not read past its Dim values (it may
-/// be the last column of a particle's matrix).
+/// The Dim values at `p` followed by `last` (zero by default), then zeros, as one 4-vector (a
+/// grid node, GridNode in blocks.h). Assembling such a vector from scalars (`n << col, 0`) makes
+/// GCC 12 write the pieces to the stack and read them back as one vector, a store-to-load
+/// forwarding stall on every particle (perf put a quarter of the 3D scatter's samples on those
+/// loads). Where the vector is a machine register (float: SSE; double: AVX), it is loaded as a
+/// pair and a single and joined in registers; the values are the same. `p` is not read past its
+/// Dim values (it may be the last column of a particle's matrix).
 template <class T, int Dim>
-inline Eigen::Matrix<T, Dim + 1, 1> padded(const T* p, T last = T(0)) {
-  Eigen::Matrix<T, Dim + 1, 1> n;
+inline Eigen::Matrix<T, 4, 1> padded(const T* p, T last = T(0)) {
+  static_assert(Dim == 2 || Dim == 3, "2D or 3D");
+  Eigen::Matrix<T, 4, 1> n;
 #if defined(__SSE2__)
-  if constexpr (Dim == 3 && std::is_same_v<T, float>) {
-    // (x, y, 0, 0) and (z, last, 0, 0), joined.
+  if constexpr (std::is_same_v<T, float>) {
+    // (x, y, 0, 0), then (z, last, 0, 0) or (last, 0, 0, 0), joined.
     const __m128 xy = _mm_castsi128_ps(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));
-    const __m128 zw = _mm_unpacklo_ps(_mm_load_ss(p + 2), _mm_set_ss(last));
+    const __m128 zw = Dim == 3 ? _mm_unpacklo_ps(_mm_load_ss(p + 2), _mm_set_ss(last)) : _mm_set_ss(last);
     _mm_store_ps(n.data(), _mm_movelh_ps(xy, zw));
     return n;
   }
 #endif
 #if defined(__AVX__)
-  if constexpr (Dim == 3 && std::is_same_v<T, double>) {
-    const __m128d zw = _mm_unpacklo_pd(_mm_load_sd(p + 2), _mm_set_sd(last));
+  if constexpr (std::is_same_v<T, double>) {
+    const __m128d zw = Dim == 3 ? _mm_unpacklo_pd(_mm_load_sd(p + 2), _mm_set_sd(last)) : _mm_set_sd(last);
     const __m256d v = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p)), zw, 1);
     _mm256_store_pd(n.data(), v);
     return n;
   }
 #endif
+  n.setZero();
   for (int d = 0; d < Dim; ++d) n[d] = p[d];
   n[Dim] = last;
   return n;
+}
+
+/// a b + c for a 4-vector node, with one rounding where the machine has fused multiply-add
+/// (a b + c, rounded twice, where it has not). The 2D transfers spell out their multiply-adds
+/// with it: left to itself, GCC fuses a vector expression differently from the same sums on
+/// scalars (its Zen tuning avoids some FMA chains, `avoid-fma-max-bits`), and 2D nodes were
+/// three scalars before they were padded to a vector; the spelled-out form keeps the scalar
+/// code's roundings, so the frames did not change.
+template <class T>
+inline Eigen::Matrix<T, 4, 1> fmadd(T a, const Eigen::Matrix<T, 4, 1>& b, const Eigen::Matrix<T, 4, 1>& c) {
+  Eigen::Matrix<T, 4, 1> r;
+#if defined(__FMA__)
+  if constexpr (std::is_same_v<T, float>) {
+    _mm_store_ps(r.data(), _mm_fmadd_ps(_mm_set1_ps(a), _mm_load_ps(b.data()), _mm_load_ps(c.data())));
+    return r;
+  }
+  if constexpr (std::is_same_v<T, double>) {
+    _mm256_store_pd(r.data(), _mm256_fmadd_pd(_mm256_set1_pd(a), _mm256_load_pd(b.data()), _mm256_load_pd(c.data())));
+    return r;
+  }
+#endif
+  r = a * b + c;
+  return r;
 }
 }  // namespace detail
 
@@ -101,7 +126,7 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using Mat = Eigen::Matrix<T, Dim, Dim>;
   using IVec = Eigen::Matrix<int, Dim, 1>;
-  using Node = Eigen::Matrix<T, Dim + 1, 1>;
+  using Node = typename Grid::Node;  // (m v, m), padded with zeros to 4 values (blocks.h)
   using St = Stencil<T, Dim, Order>;
   static_assert(S != Scheme::MLS || Order > 1, "MLS-MPM needs a quadratic or cubic kernel");
   if (end <= begin) return;
@@ -125,8 +150,8 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
     // the stress impulse (and the linear kernel's B_p). With x_i - x_p = (ox_a, oy_b, oz_c)
     // and grad w = (dwx_a wy_b wz_c, wx_a dwy_b wz_c, wx_a wy_b dwz_c) the affine and gradient
     // terms are summed axis by axis (hoisted out of the inner loops), and every node update is a
-    // few (Dim+1)-wide multiply-adds. The columns a[d] of A and g[d] of G are (Dim+1)-vectors
-    // with a zero last entry (the mass takes no affine or stress term), loaded whole.
+    // few 4-wide multiply-adds. The columns a[d] of A and g[d] of G are 4-vectors
+    // with zeros after their Dim entries (the mass takes no affine or stress term), loaded whole.
     // MLS needs Order > 1, so every MLS particle has an affine term.
     constexpr bool has_A = carries_affine(S) && Order > 1;
     const bool has_G = S != Scheme::MLS && ((carries_affine(S) && Order == 1) || K != nullptr);
@@ -151,8 +176,8 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
         }
       }
     } else {
-      // 2D: the matrices first, then their columns. A 3-vector is no machine register, and
-      // summing by columns changed GCC's fused multiply-adds, and the last bits of 2D APIC runs.
+      // 2D: the matrices first, then their columns (summing by columns, as 3D does, changed
+      // GCC's fused multiply-adds and the last bits of 2D APIC runs).
       Mat A = Mat::Zero(), G = Mat::Zero();
       if constexpr (carries_affine(S)) {
         if constexpr (Order > 1)
@@ -166,13 +191,9 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
         else
           G += *Kp;
       }
-      u0.template head<Dim>() = mp * v[p];
-      u0[Dim] = mp;
       for (int d = 0; d < Dim; ++d) {
-        a[d].template head<Dim>() = A.col(d);
-        a[d][Dim] = T(0);
-        g[d].template head<Dim>() = G.col(d);
-        g[d][Dim] = T(0);
+        a[d] = detail::padded<T, Dim>(A.col(d).data());
+        g[d] = detail::padded<T, Dim>(G.col(d).data());
       }
     }
     Node* n0 = nodes + grid.index(s.base);
@@ -197,13 +218,20 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
         }
       }
     } else {
+      // ua = m v + ox_a a0 with m v unrounded, as in the scalar form (see fmadd).
+      const Node vm = detail::padded<T, Dim>(v[p].data(), T(1));  // (v, 1, 0)
       for (int ia = 0; ia < N; ++ia) {
-        const Node ua = has_A ? Node(u0 + s.offset[0][ia] * a[0]) : u0;
+        const Node ua = has_A ? detail::fmadd(mp, vm, Node(s.offset[0][ia] * a[0])) : Node(mp * vm);
         Node* row = n0 + ia * stride[0];
         for (int ib = 0; ib < N; ++ib) {
-          Node c = (s.w[0][ia] * s.w[1][ib]) * (has_A ? Node(ua + s.offset[1][ib] * a[1]) : ua);
-          if (has_G) c += (s.dw[0][ia] * s.w[1][ib]) * g[0] + (s.w[0][ia] * s.dw[1][ib]) * g[1];
-          row[ib] += c;
+          const T wab = s.w[0][ia] * s.w[1][ib];
+          const Node uab = has_A ? detail::fmadd(s.offset[1][ib], a[1], ua) : ua;
+          if (has_G) {
+            const Node h = detail::fmadd(s.dw[0][ia] * s.w[1][ib], g[0], Node((s.w[0][ia] * s.dw[1][ib]) * g[1]));
+            row[ib] += detail::fmadd(wab, uab, h);
+          } else {
+            row[ib] = detail::fmadd(wab, uab, row[ib]);
+          }
         }
       }
     }
@@ -236,7 +264,7 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
                    StateFn&& state) {
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using Mat = Eigen::Matrix<T, Dim, Dim>;
-  using Node = Eigen::Matrix<T, Dim + 1, 1>;
+  using Node = typename Grid::Node;
   using St = Stencil<T, Dim, Order>;
   static_assert(S != Scheme::MLS || Order > 1, "MLS-MPM needs a quadratic or cubic kernel");
   const Vec origin = grid.origin();
@@ -259,7 +287,8 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
     // v_pic = sum wab T_ab, B = sum w v (x_i - x_p)^T has columns sum wab ox_a T_ab,
     // sum wab oy_b T_ab, sum wab O_ab, and grad v = sum v grad w^T has columns
     // sum dwx_a wy_b T_ab, sum wx_a dwy_b T_ab, sum wab U_ab. Node vectors carry the mass as a
-    // last component, which the sums ignore; they are (Dim+1)-wide for the vector units.
+    // last component (and a zero pad in 2D), which the sums ignore; they are 4-wide for the vector
+    // units.
     constexpr int N = St::N;
     const std::int64_t k0 = grid.index(s.base);
     const Node* n0 = nodes + k0;
@@ -301,21 +330,22 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
         const std::int64_t r = ia * stride[0];
         const Node* row = n0 + r;
         Node Ta = Node::Zero(), Oa = Node::Zero(), Ua = Node::Zero();
+        // Every sum is a fused multiply-add, as in the scalar form (see fmadd).
         for (int ib = 0; ib < N; ++ib) {
-          Ta += s.w[1][ib] * row[ib];
-          if constexpr (need_B) Oa += (s.w[1][ib] * s.offset[1][ib]) * row[ib];
-          if constexpr (need_grad) Ua += s.dw[1][ib] * row[ib];
+          Ta = detail::fmadd(s.w[1][ib], row[ib], Ta);
+          if constexpr (need_B) Oa = detail::fmadd(s.w[1][ib] * s.offset[1][ib], row[ib], Oa);
+          if constexpr (need_grad) Ua = detail::fmadd(s.dw[1][ib], row[ib], Ua);
           if constexpr (S == Scheme::FLIP)
             old_sum += (s.w[0][ia] * s.w[1][ib]) * grid.old_velocity(k0 + r + ib);
         }
-        vp += s.w[0][ia] * Ta;
+        vp = detail::fmadd(s.w[0][ia], Ta, vp);
         if constexpr (need_B) {
-          bc[0] += (s.w[0][ia] * s.offset[0][ia]) * Ta;
-          bc[1] += s.w[0][ia] * Oa;
+          bc[0] = detail::fmadd(s.w[0][ia] * s.offset[0][ia], Ta, bc[0]);
+          bc[1] = detail::fmadd(s.w[0][ia], Oa, bc[1]);
         }
         if constexpr (need_grad) {
-          gc[0] += s.dw[0][ia] * Ta;
-          gc[1] += s.w[0][ia] * Ua;
+          gc[0] = detail::fmadd(s.dw[0][ia], Ta, gc[0]);
+          gc[1] = detail::fmadd(s.w[0][ia], Ua, gc[1]);
         }
       }
     }
