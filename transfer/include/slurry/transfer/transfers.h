@@ -87,8 +87,9 @@ inline Eigen::Matrix<T, 4, 1> padded(const T* p, T last = T(0)) {
 /// (a b + c, rounded twice, where it has not). The 2D transfers spell out their multiply-adds
 /// with it: left to itself, GCC fuses a vector expression differently from the same sums on
 /// scalars (its Zen tuning avoids some FMA chains, `avoid-fma-max-bits`), and 2D nodes were
-/// three scalars before they were padded to a vector; the spelled-out form keeps the scalar
-/// code's roundings, so the frames did not change.
+/// three scalars before they were padded to a vector; the spelled-out form follows the scalar
+/// code's roundings (2D float frames kept their bits; 2D double ones, where GCC had vectorised
+/// part of the scalar code, changed at round-off).
 template <class T>
 inline Eigen::Matrix<T, 4, 1> fmadd(T a, const Eigen::Matrix<T, 4, 1>& b, const Eigen::Matrix<T, 4, 1>& c) {
   Eigen::Matrix<T, 4, 1> r;
