@@ -202,6 +202,13 @@ class ParticleBins {
   /// particles (and so every sum a patch accumulates) depend on the set of particles alone, so
   /// that a domain split over processes reproduces a single process bit for bit. A bin that is
   /// already in order (the common case right after a re-sort by bins) costs one pass.
+  ///
+  /// Otherwise a bin is mostly in order: the counting sort is stable, and most of its particles
+  /// were there at the last re-sort, stored in rank order. Its particles that extend the
+  /// ascending run from the front stay, in place; the others (mostly the few that arrived from
+  /// other bins) are sorted on their own and merged in from the back: O(n + r log r) for r
+  /// particles out of place, where a full sort cost O(n log n) (the sorts took 6% of a 2D snow
+  /// substep). Ranks are distinct, so the result is the one order that a full sort gives.
   template <class RankOf>
   void sort_within_bins(RankOf&& rank_of) {
     std::uint32_t* order = order_.data();
@@ -209,7 +216,24 @@ class ParticleBins {
       std::uint32_t* first = order + bins_[std::size_t(b)].begin;
       std::uint32_t* last = order + bins_[std::size_t(b)].end;
       const auto less = [&](std::uint32_t p, std::uint32_t q) { return rank_of(p) < rank_of(q); };
-      if (!std::is_sorted(first, last, less)) std::sort(first, last, less);
+      if (std::is_sorted(first, last, less)) return;
+      std::vector<std::uint32_t> rest;
+      std::uint32_t* kept = first;  // [first, kept): the ascending run, compacted in place
+      for (std::uint32_t* it = first; it != last; ++it)
+        if (kept == first || !less(*it, kept[-1]))
+          *kept++ = *it;
+        else
+          rest.push_back(*it);
+      std::sort(rest.begin(), rest.end(), less);
+      // Merge from the back into [first, last): the free tail has rest.size() places.
+      std::uint32_t* out = last;
+      std::uint32_t* k = kept;
+      for (std::size_t j = rest.size(); j > 0;) {
+        if (k != first && less(rest[j - 1], k[-1]))
+          *--out = *--k;
+        else
+          *--out = rest[--j];
+      }
     });
   }
 
