@@ -978,15 +978,19 @@ void Simulation<T, Dim>::return_mapping() {
       if (snow) hmax[std::size_t(bi)] = sleep_->bin_block[std::size_t(bi)]->hardening;
       return;
     }
-    T h = T(1);
+    // Snow's hardening factor min(exp(xi (1 - Jp)), cap) does not grow with Jp (exp and the
+    // rounding of xi (1 - Jp) are monotonic): the bin's largest is the factor of its smallest Jp,
+    // one exp per bin instead of one per particle. A NaN Jp is skipped by std::min as its factor
+    // was by std::max.
+    T jp_min = std::numeric_limits<T>::infinity();
     std::int64_t yielded = 0;
     for (auto i = bin.begin; i < bin.end; ++i) {
       const auto p = order[i];
       yielded += mat.project(P.F[p], P.plastic[p]);
-      if (mat.plastic_kind == PlasticModel::Snow) h = std::max(h, mat.hardening_factor(P.plastic[p]));
+      jp_min = std::min(jp_min, P.plastic[p]);
     }
     projected_scratch_[std::size_t(bi)] = yielded;
-    if (snow) hmax[std::size_t(bi)] = h;
+    if (snow && mat.plastic_kind == PlasticModel::Snow) hmax[std::size_t(bi)] = std::max(T(1), mat.hardening_factor(jp_min));
   });
   for (const auto n : projected_scratch_) projected_ += n;
   if (snow) {
