@@ -2,22 +2,20 @@
 #include "corotated_lanes.h"
 
 #include <algorithm>
-#include <type_traits>
 
 #include "slurry/constitutive/fixed_corotated.h"
 #include "slurry/constitutive/fixed_corotated_lanes.h"
 
 namespace slurry::detail {
 
-template <class T, int Dim>
+template <class T>
 void fixed_corotated_stress_lanes(T mu, T lambda, const T* factor, T dt, const std::uint32_t* order,
                                   std::uint32_t begin, std::uint32_t end,
-                                  const Eigen::Matrix<T, Dim, Dim>* F, const T* vol0,
-                                  std::size_t vol0_mask, Eigen::Matrix<T, Dim, Dim>* K) {
+                                  const Eigen::Matrix<T, 3, 3>* F, const T* vol0,
+                                  std::size_t vol0_mask, Eigen::Matrix<T, 3, 3>* K) {
   namespace lanes = constitutive::lanes;
   constexpr int W = lanes::kWidth<T>;
-  using MatL = std::conditional_t<Dim == 3, lanes::Mat3<T, W>, lanes::Mat2<T, W>>;
-  MatL Fl, tau;
+  lanes::Mat3<T, W> Fl, tau;
   lanes::Lane<T, W> mul, lambdal;
   for (auto i0 = begin; i0 < end; i0 += W) {
     const int count = int(std::min<std::uint32_t>(W, end - i0));
@@ -30,23 +28,22 @@ void fixed_corotated_stress_lanes(T mu, T lambda, const T* factor, T dt, const s
     const auto scalar = lanes::fixed_corotated_kirchhoff(Fl, mul, lambdal, tau);
     for (int l = 0; l < count; ++l) {
       const auto p = order[i0 + l];
-      const Eigen::Matrix<T, Dim, Dim> t =
+      const Eigen::Matrix<T, 3, 3> t =
           scalar.bits[l] != T(0)
-              ? constitutive::FixedCorotated<T, Dim>{mul[l], lambdal[l]}.kirchhoff(F[p])
+              ? constitutive::FixedCorotated<T, 3>{mul[l], lambdal[l]}.kirchhoff(F[p])
               : tau.get(l);
       K[i0 + l - begin] = (-dt * vol0[p & vol0_mask]) * t;
     }
   }
 }
 
-#define SLURRY_COROTATED_LANES(T, Dim)                                                             \
-  template void fixed_corotated_stress_lanes<T, Dim>(                                              \
-      T, T, const T*, T, const std::uint32_t*, std::uint32_t, std::uint32_t,                       \
-      const Eigen::Matrix<T, Dim, Dim>*, const T*, std::size_t, Eigen::Matrix<T, Dim, Dim>*);
-SLURRY_COROTATED_LANES(float, 2)
-SLURRY_COROTATED_LANES(double, 2)
-SLURRY_COROTATED_LANES(float, 3)
-SLURRY_COROTATED_LANES(double, 3)
-#undef SLURRY_COROTATED_LANES
+template void fixed_corotated_stress_lanes<float>(float, float, const float*, float,
+                                                  const std::uint32_t*, std::uint32_t,
+                                                  std::uint32_t, const Eigen::Matrix3f*,
+                                                  const float*, std::size_t, Eigen::Matrix3f*);
+template void fixed_corotated_stress_lanes<double>(double, double, const double*, double,
+                                                   const std::uint32_t*, std::uint32_t,
+                                                   std::uint32_t, const Eigen::Matrix3d*,
+                                                   const double*, std::size_t, Eigen::Matrix3d*);
 
 }  // namespace slurry::detail

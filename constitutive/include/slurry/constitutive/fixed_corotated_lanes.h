@@ -11,8 +11,7 @@
 /// are per lane (snow scales them by its hardening factor). Lanes where polar_rotation leaves the
 /// iteration for the SVD (det F <= 1e-2, or no convergence in 8 iterations) are returned in a
 /// mask: the caller computes those with the scalar kirchhoff. Agrees with the scalar kirchhoff to
-/// round-off (tests/constitutive/fixed_corotated_lanes_test.cpp). The 2D form (Mat2) runs the
-/// same iteration on 2x2 matrices, whose cofactor is a permutation of the entries.
+/// round-off (tests/constitutive/fixed_corotated_lanes_test.cpp).
 #include <limits>
 
 #include "kinematics.h"
@@ -55,55 +54,6 @@ inline Mask<T, W> fixed_corotated_kirchhoff(const Mat3<T, W>& F, const Lane<T, W
   }
   const L pressure = lambda * (J - T(1)) * J;
   for (int i = 0; i < 3; ++i) tau.a[i][i] += pressure;
-  return ~newton | active;
-}
-
-/// W 2x2 matrices: a[i][j] holds entry (i, j) of each.
-template <class T, int W>
-struct Mat2 {
-  Lane<T, W> a[2][2];
-  /// Lane l as an Eigen matrix, and back.
-  Eigen::Matrix<T, 2, 2> get(int l) const {
-    Eigen::Matrix<T, 2, 2> m;
-    for (int i = 0; i < 2; ++i)
-      for (int j = 0; j < 2; ++j) m(i, j) = a[i][j][l];
-    return m;
-  }
-  void put(int l, const Eigen::Matrix<T, 2, 2>& m) {
-    for (int i = 0; i < 2; ++i)
-      for (int j = 0; j < 2; ++j) a[i][j][l] = m(i, j);
-  }
-};
-
-/// The 2D form: as above, for 2x2 F.
-template <class T, int W>
-inline Mask<T, W> fixed_corotated_kirchhoff(const Mat2<T, W>& F, const Lane<T, W>& mu,
-                                            const Lane<T, W>& lambda, Mat2<T, W>& tau) {
-  using L = Lane<T, W>;
-  constexpr T tol = std::numeric_limits<T>::epsilon();
-  const L J = F.a[0][0] * F.a[1][1] - F.a[0][1] * F.a[1][0];
-  const Mask<T, W> newton = gt(J, polar_newton::min_det<T>);
-  Mask<T, W> active = newton;
-  Mat2<T, W> X = F;
-  for (int it = 0; it < polar_newton::max_iterations && any(active); ++it) {
-    // cof(X) = [x11, -x10; -x01, x00]
-    const L d = X.a[0][0] * X.a[1][1] - X.a[0][1] * X.a[1][0];
-    const L c[2][2] = {{X.a[1][1], -X.a[1][0]}, {-X.a[0][1], X.a[0][0]}};
-    L change = L::Zero();
-    for (int j = 0; j < 2; ++j)
-      for (int i = 0; i < 2; ++i) {
-        const L y = T(0.5) * (X.a[i][j] + c[i][j] / d);
-        change += (y - X.a[i][j]).square();
-        X.a[i][j] = select(active, y, X.a[i][j]);
-      }
-    active = active & ~lt(change, L(L::Constant(tol)));
-  }
-  for (int i = 0; i < 2; ++i) {
-    const L A0 = (T(2) * mu) * (F.a[i][0] - X.a[i][0]), A1 = (T(2) * mu) * (F.a[i][1] - X.a[i][1]);
-    for (int j = 0; j < 2; ++j) tau.a[i][j] = A0 * F.a[j][0] + A1 * F.a[j][1];
-  }
-  const L pressure = lambda * (J - T(1)) * J;
-  for (int i = 0; i < 2; ++i) tau.a[i][i] += pressure;
   return ~newton | active;
 }
 
