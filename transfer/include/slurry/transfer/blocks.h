@@ -217,18 +217,31 @@ class ParticleBins {
       std::uint32_t* last = order + bins_[std::size_t(b)].end;
       const auto less = [&](std::uint32_t p, std::uint32_t q) { return rank_of(p) < rank_of(q); };
       if (std::is_sorted(first, last, less)) return;
-      std::vector<std::uint32_t> rest;
+      // The others go to a stack buffer (a warm substep allocates nothing); more of them than
+      // it holds, and the bin is put back as it was and fully sorted.
+      constexpr std::size_t kRest = 256;
+      std::uint32_t rest[kRest];
+      std::size_t nr = 0;
       std::uint32_t* kept = first;  // [first, kept): the ascending run, compacted in place
-      for (std::uint32_t* it = first; it != last; ++it)
+      std::uint32_t* it = first;
+      for (; it != last; ++it) {
         if (kept == first || !less(*it, kept[-1]))
           *kept++ = *it;
+        else if (nr < kRest)
+          rest[nr++] = *it;
         else
-          rest.push_back(*it);
-      std::sort(rest.begin(), rest.end(), less);
-      // Merge from the back into [first, last): the free tail has rest.size() places.
+          break;
+      }
+      if (it != last) {  // [kept, it) holds exactly the nr others' places
+        std::copy(rest, rest + nr, kept);
+        std::sort(first, last, less);
+        return;
+      }
+      std::sort(rest, rest + nr, less);
+      // Merge from the back into [first, last): the free tail has nr places.
       std::uint32_t* out = last;
       std::uint32_t* k = kept;
-      for (std::size_t j = rest.size(); j > 0;) {
+      for (std::size_t j = nr; j > 0;) {
         if (k != first && less(rest[j - 1], k[-1]))
           *--out = *--k;
         else
