@@ -207,7 +207,8 @@ TEST(ParticleBins, SortWithinBinsGivesTheFullSortsOrder) {
     for (std::int64_t p = 0; p < n; ++p) rank[std::size_t(p)] = std::uint32_t(p);
     if (pattern == 1) {  // a few out of place: 2% of the ranks swapped with random others
       std::uniform_int_distribution<std::int64_t> pick(0, n - 1);
-      for (int k = 0; k < int(n / 50); ++k) std::swap(rank[std::size_t(pick(rng))], rank[std::size_t(pick(rng))]);
+      for (int k = 0; k < int(n / 50); ++k)
+        std::swap(rank[std::size_t(pick(rng))], rank[std::size_t(pick(rng))]);
     } else if (pattern == 2) {
       std::reverse(rank.begin(), rank.end());
     } else if (pattern == 3) {
@@ -215,7 +216,8 @@ TEST(ParticleBins, SortWithinBinsGivesTheFullSortsOrder) {
     }
     slurry::transfer::ParticleBins<2> bins;
     bins.resize(IVec(64, 64));
-    bins.build(n, [&](std::int64_t p) { return base[std::size_t(p)]; }, [](std::int64_t) { return 0; }, 1);
+    bins.build(
+        n, [&](std::int64_t p) { return base[std::size_t(p)]; }, [](std::int64_t) { return 0; }, 1);
     std::vector<std::uint32_t> expect(bins.order(), bins.order() + n);
     for (const auto& bin : bins.bins())
       std::sort(expect.begin() + bin.begin, expect.begin() + bin.end,

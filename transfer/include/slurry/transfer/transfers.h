@@ -64,14 +64,16 @@ inline Eigen::Matrix<T, 4, 1> padded(const T* p, T last = T(0)) {
   if constexpr (std::is_same_v<T, float>) {
     // (x, y, 0, 0), then (z, last, 0, 0) or (last, 0, 0, 0), joined.
     const __m128 xy = _mm_castsi128_ps(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));
-    const __m128 zw = Dim == 3 ? _mm_unpacklo_ps(_mm_load_ss(p + 2), _mm_set_ss(last)) : _mm_set_ss(last);
+    const __m128 zw =
+        Dim == 3 ? _mm_unpacklo_ps(_mm_load_ss(p + 2), _mm_set_ss(last)) : _mm_set_ss(last);
     _mm_store_ps(n.data(), _mm_movelh_ps(xy, zw));
     return n;
   }
 #endif
 #if defined(__AVX__)
   if constexpr (std::is_same_v<T, double>) {
-    const __m128d zw = Dim == 3 ? _mm_unpacklo_pd(_mm_load_sd(p + 2), _mm_set_sd(last)) : _mm_set_sd(last);
+    const __m128d zw =
+        Dim == 3 ? _mm_unpacklo_pd(_mm_load_sd(p + 2), _mm_set_sd(last)) : _mm_set_sd(last);
     const __m256d v = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_loadu_pd(p)), zw, 1);
     _mm256_store_pd(n.data(), v);
     return n;
@@ -91,15 +93,18 @@ inline Eigen::Matrix<T, 4, 1> padded(const T* p, T last = T(0)) {
 /// code's roundings (2D float frames kept their bits; 2D double ones, where GCC had vectorised
 /// part of the scalar code, changed at round-off).
 template <class T>
-inline Eigen::Matrix<T, 4, 1> fmadd(T a, const Eigen::Matrix<T, 4, 1>& b, const Eigen::Matrix<T, 4, 1>& c) {
+inline Eigen::Matrix<T, 4, 1> fmadd(T a, const Eigen::Matrix<T, 4, 1>& b,
+                                    const Eigen::Matrix<T, 4, 1>& c) {
   Eigen::Matrix<T, 4, 1> r;
 #if defined(__FMA__)
   if constexpr (std::is_same_v<T, float>) {
-    _mm_store_ps(r.data(), _mm_fmadd_ps(_mm_set1_ps(a), _mm_load_ps(b.data()), _mm_load_ps(c.data())));
+    _mm_store_ps(r.data(),
+                 _mm_fmadd_ps(_mm_set1_ps(a), _mm_load_ps(b.data()), _mm_load_ps(c.data())));
     return r;
   }
   if constexpr (std::is_same_v<T, double>) {
-    _mm256_store_pd(r.data(), _mm256_fmadd_pd(_mm256_set1_pd(a), _mm256_load_pd(b.data()), _mm256_load_pd(c.data())));
+    _mm256_store_pd(r.data(), _mm256_fmadd_pd(_mm256_set1_pd(a), _mm256_load_pd(b.data()),
+                                              _mm256_load_pd(c.data())));
     return r;
   }
 #endif
@@ -228,7 +233,8 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
           const T wab = s.w[0][ia] * s.w[1][ib];
           const Node uab = has_A ? detail::fmadd(s.offset[1][ib], a[1], ua) : ua;
           if (has_G) {
-            const Node h = detail::fmadd(s.dw[0][ia] * s.w[1][ib], g[0], Node((s.w[0][ia] * s.dw[1][ib]) * g[1]));
+            const Node h = detail::fmadd(s.dw[0][ia] * s.w[1][ib], g[0],
+                                         Node((s.w[0][ia] * s.dw[1][ib]) * g[1]));
             row[ib] += detail::fmadd(wab, uab, h);
           } else {
             row[ib] = detail::fmadd(wab, uab, row[ib]);
