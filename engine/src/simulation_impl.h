@@ -991,7 +991,7 @@ void Simulation<T, Dim>::return_mapping() {
       jp_min = std::min(jp_min, P.plastic[p]);
     }
     projected_scratch_[std::size_t(bi)] = yielded;
-    if (snow && mat.plastic_kind == PlasticModel::Snow)
+    if (mat.plastic_kind == PlasticModel::Snow)  // then `snow` holds and hmax is sized
       hmax[std::size_t(bi)] = std::max(T(1), mat.hardening_factor(jp_min));
   });
   for (const auto n : projected_scratch_) projected_ += n;

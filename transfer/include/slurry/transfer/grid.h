@@ -4,9 +4,8 @@
 ///
 /// Each node stores (momentum or velocity, mass) packed in one 4-vector (GridNode, blocks.h; a 2D
 /// node pads it with a zero), so that P2G adds one small vector per node (the layout of Hu et al.
-/// 2018's mls-mpm88). The grid tracks the box of
-/// nodes touched since the last clear, so clearing and the grid update cost the occupied box,
-/// not the whole domain.
+/// 2018's mls-mpm88). The grid tracks the box of nodes touched since the last clear, so clearing
+/// and the grid update cost the occupied box, not the whole domain.
 ///
 /// Two interfaces: the whole-grid one of the serial transfers (`origin()`, `dx()`, `inv_dx()`,
 /// `res()`, `index()`, `stride()`, `node()`, `touch()`), and the block one of the engine's
