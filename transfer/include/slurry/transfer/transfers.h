@@ -226,6 +226,59 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
     } else {
       // ua = m v + ox_a a0 with m v unrounded, as in the scalar form (see fmadd).
       const Node vm = detail::padded<T, Dim>(v[p].data(), T(1));  // (v, 1, 0)
+#if defined(__AVX__) && defined(__FMA__)
+      if constexpr (std::is_same_v<T, float> && N >= 2) {
+        // Two nodes of a row (adjacent in memory: the last axis has stride 1) per 256-bit
+        // register, each lane doing the multiply-adds of the 4-wide form below, in the same
+        // order: the same bits with half the instructions.
+        constexpr int pairs = N / 2;
+        auto pair = [](T lo, T hi) { return _mm256_set_m128(_mm_set1_ps(hi), _mm_set1_ps(lo)); };
+        auto both = [](const Node& n) {
+          const __m128 h = _mm_load_ps(n.data());
+          return _mm256_set_m128(h, h);
+        };
+        __m256 w1[pairs], o1[pairs], d1[pairs];
+        for (int k = 0; k < pairs; ++k) {
+          w1[k] = pair(s.w[1][2 * k], s.w[1][2 * k + 1]);
+          if (has_A) o1[k] = pair(s.offset[1][2 * k], s.offset[1][2 * k + 1]);
+          if (has_G) d1[k] = pair(s.dw[1][2 * k], s.dw[1][2 * k + 1]);
+        }
+        const __m256 a1 = both(a[1]), g0 = both(g[0]), g1 = both(g[1]);
+        for (int ia = 0; ia < N; ++ia) {
+          const Node ua = has_A ? detail::fmadd(mp, vm, Node(s.offset[0][ia] * a[0])) : Node(mp * vm);
+          const __m256 ua2 = both(ua);
+          const __m256 w0 = _mm256_set1_ps(s.w[0][ia]);
+          T* row = (n0 + ia * stride[0])->data();
+          for (int k = 0; k < pairs; ++k) {
+            const __m256 wab = _mm256_mul_ps(w0, w1[k]);
+            const __m256 uab = has_A ? _mm256_fmadd_ps(o1[k], a1, ua2) : ua2;
+            T* r = row + 8 * k;
+            if (has_G) {
+              const __m256 c0 = _mm256_mul_ps(_mm256_set1_ps(s.dw[0][ia]), w1[k]);
+              const __m256 c1 = _mm256_mul_ps(w0, d1[k]);
+              const __m256 h = _mm256_fmadd_ps(c0, g0, _mm256_mul_ps(c1, g1));
+              _mm256_storeu_ps(r, _mm256_add_ps(_mm256_loadu_ps(r), _mm256_fmadd_ps(wab, uab, h)));
+            } else {
+              _mm256_storeu_ps(r, _mm256_fmadd_ps(wab, uab, _mm256_loadu_ps(r)));
+            }
+          }
+          if constexpr (N % 2 == 1) {
+            constexpr int ib = N - 1;
+            Node* rn = n0 + ia * stride[0];
+            const T wab = s.w[0][ia] * s.w[1][ib];
+            const Node uab = has_A ? detail::fmadd(s.offset[1][ib], a[1], ua) : ua;
+            if (has_G) {
+              const Node h = detail::fmadd(s.dw[0][ia] * s.w[1][ib], g[0],
+                                           Node((s.w[0][ia] * s.dw[1][ib]) * g[1]));
+              rn[ib] += detail::fmadd(wab, uab, h);
+            } else {
+              rn[ib] = detail::fmadd(wab, uab, rn[ib]);
+            }
+          }
+        }
+        continue;
+      }
+#endif
       for (int ia = 0; ia < N; ++ia) {
         const Node ua = has_A ? detail::fmadd(mp, vm, Node(s.offset[0][ia] * a[0])) : Node(mp * vm);
         Node* row = n0 + ia * stride[0];
