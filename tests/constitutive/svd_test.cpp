@@ -394,6 +394,17 @@ void check_polar_rotation(T tol) {
 TEST(PolarRotation, MatchesSvdPolarDouble2D) { check_polar_rotation<double, 2>(1e-10); }
 TEST(PolarRotation, MatchesSvdPolarDouble3D) { check_polar_rotation<double, 3>(1e-10); }
 TEST(PolarRotation, MatchesSvdPolarFloat3D) { check_polar_rotation<float, 3>(2e-4); }
+TEST(PolarRotation, MatchesSvdPolarFloat2D) { check_polar_rotation<float, 2>(2e-5); }
+// The 2D closed form's one degenerate input, F = [p q; q -p] (every rotation gives the same
+// tr(R^T F) = 0), takes the SVD's rotation: still a rotation, and still F's polar factor.
+TEST(PolarRotation, DegenerateReflection2D) {
+  Eigen::Matrix2d F, R, R_ref, S;
+  F << 0.6, 0.8, 0.8, -0.6;
+  slurry::constitutive::polar_rotation<double, 2>(F, R);
+  slurry::constitutive::polar(F, R_ref, S);
+  EXPECT_LT((R - R_ref).norm(), 1e-14);
+  EXPECT_NEAR(R.determinant(), 1.0, 1e-14);
+}
 }  // namespace
 
 // Regression: the 3D sand example (sand_column_3d) blew up because the 3x3 SVD returned NaN

@@ -52,6 +52,21 @@ struct FixedCorotated {
     Mat R;
     polar_rotation<T, Dim>(F, R);
     const T J = determinant(F);
+    if constexpr (Dim == 2) {
+      // Entry by entry: R's four values stay in registers. As a matrix expression, GCC stored
+      // them one by one and read them back as one vector (a store-forwarding stall that took
+      // half of this function's time in a 2D snow profile).
+      const T d00 = F(0, 0) - R(0, 0), d01 = F(0, 1) - R(0, 1), d10 = F(1, 0) - R(1, 0),
+              d11 = F(1, 1) - R(1, 1);
+      const T two_mu = T(2) * mu, p = lambda * (J - T(1)) * J;
+      const T t01 = two_mu * (d00 * F(1, 0) + d01 * F(1, 1));
+      Mat tau;
+      tau(0, 0) = two_mu * (d00 * F(0, 0) + d01 * F(0, 1)) + p;
+      tau(0, 1) = t01;
+      tau(1, 0) = two_mu * (d10 * F(0, 0) + d11 * F(0, 1));
+      tau(1, 1) = two_mu * (d10 * F(1, 0) + d11 * F(1, 1)) + p;
+      return tau;
+    }
     Mat tau = T(2) * mu * (F - R) * F.transpose();
     tau.diagonal().array() += lambda * (J - T(1)) * J;
     return tau;

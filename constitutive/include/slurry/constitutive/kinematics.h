@@ -164,9 +164,30 @@ inline constexpr int max_iterations = 8;
 /// three iterations of a cofactor matrix, several times cheaper than the SVD. Falls back to
 /// polar() (the rotation-variant SVD) when F is inverted or nearly singular (J <= 1e-2, where
 /// the rotation-variant R differs from the Newton limit) or when 8 iterations do not converge.
+///
+/// 2D has a closed form instead, for every F: the rotation-variant polar rotation maximises
+/// tr(R^T F) over rotations (R = U V^T, with the SVD's sign on the smallest singular value),
+/// and with R = [c -s; s c] that trace is c (F00 + F11) + s (F10 - F01), largest at
+/// (c, s) = (F00 + F11, F10 - F01) / |(F00 + F11, F10 - F01)|. One square root and one division
+/// against two or three Newton iterations of a division each. Only when that vector vanishes
+/// (F = [p q; q -p], where every rotation is as good) does it fall back to polar().
 template <class T, int Dim>
 inline void polar_rotation(const Eigen::Matrix<T, Dim, Dim>& F, Eigen::Matrix<T, Dim, Dim>& R) {
   using Mat = Eigen::Matrix<T, Dim, Dim>;
+  if constexpr (Dim == 2) {
+    const T a = F(0, 0) + F(1, 1), b = F(1, 0) - F(0, 1);
+    const T n2 = a * a + b * b;
+    // Also false for NaN or an overflow; the normal range keeps the quotient's precision.
+    if (n2 >= std::numeric_limits<T>::min() && n2 <= std::numeric_limits<T>::max()) {
+      const T inv = T(1) / std::sqrt(n2);
+      const T c = a * inv, s = b * inv;
+      R(0, 0) = c, R(0, 1) = -s, R(1, 0) = s, R(1, 1) = c;
+      return;
+    }
+    Mat S;
+    polar(F, R, S);
+    return;
+  }
   // ||X_{k+1} - X_k||^2 < eps means the next error is about eps: converged to round-off.
   constexpr T tol = std::numeric_limits<T>::epsilon();
   if (determinant(F) > polar_newton::min_det<T>) {
