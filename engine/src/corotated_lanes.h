@@ -1,7 +1,7 @@
 #pragma once
 /// \file corotated_lanes.h
-/// The 3D stress of fixed corotated materials (jelly, and snow with its hardening) in P2G
-/// (Simulation::compute_stress) over SIMD lanes: lanes::fixed_corotated_kirchhoff
+/// The stress of fixed corotated materials (jelly, and snow with its hardening) in P2G
+/// (Simulation::compute_stress) over SIMD lanes, in 2D and 3D: lanes::fixed_corotated_kirchhoff
 /// (fixed_corotated_lanes.h), W = lanes::kWidth<T> particles at a time. Its own translation unit,
 /// like sand_lanes.cpp.
 #include <Eigen/Core>
@@ -16,21 +16,20 @@ namespace slurry::detail {
 /// hardening) or 1 when factor is null. Lanes that polar_rotation would hand to the SVD are
 /// computed by the scalar FixedCorotated::kirchhoff. A short last batch repeats its first particle
 /// in the spare lanes and drops their results.
-template <class T>
+template <class T, int Dim>
 void fixed_corotated_stress_lanes(T mu, T lambda, const T* factor, T dt, const std::uint32_t* order,
                                   std::uint32_t begin, std::uint32_t end,
-                                  const Eigen::Matrix<T, 3, 3>* F, const T* vol0,
-                                  std::size_t vol0_mask, Eigen::Matrix<T, 3, 3>* K);
+                                  const Eigen::Matrix<T, Dim, Dim>* F, const T* vol0,
+                                  std::size_t vol0_mask, Eigen::Matrix<T, Dim, Dim>* K);
 
-extern template void fixed_corotated_stress_lanes<float>(float, float, const float*, float,
-                                                         const std::uint32_t*, std::uint32_t,
-                                                         std::uint32_t, const Eigen::Matrix3f*,
-                                                         const float*, std::size_t,
-                                                         Eigen::Matrix3f*);
-extern template void fixed_corotated_stress_lanes<double>(double, double, const double*, double,
-                                                          const std::uint32_t*, std::uint32_t,
-                                                          std::uint32_t, const Eigen::Matrix3d*,
-                                                          const double*, std::size_t,
-                                                          Eigen::Matrix3d*);
+#define SLURRY_COROTATED_LANES(T, Dim)                                                             \
+  extern template void fixed_corotated_stress_lanes<T, Dim>(                                       \
+      T, T, const T*, T, const std::uint32_t*, std::uint32_t, std::uint32_t,                       \
+      const Eigen::Matrix<T, Dim, Dim>*, const T*, std::size_t, Eigen::Matrix<T, Dim, Dim>*);
+SLURRY_COROTATED_LANES(float, 2)
+SLURRY_COROTATED_LANES(double, 2)
+SLURRY_COROTATED_LANES(float, 3)
+SLURRY_COROTATED_LANES(double, 3)
+#undef SLURRY_COROTATED_LANES
 
 }  // namespace slurry::detail

@@ -500,15 +500,16 @@ void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::
   }
   mat.visit_elastic([&](const auto& model) {
     using Model = std::decay_t<decltype(model)>;
-    if constexpr (Dim == 3 && constitutive::lanes::kPays<T> &&
-                  std::is_same_v<Model, constitutive::FixedCorotated<T, Dim>>) {
+    if constexpr (constitutive::lanes::kPays<T> && std::is_same_v<Model, constitutive::FixedCorotated<T, Dim>>) {
       // Jelly and snow: the stress over SIMD lanes (corotated_lanes.h); snow's hardening factors
       // first, one per particle.
       const bool snow = mat.plastic_kind == PlasticModel::Snow;
       T factor[kStressChunk];
-      if (snow)
-        for (auto i = begin; i < end; ++i) factor[i - begin] = mat.hardening_factor(P.plastic[order[i]]);
-      detail::fixed_corotated_stress_lanes<T>(model.mu, model.lambda, snow ? factor : nullptr, dt, order, begin, end,
+      if (snow) {
+        for (auto i = begin; i < end; ++i) factor[i - begin] = P.plastic[order[i]];
+        mat.snow.hardening_factors(factor, std::ptrdiff_t(end - begin));
+      }
+      detail::fixed_corotated_stress_lanes<T, Dim>(model.mu, model.lambda, snow ? factor : nullptr, dt, order, begin, end,
                                               P.F.data(), vol0, vol0_mask, K);
       return;
     }
