@@ -567,18 +567,22 @@ void Simulation<T, Dim>::bin_particles_order() {
   const Vec* x = particles_.x.data();
   const T inv_dx = T(1) / dx_;
   const std::uint16_t* material = particles_.material.empty() ? nullptr : particles_.material.data();
-  bins_.build(
-      std::int64_t(particles_.size()),
-      [&](std::int64_t p) {
-        IVec b;
-        for (int d = 0; d < Dim; ++d) b[d] = transfer::BSpline<Order>::base((x[p][d] - origin_[d]) * inv_dx);
-        return b;
-      },
-      [&](std::int64_t p) { return material ? int(material[p]) : 0; }, int(materials_.size()));
+  const std::uint32_t* id = particles_.id.data();
+  const Vec origin = origin_;
+  auto base_of = [x, origin, inv_dx](std::int64_t p) {
+    IVec b;
+    for (int d = 0; d < Dim; ++d) b[d] = transfer::BSpline<Order>::base((x[p][d] - origin[d]) * inv_dx);
+    return b;
+  };
+  auto material_of = [material](std::int64_t p) { return material ? int(material[p]) : 0; };
+  auto rank_of = [id](std::uint32_t p) { return id[p]; };
+  // Few particles change blocks in a substep: the last substep's bins, updated (the same bins
+  // and order as a full build, blocks.h), when that is cheaper.
+  if (bins_.update(std::int64_t(particles_.size()), base_of, material_of, rank_of)) return;
+  bins_.build(std::int64_t(particles_.size()), base_of, material_of, int(materials_.size()));
   // Within a bin by persistent id: every patch sum then depends on which particles a block holds,
   // not on the storage's history (re-sorts, particles that came from another rank).
-  const std::uint32_t* id = particles_.id.data();
-  bins_.sort_within_bins([id](std::uint32_t p) { return id[p]; });
+  bins_.sort_within_bins(rank_of);
 }
 
 template <class T, int Dim>

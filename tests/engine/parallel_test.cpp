@@ -228,6 +228,87 @@ TEST(ParticleBins, SortWithinBinsGivesTheFullSortsOrder) {
   }
 }
 
+// ParticleBins::update gives what build() and sort_within_bins() give, step after step: bins
+// (block, material, range), the order, the blocks and their colours. The steps move a few
+// particles (to new blocks, emptying one), change materials and swap ranks; the path must be
+// taken when few particles moved and refused (false) when too many did or the ranks changed.
+TEST(ParticleBins, UpdateGivesTheFullBuildsBins) {
+  using IVec = Eigen::Vector2i;
+  using Bins = slurry::transfer::ParticleBins<2>;
+  std::mt19937 rng(17);
+  const std::int64_t n = 20000;
+  std::vector<IVec> base(static_cast<std::size_t>(n));
+  std::vector<int> material(static_cast<std::size_t>(n));
+  std::vector<std::uint32_t> rank(static_cast<std::size_t>(n));
+  std::uniform_int_distribution<int> start(0, 47), anywhere(0, 63), mat(0, 2);  // about 550 per block
+  std::uniform_int_distribution<std::int64_t> pick(0, n - 1);
+  for (std::int64_t p = 0; p < n; ++p) {
+    base[std::size_t(p)] = IVec(start(rng), start(rng));
+    material[std::size_t(p)] = mat(rng);
+    rank[std::size_t(p)] = std::uint32_t(p);
+  }
+  std::shuffle(rank.begin(), rank.end(), rng);
+  auto base_of = [&](std::int64_t p) { return base[std::size_t(p)]; };
+  auto material_of = [&](std::int64_t p) { return material[std::size_t(p)]; };
+  auto rank_of = [&](std::uint32_t p) { return rank[p]; };
+  Bins updated;
+  updated.resize(IVec(64, 64));
+  EXPECT_FALSE(updated.update(n, base_of, material_of, rank_of)) << "no bins to update yet";
+  updated.build(n, base_of, material_of, 3);
+  updated.sort_within_bins(rank_of);
+  int taken = 0, refused = 0;
+  for (int step = 0; step < 60; ++step) {
+    const int kind = step % 6;
+    if (kind == 0 || kind == 1) {  // a few particles anywhere, some to blocks never occupied
+      for (int k = 0; k < 300; ++k) base[std::size_t(pick(rng))] = IVec(anywhere(rng), anywhere(rng));
+    } else if (kind == 2) {  // a neighbour cell for some (within the block or across a face)
+      for (int k = 0; k < 500; ++k) {
+        auto& b = base[std::size_t(pick(rng))];
+        b = (b + IVec(anywhere(rng) % 3 - 1, anywhere(rng) % 3 - 1)).cwiseMax(0).cwiseMin(63);
+      }
+    } else if (kind == 3) {  // a whole block's particles leave it (its bins disappear)
+      const IVec block = base[std::size_t(pick(rng))] / 8;
+      for (auto& b : base)
+        if (b / 8 == block) b = IVec(anywhere(rng), anywhere(rng));
+      for (int k = 0; k < 50; ++k) material[std::size_t(pick(rng))] = mat(rng);
+    } else if (kind == 4) {  // too many movers: refused
+      for (int k = 0; k < n / 8; ++k) base[std::size_t(pick(rng))] = IVec(anywhere(rng), anywhere(rng));
+    } else {  // two ranks swapped: the stayers' order changed, refused
+      std::swap(rank[std::size_t(pick(rng))], rank[std::size_t(pick(rng))]);
+    }
+    const bool used = updated.update(n, base_of, material_of, rank_of);
+    if (used) {
+      ++taken;
+    } else {
+      ++refused;
+      updated.build(n, base_of, material_of, 3);
+      updated.sort_within_bins(rank_of);
+    }
+    if (kind <= 3) EXPECT_TRUE(used) << "step " << step;
+    if (kind == 4) EXPECT_FALSE(used) << "step " << step;
+    Bins full;
+    full.resize(IVec(64, 64));
+    full.build(n, base_of, material_of, 3);
+    full.sort_within_bins(rank_of);
+    ASSERT_EQ(std::memcmp(updated.order(), full.order(), std::size_t(n) * sizeof(std::uint32_t)), 0) << "step " << step;
+    ASSERT_EQ(updated.bins().size(), full.bins().size()) << "step " << step;
+    for (std::size_t b = 0; b < full.bins().size(); ++b) {
+      const auto &u = updated.bins()[b], &f = full.bins()[b];
+      ASSERT_TRUE(u.block == f.block && u.material == f.material && u.begin == f.begin && u.end == f.end)
+          << "step " << step << " bin " << b;
+    }
+    ASSERT_EQ(updated.groups(), full.groups()) << "step " << step;
+    for (std::size_t g = 0; g < full.groups(); ++g) {
+      EXPECT_EQ(updated.group_begin(g), full.group_begin(g)) << "step " << step;
+      EXPECT_EQ(updated.group_key(g), full.group_key(g)) << "step " << step;
+    }
+    EXPECT_EQ(updated.group_begin(full.groups()), full.group_begin(full.groups())) << "step " << step;
+    for (int c = 0; c < 4; ++c) EXPECT_EQ(updated.colour(c), full.colour(c)) << "step " << step << " colour " << c;
+  }
+  EXPECT_GE(taken, 40);
+  EXPECT_GE(refused, 10);
+}
+
 // A patch added to and read back from a sparse grid lands on the same nodes as in a dense grid,
 // including patches that straddle block boundaries and reach the lattice's end.
 TEST(SparseGrid, PatchesMatchTheDenseGrid) {

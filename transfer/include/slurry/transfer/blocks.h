@@ -73,6 +73,7 @@ class ParticleBins {
       throw std::length_error("ParticleBins: more than 2^31 blocks; use a larger dx");
     table_.assign(std::size_t(total), -1);
     distinct_.clear();
+    ranked_ = false;
   }
   const IVec& block_res() const { return block_res_; }
 
@@ -187,13 +188,8 @@ class ParticleBins {
         order[h[slot_of(p, block_key(p))]++] = std::uint32_t(p);  // the keys in order_ are overwritten
     });
     // 4. Blocks (groups) by colour (the parities of their block coordinates).
-    for (auto& c : colour_) c.clear();
-    for (std::int64_t j = 0; j < nb; ++j) {
-      const IVec& b = bins_[groups_[std::size_t(j)]].block;
-      int c = 0;
-      for (int d = 0; d < Dim; ++d) c = 2 * c + (b[d] & 1);
-      colour_[std::size_t(c)].push_back(std::uint32_t(j));
-    }
+    colour_blocks();
+    ranked_ = false;
   }
 
   /// Orders the particles of every bin by `rank_of(p)` (distinct unsigned integers, e.g.
@@ -211,6 +207,7 @@ class ParticleBins {
   /// substep). Ranks are distinct, so the result is the one order that a full sort gives.
   template <class RankOf>
   void sort_within_bins(RankOf&& rank_of) {
+    ranked_ = true;
     std::uint32_t* order = order_.data();
     parallel::parallel_tasks(0, std::int64_t(bins_.size()), [&](std::int64_t b) {
       std::uint32_t* first = order + bins_[std::size_t(b)].begin;
@@ -250,6 +247,195 @@ class ParticleBins {
     });
   }
 
+  /// Re-bins particles [0, n) as build() followed by sort_within_bins(rank_of) would, from the
+  /// bins of the last such pair, when few particles changed bins since: with small substeps (the
+  /// 88-line reference's 2D set-up moves a particle a hundredth of a cell per substep) a few
+  /// dozen of 24 k particles cross a block face, and a counting sort of all of them took 10% of a
+  /// substep. One parallel pass checks every particle against its bin (block, material, and the
+  /// rank order of the bin's particles that stay); the movers are sorted on their own, the
+  /// others compacted in place, and the movers merged into their new bins from the back, in
+  /// place (every particle's new position is at or after its compacted one). The bins, their
+  /// order and the colour lists are then exactly those of build() and sort_within_bins():
+  /// bins hold the same particles in rank order, and are listed by block key and material.
+  ///
+  /// Returns false, changing nothing, when it cannot: no bins from build() and
+  /// sort_within_bins() for n particles, or more than n / 16 movers (a full build is cheaper);
+  /// the caller then calls those two. The check covers anything a caller may have changed
+  /// between substeps (positions, materials, ranks), so the result never depends on whether
+  /// this path was taken.
+  template <class BaseOf, class MaterialOf, class RankOf>
+  bool update(std::int64_t n, BaseOf&& base_of, MaterialOf&& material_of, RankOf&& rank_of) {
+    if (!ranked_ || n != std::int64_t(order_.size()) || n == 0) return false;
+    auto block_key = [&](std::int64_t p) {
+      const IVec b = base_of(p);
+      std::int64_t k = 0;
+      for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + (b[d] >> Shape::log2);
+      return std::int32_t(k);
+    };
+    // 1. Per bin: which of its particles moved (another block or material), and whether the
+    //    ones that stay are still in rank order.
+    //    Nothing is stored per particle in this pass (a byte store may alias anything, and made
+    //    GCC reload every pointer per particle); the movers' places are marked in pass 2.
+    const std::int64_t nbins = std::int64_t(bins_.size());
+    moved_.resize(std::size_t(n));
+    bin_moved_.resize(std::size_t(nbins));
+    std::uint32_t* order = order_.data();
+    std::uint8_t* moved = moved_.data();
+    const Bin* bins = bins_.data();
+    std::uint32_t* bin_moved = bin_moved_.data();
+    parallel::parallel_tasks(0, nbins, [&, order, bins, bin_moved](std::int64_t b) {
+      const Bin bin = bins[b];
+      std::int32_t k = 0;
+      for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + bin.block[d];
+      std::uint32_t count = 0;
+      bool ranked = true, any_kept = false;
+      auto last_rank = rank_of(order[bin.begin]);
+      for (std::uint32_t i = bin.begin; i < bin.end; ++i) {
+        const std::uint32_t p = order[i];
+        const bool m = (block_key(p) != k) | (std::uint32_t(material_of(p)) != bin.material);
+        count += m;
+        if (!m) {
+          const auto r = rank_of(p);
+          ranked &= !any_kept || last_rank < r;
+          last_rank = r, any_kept = true;
+        }
+      }
+      bin_moved[b] = ranked ? count : kUnranked;
+    });
+    std::int64_t movers = 0;
+    for (const std::uint32_t c : bin_moved_) {
+      if (c == kUnranked) return false;
+      movers += c;
+    }
+    if (movers == 0) return true;
+    if (movers > n / 16) return false;
+    // 2. The movers with their new (block key, material), sorted by that and by rank. The
+    //    buffers are sized for the most movers this path takes, once.
+    movers_.clear();
+    if (movers_.capacity() < std::size_t(n / 16)) movers_.reserve(std::size_t(n / 16));
+    if (slots_.capacity() < std::size_t(nbins + n / 16)) slots_.reserve(std::size_t(nbins + n / 16));
+    for (std::int64_t b = 0; b < nbins; ++b) {
+      if (bin_moved_[std::size_t(b)] == 0) continue;
+      const Bin& bin = bins_[std::size_t(b)];
+      std::int32_t k = 0;
+      for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + bin.block[d];
+      for (std::uint32_t i = bin.begin; i < bin.end; ++i) {
+        const std::uint32_t p = order[i];
+        moved[i] = block_key(p) != k || std::uint32_t(material_of(p)) != bin.material;
+        if (moved[i]) {
+          const IVec base = base_of(p);
+          for (int d = 0; d < Dim; ++d)
+            if (base[d] < 0 || (base[d] >> Shape::log2) >= block_res_[d]) return false;  // build() throws on it
+          movers_.push_back({block_key(p), std::uint32_t(material_of(p)), p});
+        }
+      }
+    }
+    std::sort(movers_.begin(), movers_.end(), [&](const Mover& a, const Mover& b) {
+      if (a.key != b.key) return a.key < b.key;
+      if (a.material != b.material) return a.material < b.material;
+      return rank_of(a.p) < rank_of(b.p);
+    });
+    // 3. Compact the particles that stay, bin by bin, to the front (a forward pass: positions
+    //    only decrease). kept_end_[b]: where bin b's kept particles end.
+    kept_end_.resize(std::size_t(nbins));
+    std::uint32_t out = 0;
+    for (std::int64_t b = 0; b < nbins; ++b) {
+      const Bin& bin = bins_[std::size_t(b)];
+      if (bin_moved_[std::size_t(b)] == 0) {  // moved_ is marked for bins with movers only
+        if (out != bin.begin) std::copy(order + bin.begin, order + bin.end, order + out);
+        out += bin.end - bin.begin;
+      } else {
+        for (std::uint32_t i = bin.begin; i < bin.end; ++i)
+          if (!moved[i]) order[out++] = order[i];
+      }
+      kept_end_[std::size_t(b)] = out;
+    }
+    // 4. The new slots (block key, material): the old bins that keep particles and the movers'
+    //    slots, in (key, material) order, each with its kept range and its movers.
+    slots_.clear();
+    {
+      std::int64_t b = 0;
+      std::size_t m = 0;
+      const std::size_t nm = movers_.size();
+      auto bin_key = [&](std::int64_t bi) {
+        const Bin& bin = bins_[std::size_t(bi)];
+        std::int64_t k = 0;
+        for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + bin.block[d];
+        return std::int32_t(k);
+      };
+      while (b < nbins || m < nm) {
+        Slot sl{};
+        const bool from_bin = b < nbins;
+        const bool from_mover = m < nm;
+        std::int32_t bk = from_bin ? bin_key(b) : 0;
+        const std::uint32_t bmat = from_bin ? bins_[std::size_t(b)].material : 0;
+        bool take_bin = from_bin, take_mover = from_mover;
+        if (from_bin && from_mover) {
+          const bool bin_first = bk < movers_[m].key || (bk == movers_[m].key && bmat < movers_[m].material);
+          const bool same = bk == movers_[m].key && bmat == movers_[m].material;
+          take_bin = bin_first || same;
+          take_mover = !bin_first || same;
+        }
+        sl.key = take_bin ? bk : movers_[m].key;
+        sl.material = take_bin ? bmat : movers_[m].material;
+        sl.kept_begin = sl.kept_end = 0;
+        if (take_bin) {
+          sl.kept_begin = b == 0 ? 0 : kept_end_[std::size_t(b - 1)];
+          sl.kept_end = kept_end_[std::size_t(b)];
+          ++b;
+        }
+        sl.movers_begin = sl.movers_end = std::uint32_t(m);
+        if (take_mover) {
+          while (m < nm && movers_[m].key == sl.key && movers_[m].material == sl.material) ++m;
+          sl.movers_end = std::uint32_t(m);
+        }
+        if (sl.kept_end > sl.kept_begin || sl.movers_end > sl.movers_begin) slots_.push_back(sl);
+      }
+    }
+    // 5. From the last slot to the first: merge its kept particles (still at their compacted
+    //    places) and its movers by rank into the slot's final range, from the back. A kept
+    //    particle's final place is its compacted place plus the movers of the slots up to its
+    //    own, so writes never overtake the reads still to come.
+    std::uint32_t end = std::uint32_t(n);
+    for (std::size_t j = slots_.size(); j > 0; --j) {
+      Slot& sl = slots_[j - 1];
+      std::uint32_t k = sl.kept_end, q = sl.movers_end;
+      std::uint32_t w = end;
+      while (q > sl.movers_begin) {
+        if (k > sl.kept_begin && rank_of(movers_[q - 1].p) < rank_of(order[k - 1]))
+          order[--w] = order[--k];
+        else
+          order[--w] = movers_[--q].p;
+      }
+      while (k > sl.kept_begin) order[--w] = order[--k];
+      sl.kept_begin = w;  // now the slot's final begin
+      sl.kept_end = end;
+      end = w;
+    }
+    // 6. Bins, groups, the occupied blocks and the colour lists, as build() leaves them.
+    for (auto key : distinct_) table_[std::size_t(key)] = -1;
+    distinct_.clear();
+    bins_.clear();
+    groups_.clear();
+    for (const Slot& sl : slots_) {
+      if (distinct_.empty() || distinct_.back() != sl.key) {
+        distinct_.push_back(sl.key);
+        groups_.push_back(std::uint32_t(bins_.size()));
+      }
+      IVec block;
+      std::int64_t k = sl.key;
+      for (int d = Dim - 1; d >= 0; --d) {
+        block[d] = int(k % block_res_[d]);
+        k /= block_res_[d];
+      }
+      bins_.push_back({block, sl.material, sl.kept_begin, sl.kept_end});
+    }
+    groups_.push_back(std::uint32_t(bins_.size()));
+    for (std::size_t j = 0; j < distinct_.size(); ++j) table_[std::size_t(distinct_[j])] = std::int32_t(j);
+    colour_blocks();
+    return true;
+  }
+
   /// Call after the caller permuted its particle arrays by order(): particle i is now order()[i]'s
   /// data, so the order becomes the identity (the bins stay valid).
   void reset_order() {
@@ -277,10 +463,37 @@ class ParticleBins {
     for (const auto& c : colour_) b += c.capacity() * sizeof(std::uint32_t);
     for (const auto& r : runs_) b += r.capacity() * sizeof(std::int32_t);
     b += (start_.capacity() + running_.capacity()) * sizeof(std::uint32_t);
+    b += moved_.capacity() + (bin_moved_.capacity() + kept_end_.capacity()) * sizeof(std::uint32_t) +
+         movers_.capacity() * sizeof(Mover) + slots_.capacity() * sizeof(Slot);
     return b;
   }
 
  private:
+  void colour_blocks() {
+    for (auto& c : colour_) c.clear();
+    const std::size_t nb = distinct_.size();
+    for (std::size_t j = 0; j < nb; ++j) {
+      const IVec& b = bins_[groups_[j]].block;
+      int c = 0;
+      for (int d = 0; d < Dim; ++d) c = 2 * c + (b[d] & 1);
+      colour_[std::size_t(c)].push_back(std::uint32_t(j));
+    }
+  }
+  struct Mover {
+    std::int32_t key;
+    std::uint32_t material, p;
+  };
+  struct Slot {
+    std::int32_t key;
+    std::uint32_t material, kept_begin, kept_end, movers_begin, movers_end;
+  };
+  static constexpr std::uint32_t kUnranked = std::numeric_limits<std::uint32_t>::max();
+  bool ranked_ = false;  // the bins are build()'s, ordered by sort_within_bins() since
+  std::vector<std::uint8_t> moved_;        // update(): per position, whether its particle moved
+  std::vector<std::uint32_t> bin_moved_;   // update(): movers per bin (kUnranked: out of order)
+  std::vector<std::uint32_t> kept_end_;    // update(): end of each bin's compacted stayers
+  std::vector<Mover> movers_;
+  std::vector<Slot> slots_;
   static constexpr std::int64_t kMinChunk = 16384;
   static constexpr std::int64_t kScanChunk = 16384;
   static constexpr std::int64_t kMaxChunks = 64;
