@@ -24,6 +24,7 @@
 /// reads both, without a branch). `K[i - begin]` is the stress impulse -dt V_p^0 tau_p of the
 /// particle at position i, computed by the caller; null means no stress.
 #include <Eigen/Core>
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -144,10 +145,24 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
   IVec lo = IVec::Constant(std::numeric_limits<int>::max());
   IVec hi = IVec::Constant(std::numeric_limits<int>::min());
   auto* nodes = grid.data();
+  // 2D: the stencils a batch at a time over SIMD lanes (kernels.h); 3D one at a time.
+  constexpr bool batched = Dim == 2;
+  StencilBatch<T, Dim, Order> batch;
+  auto stencil = [&](std::int64_t i, std::int64_t p) {
+    if constexpr (batched) {
+      const int k = int((i - begin) % StencilBatch<T, Dim, Order>::size);
+      if (k == 0)
+        batch.compute(x, ids, i, int(std::min<std::int64_t>(StencilBatch<T, Dim, Order>::size, end - i)), origin,
+                      inv_dx, dx);
+      return batch.get(k);
+    } else {
+      return St(x[p] - origin, inv_dx, dx);
+    }
+  };
 
   for (std::int64_t i = begin; i < end; ++i) {
     const std::int64_t p = ids ? std::int64_t(ids[i]) : i;
-    const St s(x[p] - origin, inv_dx, dx);
+    const St s = stencil(i, p);
     const IVec base = Eigen::Map<const IVec>(s.base.data());
     lo = lo.cwiseMin(base);
     hi = hi.cwiseMax(base);
@@ -338,10 +353,26 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
   constexpr bool need_B = carries_affine(S);
   constexpr bool need_grad = S != Scheme::MLS;
 
+  // 2D: the stencils a batch at a time over SIMD lanes (kernels.h), computed before any particle
+  // of the batch moves; 3D one at a time.
+  constexpr bool batched = Dim == 2;
+  StencilBatch<T, Dim, Order> batch;
+  auto stencil = [&](std::int64_t i, std::int64_t p) {
+    if constexpr (batched) {
+      const int k = int((i - begin) % StencilBatch<T, Dim, Order>::size);
+      if (k == 0)
+        batch.compute(x, ids, i, int(std::min<std::int64_t>(StencilBatch<T, Dim, Order>::size, end - i)), origin,
+                      inv_dx, dx);
+      return batch.get(k);
+    } else {
+      return St(x[p] - origin, inv_dx, dx);
+    }
+  };
+
   T vmax2 = 0;
   for (std::int64_t i = begin; i < end; ++i) {
     const std::int64_t p = ids ? std::int64_t(ids[i]) : i;
-    const St s(x[p] - origin, inv_dx, dx);
+    const St s = stencil(i, p);
     // Sums over the stencil, axis by axis: for each row (a, b) of nodes along the last axis,
     // T_ab = sum_c wz_c v, O_ab = sum_c wz_c oz_c v and U_ab = sum_c dwz_c v; then
     // v_pic = sum wab T_ab, B = sum w v (x_i - x_p)^T has columns sum wab ox_a T_ab,
