@@ -96,9 +96,10 @@ struct SnowPlasticity {
     return dev2 * T(Dim - 1) < T(Dim) * room * room;
   }
 
-  /// project() without the window test: always through the SVD.
+  /// project() without the window test: always through the SVD. Out of line for the same reason
+  /// as the 2x2 svd() (svd.h): its roundings must not depend on the caller.
   template <int Dim>
-  bool project_by_svd(Eigen::Matrix<T, Dim, Dim>& Fe, T& Jp) const {
+  __attribute__((noinline)) bool project_by_svd(Eigen::Matrix<T, Dim, Dim>& Fe, T& Jp) const {
     using Vec = Eigen::Matrix<T, Dim, 1>;
     Eigen::Matrix<T, Dim, Dim> U, V;
     Vec sigma;

@@ -42,8 +42,13 @@ namespace slurry::constitutive {
 /// scaled rotation q Rot(a2), (q cos a2, q sin a2) = (e, h), and the scaled reflection
 /// r Refl(a1), (r cos a1, r sin a1) = (f, g). Then U = Rot((a1+a2)/2), V = Rot((a1-a2)/2),
 /// sigma = (q + r, q - r); q - r < 0 exactly when det F = q^2 - r^2 < 0.
+///
+/// Never inlined: GCC fuses multiply-adds (-ffp-contract=fast) differently in different callers,
+/// and 2D snow frames changed bits whenever a change elsewhere made GCC inline this function
+/// into SnowPlasticity::project_by_svd or stop doing so. One out-of-line copy keeps the same
+/// roundings for every caller.
 template <class T>
-inline void svd(const Eigen::Matrix<T, 2, 2>& F, Eigen::Matrix<T, 2, 2>& U,
+__attribute__((noinline)) void svd(const Eigen::Matrix<T, 2, 2>& F, Eigen::Matrix<T, 2, 2>& U,
                 Eigen::Matrix<T, 2, 1>& sigma, Eigen::Matrix<T, 2, 2>& V) {
   using std::sqrt;
   const T e = T(0.5) * (F(0, 0) + F(1, 1));
