@@ -145,8 +145,8 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
   IVec lo = IVec::Constant(std::numeric_limits<int>::max());
   IVec hi = IVec::Constant(std::numeric_limits<int>::min());
   auto* nodes = grid.data();
-  // The stencils a batch at a time over SIMD lanes (kernels.h).
-  constexpr bool batched = true;
+  // 2D: the stencils a batch at a time over SIMD lanes (kernels.h); 3D one at a time.
+  constexpr bool batched = Dim == 2;
   StencilBatch<T, Dim, Order> batch;
   auto stencil = [&](std::int64_t i, std::int64_t p) {
     if constexpr (batched) {
@@ -353,9 +353,9 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
   constexpr bool need_B = carries_affine(S);
   constexpr bool need_grad = S != Scheme::MLS;
 
-  // The stencils a batch at a time over SIMD lanes (kernels.h), computed before any particle of
-  // the batch moves.
-  constexpr bool batched = true;
+  // 2D: the stencils a batch at a time over SIMD lanes (kernels.h), computed before any particle
+  // of the batch moves; 3D one at a time.
+  constexpr bool batched = Dim == 2;
   StencilBatch<T, Dim, Order> batch;
   auto stencil = [&](std::int64_t i, std::int64_t p) {
     if constexpr (batched) {
