@@ -57,13 +57,15 @@ void fixed_corotated_stress_lanes(T mu, T lambda, const T* factor, T dt, const s
                        _mm_mul_ps(sc, _mm_loadu_ps(tau.a[0][1].data() + g)),
                        _mm_mul_ps(sc, _mm_loadu_ps(tau.a[1][1].data() + g))};
         _MM_TRANSPOSE4_PS(r[0], r[1], r[2], r[3]);
-        for (int k = 0; k < 4 && g + k < count; ++k) _mm_storeu_ps(K[i0 + g + k - begin].data(), r[k]);
+        for (int k = 0; k < 4 && g + k < count; ++k)
+          _mm_storeu_ps(K[i0 + g + k - begin].data(), r[k]);
       }
       for (int l = 0; l < count; ++l)
         if (scalar.bits[l] != T(0)) {
           const auto p = order[i0 + l];
           K[i0 + l - begin] =
-              (-dt * vol0[p & vol0_mask]) * constitutive::FixedCorotated<T, Dim>{mul[l], lambdal[l]}.kirchhoff(F[p]);
+              (-dt * vol0[p & vol0_mask]) *
+              constitutive::FixedCorotated<T, Dim>{mul[l], lambdal[l]}.kirchhoff(F[p]);
         }
     }
     return;
@@ -89,9 +91,9 @@ void fixed_corotated_stress_lanes(T mu, T lambda, const T* factor, T dt, const s
   }
 }
 
-#define SLURRY_COROTATED_LANES(T, Dim)                                                             \
-  template void fixed_corotated_stress_lanes<T, Dim>(                                              \
-      T, T, const T*, T, const std::uint32_t*, std::uint32_t, std::uint32_t,                       \
+#define SLURRY_COROTATED_LANES(T, Dim)                                       \
+  template void fixed_corotated_stress_lanes<T, Dim>(                        \
+      T, T, const T*, T, const std::uint32_t*, std::uint32_t, std::uint32_t, \
       const Eigen::Matrix<T, Dim, Dim>*, const T*, std::size_t, Eigen::Matrix<T, Dim, Dim>*);
 SLURRY_COROTATED_LANES(float, 2)
 SLURRY_COROTATED_LANES(double, 2)

@@ -22,9 +22,9 @@ void fixed_corotated_stress_lanes(T mu, T lambda, const T* factor, T dt, const s
                                   const Eigen::Matrix<T, Dim, Dim>* F, const T* vol0,
                                   std::size_t vol0_mask, Eigen::Matrix<T, Dim, Dim>* K);
 
-#define SLURRY_COROTATED_LANES(T, Dim)                                                             \
-  extern template void fixed_corotated_stress_lanes<T, Dim>(                                       \
-      T, T, const T*, T, const std::uint32_t*, std::uint32_t, std::uint32_t,                       \
+#define SLURRY_COROTATED_LANES(T, Dim)                                       \
+  extern template void fixed_corotated_stress_lanes<T, Dim>(                 \
+      T, T, const T*, T, const std::uint32_t*, std::uint32_t, std::uint32_t, \
       const Eigen::Matrix<T, Dim, Dim>*, const T*, std::size_t, Eigen::Matrix<T, Dim, Dim>*);
 SLURRY_COROTATED_LANES(float, 2)
 SLURRY_COROTATED_LANES(double, 2)

@@ -500,7 +500,8 @@ void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::
   }
   mat.visit_elastic([&](const auto& model) {
     using Model = std::decay_t<decltype(model)>;
-    if constexpr (constitutive::lanes::kPays<T> && std::is_same_v<Model, constitutive::FixedCorotated<T, Dim>>) {
+    if constexpr (constitutive::lanes::kPays<T> &&
+                  std::is_same_v<Model, constitutive::FixedCorotated<T, Dim>>) {
       // Jelly and snow: the stress over SIMD lanes (corotated_lanes.h); snow's hardening factors
       // first, one per particle.
       const bool snow = mat.plastic_kind == PlasticModel::Snow;
@@ -509,8 +510,9 @@ void Simulation<T, Dim>::compute_stress(int material, std::uint32_t begin, std::
         for (auto i = begin; i < end; ++i) factor[i - begin] = P.plastic[order[i]];
         mat.snow.hardening_factors(factor, std::ptrdiff_t(end - begin));
       }
-      detail::fixed_corotated_stress_lanes<T, Dim>(model.mu, model.lambda, snow ? factor : nullptr, dt, order, begin, end,
-                                              P.F.data(), vol0, vol0_mask, K);
+      detail::fixed_corotated_stress_lanes<T, Dim>(model.mu, model.lambda, snow ? factor : nullptr,
+                                                   dt, order, begin, end, P.F.data(), vol0,
+                                                   vol0_mask, K);
       return;
     }
     if (mat.plastic_kind == PlasticModel::Snow) {
@@ -571,7 +573,8 @@ void Simulation<T, Dim>::bin_particles_order() {
   const Vec origin = origin_;
   auto base_of = [x, origin, inv_dx](std::int64_t p) {
     IVec b;
-    for (int d = 0; d < Dim; ++d) b[d] = transfer::BSpline<Order>::base((x[p][d] - origin[d]) * inv_dx);
+    for (int d = 0; d < Dim; ++d)
+      b[d] = transfer::BSpline<Order>::base((x[p][d] - origin[d]) * inv_dx);
     return b;
   };
   auto material_of = [material](std::int64_t p) { return material ? int(material[p]) : 0; };

@@ -26,7 +26,8 @@ Eigen::Matrix<T, Dim, Dim> sample(std::mt19937& rng, int kind) {
   using VecD = Eigen::Matrix<double, Dim, 1>;
   using MatD = Eigen::Matrix<double, Dim, Dim>;
   std::uniform_real_distribution<double> u(0, 1);
-  const MatD R = slurry::test::random_rotation<Dim>(rng), Q = slurry::test::random_rotation<Dim>(rng);
+  const MatD R = slurry::test::random_rotation<Dim>(rng),
+             Q = slurry::test::random_rotation<Dim>(rng);
   VecD s;
   // The other singular values' product, so that the last one sets det F.
   const double others = Dim == 3 ? 0.2 * 0.25 : 0.2;
@@ -103,7 +104,8 @@ void check_fixed_corotated_lanes(T tol) {
       // other: in 3D for its determinant (all the others converge in 8 iterations), in 2D where
       // the closed form's vector vanishes.
       const T a = Fp(0, 0) + Fp(Dim - 1, Dim - 1), b = Fp(Dim - 1, 0) - Fp(0, Dim - 1);
-      const bool to_svd = Dim == 3 ? !(Fp.determinant() > T(1e-2)) : !(a * a + b * b >= std::numeric_limits<T>::min());
+      const bool to_svd = Dim == 3 ? !(Fp.determinant() > T(1e-2))
+                                   : !(a * a + b * b >= std::numeric_limits<T>::min());
       const bool flag = scalar.bits[l] != T(0);
       EXPECT_EQ(flag, to_svd) << "lane " << l << " det " << Fp.determinant();
       EXPECT_EQ(flag, scalar_rev.bits[W - 1 - l] != T(0));
@@ -112,7 +114,8 @@ void check_fixed_corotated_lanes(T tol) {
         continue;
       }
       ++taken;
-      const Mat expect = FixedCorotated<T, Dim>{mul[std::size_t(l)], laml[std::size_t(l)]}.kirchhoff(Fp);
+      const Mat expect =
+          FixedCorotated<T, Dim>{mul[std::size_t(l)], laml[std::size_t(l)]}.kirchhoff(Fp);
       const Mat got = tau.get(l);
       // Relative agreement, or round-off of the cancelling F - R (near a rotation tau is
       // 2 mu (F - R) F^T, of the size of that round-off): 64 eps mu |F|^2 + 64 eps lambda |J|.

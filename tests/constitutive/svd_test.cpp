@@ -394,7 +394,9 @@ void check_polar_rotation(T tol) {
 TEST(PolarRotation, MatchesSvdPolarDouble2D) { check_polar_rotation<double, 2>(1e-10); }
 TEST(PolarRotation, MatchesSvdPolarDouble3D) { check_polar_rotation<double, 3>(1e-10); }
 TEST(PolarRotation, MatchesSvdPolarFloat3D) { check_polar_rotation<float, 3>(2e-4); }
-TEST(PolarRotation, MatchesSvdPolarFloat2D) { check_polar_rotation<float, 2>(2e-5); }
+TEST(PolarRotation, MatchesSvdPolarFloat2D) {
+  check_polar_rotation<float, 2>(2e-5);
+}
 // The 2D closed form's one degenerate input, F = [p q; q -p] (every rotation gives the same
 // tr(R^T F) = 0), takes the SVD's rotation: still a rotation, and still F's polar factor.
 TEST(PolarRotation, DegenerateReflection2D) {

@@ -240,7 +240,8 @@ TEST(ParticleBins, UpdateGivesTheFullBuildsBins) {
   std::vector<IVec> base(static_cast<std::size_t>(n));
   std::vector<int> material(static_cast<std::size_t>(n));
   std::vector<std::uint32_t> rank(static_cast<std::size_t>(n));
-  std::uniform_int_distribution<int> start(0, 47), anywhere(0, 63), mat(0, 2);  // about 550 per block
+  std::uniform_int_distribution<int> start(0, 47), anywhere(0, 63),
+      mat(0, 2);  // about 550 per block
   std::uniform_int_distribution<std::int64_t> pick(0, n - 1);
   for (std::int64_t p = 0; p < n; ++p) {
     base[std::size_t(p)] = IVec(start(rng), start(rng));
@@ -260,7 +261,8 @@ TEST(ParticleBins, UpdateGivesTheFullBuildsBins) {
   for (int step = 0; step < 60; ++step) {
     const int kind = step % 6;
     if (kind == 0 || kind == 1) {  // a few particles anywhere, some to blocks never occupied
-      for (int k = 0; k < 300; ++k) base[std::size_t(pick(rng))] = IVec(anywhere(rng), anywhere(rng));
+      for (int k = 0; k < 300; ++k)
+        base[std::size_t(pick(rng))] = IVec(anywhere(rng), anywhere(rng));
     } else if (kind == 2) {  // a neighbour cell for some (within the block or across a face)
       for (int k = 0; k < 500; ++k) {
         auto& b = base[std::size_t(pick(rng))];
@@ -272,7 +274,8 @@ TEST(ParticleBins, UpdateGivesTheFullBuildsBins) {
         if (b / 8 == block) b = IVec(anywhere(rng), anywhere(rng));
       for (int k = 0; k < 50; ++k) material[std::size_t(pick(rng))] = mat(rng);
     } else if (kind == 4) {  // too many movers: refused
-      for (int k = 0; k < n / 8; ++k) base[std::size_t(pick(rng))] = IVec(anywhere(rng), anywhere(rng));
+      for (int k = 0; k < n / 8; ++k)
+        base[std::size_t(pick(rng))] = IVec(anywhere(rng), anywhere(rng));
     } else {  // two ranks swapped: the stayers' order changed, refused
       std::swap(rank[std::size_t(pick(rng))], rank[std::size_t(pick(rng))]);
     }
@@ -290,11 +293,13 @@ TEST(ParticleBins, UpdateGivesTheFullBuildsBins) {
     full.resize(IVec(64, 64));
     full.build(n, base_of, material_of, 3);
     full.sort_within_bins(rank_of);
-    ASSERT_EQ(std::memcmp(updated.order(), full.order(), std::size_t(n) * sizeof(std::uint32_t)), 0) << "step " << step;
+    ASSERT_EQ(std::memcmp(updated.order(), full.order(), std::size_t(n) * sizeof(std::uint32_t)), 0)
+        << "step " << step;
     ASSERT_EQ(updated.bins().size(), full.bins().size()) << "step " << step;
     for (std::size_t b = 0; b < full.bins().size(); ++b) {
       const auto &u = updated.bins()[b], &f = full.bins()[b];
-      ASSERT_TRUE(u.block == f.block && u.material == f.material && u.begin == f.begin && u.end == f.end)
+      ASSERT_TRUE(u.block == f.block && u.material == f.material && u.begin == f.begin &&
+                  u.end == f.end)
           << "step " << step << " bin " << b;
     }
     ASSERT_EQ(updated.groups(), full.groups()) << "step " << step;
@@ -302,8 +307,10 @@ TEST(ParticleBins, UpdateGivesTheFullBuildsBins) {
       EXPECT_EQ(updated.group_begin(g), full.group_begin(g)) << "step " << step;
       EXPECT_EQ(updated.group_key(g), full.group_key(g)) << "step " << step;
     }
-    EXPECT_EQ(updated.group_begin(full.groups()), full.group_begin(full.groups())) << "step " << step;
-    for (int c = 0; c < 4; ++c) EXPECT_EQ(updated.colour(c), full.colour(c)) << "step " << step << " colour " << c;
+    EXPECT_EQ(updated.group_begin(full.groups()), full.group_begin(full.groups()))
+        << "step " << step;
+    for (int c = 0; c < 4; ++c)
+      EXPECT_EQ(updated.colour(c), full.colour(c)) << "step " << step << " colour " << c;
   }
   EXPECT_GE(taken, 40);
   EXPECT_GE(refused, 10);

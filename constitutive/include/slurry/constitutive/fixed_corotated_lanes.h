@@ -90,7 +90,8 @@ inline Mask<T, W> fixed_corotated_kirchhoff(const Mat2<T, W>& F, const Lane<T, W
   const L& f11 = F.a[1][1];
   const L a = f00 + f11, b = f10 - f01;
   const L n2 = a * a + b * b;
-  const Mask<T, W> closed = ge(n2, std::numeric_limits<T>::min()) & le(n2, std::numeric_limits<T>::max());
+  const Mask<T, W> closed =
+      ge(n2, std::numeric_limits<T>::min()) & le(n2, std::numeric_limits<T>::max());
   const L inv = L(L::Ones()) / sqrt(n2);
   const L c = a * inv, s = b * inv;
   const L d00 = f00 - c, d01 = f01 + s, d10 = f10 - s, d11 = f11 - c;

@@ -49,7 +49,7 @@ namespace slurry::constitutive {
 /// roundings for every caller.
 template <class T>
 __attribute__((noinline)) void svd(const Eigen::Matrix<T, 2, 2>& F, Eigen::Matrix<T, 2, 2>& U,
-                Eigen::Matrix<T, 2, 1>& sigma, Eigen::Matrix<T, 2, 2>& V) {
+                                   Eigen::Matrix<T, 2, 1>& sigma, Eigen::Matrix<T, 2, 2>& V) {
   using std::sqrt;
   const T e = T(0.5) * (F(0, 0) + F(1, 1));
   const T f = T(0.5) * (F(0, 0) - F(1, 1));

@@ -313,7 +313,8 @@ class ParticleBins {
     //    buffers are sized for the most movers this path takes, once.
     movers_.clear();
     if (movers_.capacity() < std::size_t(n / 16)) movers_.reserve(std::size_t(n / 16));
-    if (slots_.capacity() < std::size_t(nbins + n / 16)) slots_.reserve(std::size_t(nbins + n / 16));
+    if (slots_.capacity() < std::size_t(nbins + n / 16))
+      slots_.reserve(std::size_t(nbins + n / 16));
     for (std::int64_t b = 0; b < nbins; ++b) {
       if (bin_moved_[std::size_t(b)] == 0) continue;
       const Bin& bin = bins_[std::size_t(b)];
@@ -325,7 +326,8 @@ class ParticleBins {
         if (moved[i]) {
           const IVec base = base_of(p);
           for (int d = 0; d < Dim; ++d)
-            if (base[d] < 0 || (base[d] >> Shape::log2) >= block_res_[d]) return false;  // build() throws on it
+            if (base[d] < 0 || (base[d] >> Shape::log2) >= block_res_[d])
+              return false;  // build() throws on it
           movers_.push_back({block_key(p), std::uint32_t(material_of(p)), p});
         }
       }
@@ -371,7 +373,8 @@ class ParticleBins {
         const std::uint32_t bmat = from_bin ? bins_[std::size_t(b)].material : 0;
         bool take_bin = from_bin, take_mover = from_mover;
         if (from_bin && from_mover) {
-          const bool bin_first = bk < movers_[m].key || (bk == movers_[m].key && bmat < movers_[m].material);
+          const bool bin_first =
+              bk < movers_[m].key || (bk == movers_[m].key && bmat < movers_[m].material);
           const bool same = bk == movers_[m].key && bmat == movers_[m].material;
           take_bin = bin_first || same;
           take_mover = !bin_first || same;
@@ -431,7 +434,8 @@ class ParticleBins {
       bins_.push_back({block, sl.material, sl.kept_begin, sl.kept_end});
     }
     groups_.push_back(std::uint32_t(bins_.size()));
-    for (std::size_t j = 0; j < distinct_.size(); ++j) table_[std::size_t(distinct_[j])] = std::int32_t(j);
+    for (std::size_t j = 0; j < distinct_.size(); ++j)
+      table_[std::size_t(distinct_[j])] = std::int32_t(j);
     colour_blocks();
     return true;
   }
@@ -463,7 +467,8 @@ class ParticleBins {
     for (const auto& c : colour_) b += c.capacity() * sizeof(std::uint32_t);
     for (const auto& r : runs_) b += r.capacity() * sizeof(std::int32_t);
     b += (start_.capacity() + running_.capacity()) * sizeof(std::uint32_t);
-    b += moved_.capacity() + (bin_moved_.capacity() + kept_end_.capacity()) * sizeof(std::uint32_t) +
+    b += moved_.capacity() +
+         (bin_moved_.capacity() + kept_end_.capacity()) * sizeof(std::uint32_t) +
          movers_.capacity() * sizeof(Mover) + slots_.capacity() * sizeof(Slot);
     return b;
   }
@@ -488,10 +493,10 @@ class ParticleBins {
     std::uint32_t material, kept_begin, kept_end, movers_begin, movers_end;
   };
   static constexpr std::uint32_t kUnranked = std::numeric_limits<std::uint32_t>::max();
-  bool ranked_ = false;  // the bins are build()'s, ordered by sort_within_bins() since
-  std::vector<std::uint8_t> moved_;        // update(): per position, whether its particle moved
-  std::vector<std::uint32_t> bin_moved_;   // update(): movers per bin (kUnranked: out of order)
-  std::vector<std::uint32_t> kept_end_;    // update(): end of each bin's compacted stayers
+  bool ranked_ = false;              // the bins are build()'s, ordered by sort_within_bins() since
+  std::vector<std::uint8_t> moved_;  // update(): per position, whether its particle moved
+  std::vector<std::uint32_t> bin_moved_;  // update(): movers per bin (kUnranked: out of order)
+  std::vector<std::uint32_t> kept_end_;   // update(): end of each bin's compacted stayers
   std::vector<Mover> movers_;
   std::vector<Slot> slots_;
   static constexpr std::int64_t kMinChunk = 16384;

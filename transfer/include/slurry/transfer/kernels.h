@@ -158,8 +158,8 @@ struct StencilBatch {
 
   /// Particles ids[i0 + k] (i0 + k when ids is null), k < count <= size; the spare lanes repeat
   /// the first particle.
-  void compute(const Vec* x, const std::uint32_t* ids, std::int64_t i0, int count, const Vec& origin,
-               T inv_dx, T dx) {
+  void compute(const Vec* x, const std::uint32_t* ids, std::int64_t i0, int count,
+               const Vec& origin, T inv_dx, T dx) {
     for (int k = 0; k < size; ++k) {
       const std::int64_t i = i0 + (k < count ? k : 0);
       const Vec xl = x[ids ? std::int64_t(ids[i]) : i] - origin;

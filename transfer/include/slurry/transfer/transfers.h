@@ -152,8 +152,9 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
     if constexpr (batched) {
       const int k = int((i - begin) % StencilBatch<T, Dim, Order>::size);
       if (k == 0)
-        batch.compute(x, ids, i, int(std::min<std::int64_t>(StencilBatch<T, Dim, Order>::size, end - i)), origin,
-                      inv_dx, dx);
+        batch.compute(x, ids, i,
+                      int(std::min<std::int64_t>(StencilBatch<T, Dim, Order>::size, end - i)),
+                      origin, inv_dx, dx);
       return batch.get(k);
     } else {
       return St(x[p] - origin, inv_dx, dx);
@@ -260,7 +261,8 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
         }
         const __m256 a1 = both(a[1]), g0 = both(g[0]), g1 = both(g[1]);
         for (int ia = 0; ia < N; ++ia) {
-          const Node ua = has_A ? detail::fmadd(mp, vm, Node(s.offset[0][ia] * a[0])) : Node(mp * vm);
+          const Node ua =
+              has_A ? detail::fmadd(mp, vm, Node(s.offset[0][ia] * a[0])) : Node(mp * vm);
           const __m256 ua2 = both(ua);
           const __m256 w0 = _mm256_set1_ps(s.w[0][ia]);
           T* row = (n0 + ia * stride[0])->data();
@@ -361,8 +363,9 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
     if constexpr (batched) {
       const int k = int((i - begin) % StencilBatch<T, Dim, Order>::size);
       if (k == 0)
-        batch.compute(x, ids, i, int(std::min<std::int64_t>(StencilBatch<T, Dim, Order>::size, end - i)), origin,
-                      inv_dx, dx);
+        batch.compute(x, ids, i,
+                      int(std::min<std::int64_t>(StencilBatch<T, Dim, Order>::size, end - i)),
+                      origin, inv_dx, dx);
       return batch.get(k);
     } else {
       return St(x[p] - origin, inv_dx, dx);
