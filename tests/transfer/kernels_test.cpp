@@ -6,6 +6,8 @@
 
 #include <Eigen/LU>
 #include <random>
+#include <vector>
+#include <algorithm>
 
 #include "slurry/transfer/kernels.h"
 
@@ -98,6 +100,65 @@ void check_inertia() {
 TEST(Kernels, InertiaTensorIsConstantForQuadraticAndCubic) {
   check_inertia<2>();
   check_inertia<3>();
+}
+
+// StencilBatch gives each particle the Stencil constructor's stencil, and, with a clamp on the
+// bases, a particle whose base falls one node outside the range (as a base computed with other
+// roundings can, near a cell face) gets the range's base with the same weights on the same nodes
+// to round-off, never nodes outside the range.
+template <int Order>
+void check_batch() {
+  using Vec = Eigen::Vector2f;
+  using St = slurry::transfer::Stencil<float, 2, Order>;
+  using Batch = slurry::transfer::StencilBatch<float, 2, Order>;
+  constexpr int N = St::N;
+  const float dx = 1.0f / 64, inv_dx = 64.0f;
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> u(0.2f, 0.8f);
+  std::vector<Vec> x(40);
+  for (auto& p : x) p = Vec(u(rng), u(rng));
+  Batch batch;
+  for (int i0 = 0; i0 < 40; i0 += Batch::size) {
+    const int count = std::min(Batch::size, 40 - i0);
+    batch.compute(x.data(), nullptr, i0, count, Vec::Zero(), inv_dx, dx);
+    for (int k = 0; k < count; ++k) {
+      const St want(x[std::size_t(i0 + k)], inv_dx, dx), got = batch.get(k);
+      for (int d = 0; d < 2; ++d) {
+        EXPECT_EQ(got.base[std::size_t(d)], want.base[std::size_t(d)]);
+        for (int a = 0; a < N; ++a) EXPECT_NEAR(got.w[d][a], want.w[d][a], 1e-6f);
+      }
+    }
+  }
+  // Clamped: every base into [b + 1, b + 1] where b is the unclamped base (one node up), or
+  // [b - 1, b - 1] (one down), for particles 1e-4 cells from the face where the base flips: the
+  // pieces of the B-spline agree there to O(1e-8).
+  const float shift = Order == 2 ? 0.5f : 0.0f;
+  for (int side = -1; side <= 1; side += 2) {
+    std::vector<Vec> y;
+    for (int c = 10; c < 26; ++c) {
+      const float at = (float(c) + shift + float(side) * 1e-4f) * dx;  // just below or above a face
+      y.push_back(Vec(at, 0.5f));
+    }
+    batch.compute(y.data(), nullptr, 0, Batch::size, Vec::Zero(), inv_dx, dx);
+    Batch clamped;
+    for (int k = 0; k < Batch::size; ++k) {
+      const St free = batch.get(k);
+      const int lo[2] = {free.base[0] - side, free.base[1]}, hi[2] = {free.base[0] - side, free.base[1]};
+      clamped.compute(y.data(), nullptr, k, 1, Vec::Zero(), inv_dx, dx, lo, hi);
+      const St got = clamped.get(0);
+      ASSERT_EQ(got.base[0], free.base[0] - side);
+      // The same weight on the same node: node base + a of `got` is node base - side + a.
+      for (int a = 0; a < N; ++a) {
+        const int j = a - side;  // index of that node in `free`
+        const float w_free = j >= 0 && j < N ? free.w[0][j] : 0.0f;
+        EXPECT_NEAR(got.w[0][a], w_free, 1e-5f) << "order " << Order << " side " << side << " node " << a;
+      }
+    }
+  }
+}
+TEST(Kernels, StencilBatchMatchesStencilAndClampsByRoundOff) {
+  check_batch<2>();
+  check_batch<3>();
 }
 
 }  // namespace

@@ -158,8 +158,17 @@ struct StencilBatch {
 
   /// Particles ids[i0 + k] (i0 + k when ids is null), k < count <= size; the spare lanes repeat
   /// the first particle.
+  ///
+  /// With `base_lo` and `base_hi` (null for none) each base is clamped to [base_lo[d],
+  /// base_hi[d]] per axis, and f is taken from the clamped base. A caller that scatters into a
+  /// patch passes the bases whose stencils fit in it: the particle was binned by a base computed
+  /// elsewhere, and GCC may fuse x inv_dx - 1/2 into one rounding there and not here (xg is
+  /// stored first), so near a cell face the two can differ by one, which would index outside the
+  /// patch. Clamped, such a particle keeps its bin's base, with f off its interval by round-off
+  /// only, where the B-spline's pieces agree to round-off (the kernel is continuous).
   void compute(const Vec* x, const std::uint32_t* ids, std::int64_t i0, int count,
-               const Vec& origin, T inv_dx, T dx) {
+               const Vec& origin, T inv_dx, T dx, const int* base_lo = nullptr,
+               const int* base_hi = nullptr) {
     for (int k = 0; k < size; ++k) {
       const std::int64_t i = i0 + (k < count ? k : 0);
       const Vec xl = x[ids ? std::int64_t(ids[i]) : i] - origin;
@@ -168,6 +177,9 @@ struct StencilBatch {
     for (int d = 0; d < Dim; ++d) {
       T f[size], wd[N], dwd[N];
       for (int k = 0; k < size; ++k) base[d][k] = BSpline<Order>::base(xg[d][k]);
+      if (base_lo)
+        for (int k = 0; k < size; ++k)
+          base[d][k] = base[d][k] < base_lo[d] ? base_lo[d] : base[d][k] > base_hi[d] ? base_hi[d] : base[d][k];
       for (int k = 0; k < size; ++k) f[k] = xg[d][k] - T(base[d][k]);
       for (int k = 0; k < size; ++k) {
         BSpline<Order>::eval(f[k], wd, dwd);

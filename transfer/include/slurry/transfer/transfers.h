@@ -29,6 +29,7 @@
 #include <cstdint>
 #include <limits>
 #include <type_traits>
+#include <utility>
 
 #include "slurry/transfer/kernels.h"
 #include "slurry/transfer/parallel.h"
@@ -114,6 +115,24 @@ inline Eigen::Matrix<T, 4, 1> fmadd(T a, const Eigen::Matrix<T, 4, 1>& b,
 }
 }  // namespace detail
 
+namespace detail {
+/// The stencil bases that fit in `grid` when it is a block Patch (blocks.h: it has `first` and
+/// `extent`): [first, first + extent - N] per axis; false for a whole grid.
+template <class G, class = void>
+struct IsPatch : std::false_type {};
+template <class G>
+struct IsPatch<G, std::void_t<decltype(G::extent), decltype(std::declval<G>().first)>> : std::true_type {};
+template <int N, class G, int Dim>
+inline bool patch_bases(const G& grid, int (&lo)[Dim], int (&hi)[Dim]) {
+  if constexpr (IsPatch<G>::value) {
+    for (int d = 0; d < Dim; ++d) lo[d] = grid.first[d], hi[d] = grid.first[d] + G::extent - N;
+    return true;
+  } else {
+    return false;
+  }
+}
+}  // namespace detail
+
 /// Whether particles of this scheme carry an affine matrix C.
 constexpr bool carries_affine(Scheme s) {
   return s == Scheme::APIC || s == Scheme::MLS;
@@ -145,16 +164,18 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
   IVec lo = IVec::Constant(std::numeric_limits<int>::max());
   IVec hi = IVec::Constant(std::numeric_limits<int>::min());
   auto* nodes = grid.data();
-  // 2D: the stencils a batch at a time over SIMD lanes (kernels.h); 3D one at a time.
-  constexpr bool batched = Dim == 2;
+  // The stencils a batch at a time over SIMD lanes (kernels.h), bases clamped to the patch.
+  constexpr bool batched = true;
   StencilBatch<T, Dim, Order> batch;
+  int base_lo[Dim], base_hi[Dim];
+  const bool clamp = detail::patch_bases<St::N>(grid, base_lo, base_hi);
   auto stencil = [&](std::int64_t i, std::int64_t p) {
     if constexpr (batched) {
       const int k = int((i - begin) % StencilBatch<T, Dim, Order>::size);
       if (k == 0)
         batch.compute(x, ids, i,
                       int(std::min<std::int64_t>(StencilBatch<T, Dim, Order>::size, end - i)),
-                      origin, inv_dx, dx);
+                      origin, inv_dx, dx, clamp ? base_lo : nullptr, base_hi);
       return batch.get(k);
     } else {
       return St(x[p] - origin, inv_dx, dx);
@@ -355,17 +376,19 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
   constexpr bool need_B = carries_affine(S);
   constexpr bool need_grad = S != Scheme::MLS;
 
-  // 2D: the stencils a batch at a time over SIMD lanes (kernels.h), computed before any particle
-  // of the batch moves; 3D one at a time.
-  constexpr bool batched = Dim == 2;
+  // The stencils a batch at a time over SIMD lanes (kernels.h), bases clamped to the patch,
+  // computed before any particle of the batch moves.
+  constexpr bool batched = true;
   StencilBatch<T, Dim, Order> batch;
+  int base_lo[Dim], base_hi[Dim];
+  const bool clamp = detail::patch_bases<St::N>(grid, base_lo, base_hi);
   auto stencil = [&](std::int64_t i, std::int64_t p) {
     if constexpr (batched) {
       const int k = int((i - begin) % StencilBatch<T, Dim, Order>::size);
       if (k == 0)
         batch.compute(x, ids, i,
                       int(std::min<std::int64_t>(StencilBatch<T, Dim, Order>::size, end - i)),
-                      origin, inv_dx, dx);
+                      origin, inv_dx, dx, clamp ? base_lo : nullptr, base_hi);
       return batch.get(k);
     } else {
       return St(x[p] - origin, inv_dx, dx);
