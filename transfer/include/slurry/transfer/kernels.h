@@ -22,6 +22,8 @@
 /// D_p^{-1} is a scalar `inverse_inertia(dx)`. For the linear kernel D_p is position dependent
 /// and singular on nodes; there APIC uses the equivalent C_p = sum_i v_i grad w_ip^T.
 #include <Eigen/Core>
+#include <algorithm>
+#include <limits>
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -176,10 +178,10 @@ struct StencilBatch {
     }
     for (int d = 0; d < Dim; ++d) {
       T f[size], wd[N], dwd[N];
-      for (int k = 0; k < size; ++k) base[d][k] = BSpline<Order>::base(xg[d][k]);
-      if (base_lo)
-        for (int k = 0; k < size; ++k)
-          base[d][k] = base[d][k] < base_lo[d] ? base_lo[d] : base[d][k] > base_hi[d] ? base_hi[d] : base[d][k];
+      // Branch-free (min and max per lane); no clamp is the widest range.
+      const int lo = base_lo ? base_lo[d] : std::numeric_limits<int>::min();
+      const int hi = base_lo ? base_hi[d] : std::numeric_limits<int>::max();
+      for (int k = 0; k < size; ++k) base[d][k] = std::min(std::max(BSpline<Order>::base(xg[d][k]), lo), hi);
       for (int k = 0; k < size; ++k) f[k] = xg[d][k] - T(base[d][k]);
       for (int k = 0; k < size; ++k) {
         BSpline<Order>::eval(f[k], wd, dwd);
