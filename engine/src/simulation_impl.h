@@ -866,18 +866,42 @@ template <class G>
 void Simulation<T, Dim>::update_grid(G& grid, T dt) {
   using IVec = Eigen::Matrix<int, Dim, 1>;
   const GridBoundaries<T, Dim> bc = grid_boundaries(T(time_) + dt);
-  grid.for_each_active_node([&](typename G::Node& node, const IVec& idx, Vec* old) {
-    const T m = node[Dim];
-    if (m <= T(0)) return;
-    Vec v = node.template head<Dim>() / m;
+  using Node = typename G::Node;
+  // v = p / m + dt g at a node with mass (a NaN mass too, so that the step's check finds it);
+  // FLIP keeps p / m as the old velocity.
+  auto advance = [&](Node& node, Vec* old) {
+    Vec v = node.template head<Dim>() / node[Dim];
     if (old) *old = v;
     v += dt * gravity_;
-    for_each_grid_condition(idx, [&] { return Vec(origin_ + dx_ * idx.template cast<T>()); }, bc,
-                            [&](const Vec& vb, const Vec& n, Condition c, T friction) {
-                              v = apply_condition<T, Dim>(v, vb, n, c, friction);
-                            });
-    node.template head<Dim>() = v;
-  });
+    return v;
+  };
+  // Blocks (rows) that no wall or collider reaches skip the conditions (per node, their tests
+  // cost 8% of a 2D snow substep). A collider counts as reaching a block within a cell of it.
+  auto free = [&](const IVec& lo, const IVec& hi) {
+    for (int d = 0; d < Dim; ++d)
+      if (lo[d] < bc.lo || hi[d] > bc.hi[d]) return false;
+    if (bc.colliders) {
+      const Vec x_lo = origin_ + dx_ * lo.template cast<T>(), x_hi = origin_ + dx_ * hi.template cast<T>();
+      for (const auto& c : *bc.colliders)
+        if (c.may_reach(x_lo, x_hi, bc.time, dx_)) return false;
+    }
+    return true;
+  };
+  grid.for_each_active_node(
+      free,
+      [&](Node* nodes, Vec* old, std::int64_t n) {
+        for (std::int64_t k = 0; k < n; ++k)
+          if (!(nodes[k][Dim] <= T(0))) nodes[k].template head<Dim>() = advance(nodes[k], old ? old + k : nullptr);
+      },
+      [&](Node& node, const IVec& idx, Vec* old) {
+        if (node[Dim] <= T(0)) return;
+        Vec v = advance(node, old);
+        for_each_grid_condition(idx, [&] { return Vec(origin_ + dx_ * idx.template cast<T>()); }, bc,
+                                [&](const Vec& vb, const Vec& n, Condition c, T friction) {
+                                  v = apply_condition<T, Dim>(v, vb, n, c, friction);
+                                });
+        node.template head<Dim>() = v;
+      });
 }
 
 template <class T, int Dim>

@@ -83,6 +83,28 @@ struct Collider {
     return velocity;
   }
 
+  /// False only if no point of the box [box_lo, box_hi] lies within `slack` of the solid at time
+  /// t (a mesh always may reach it). The grid update skips the per-node tests of such boxes; the
+  /// slack covers the round-off between this test and inside().
+  bool may_reach(const Vec& box_lo, const Vec& box_hi, T t, T slack) const {
+    const Vec ylo = box_lo - velocity * t, yhi = box_hi - velocity * t;  // in the collider's frame
+    switch (shape) {
+      case ColliderShape::Mesh: return true;
+      case ColliderShape::HalfSpace: {  // the box's least signed distance, at one of its corners
+        T s = 0;
+        for (int d = 0; d < Dim; ++d) s += normal[d] * ((normal[d] >= T(0) ? ylo[d] : yhi[d]) - point[d]);
+        return !(s >= slack);
+      }
+      case ColliderShape::Sphere: {  // the box's nearest point to the centre
+        const Vec q = center.cwiseMax(ylo).cwiseMin(yhi);
+        return !((q - center).norm() >= radius + slack);
+      }
+      case ColliderShape::Box:
+        return !((yhi.array() + slack <= lo.array()).any() || (ylo.array() - slack >= hi.array()).any());
+    }
+    return true;
+  }
+
   /// True if x is inside the solid at time t; then n is the outward normal of the nearest surface.
   bool inside(const Vec& x, T t, Vec& n) const {
     if constexpr (Dim == 3) {

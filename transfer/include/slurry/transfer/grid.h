@@ -146,16 +146,25 @@ class DenseGrid {
     });
   }
 
-  /// fn(node, node coordinates, old velocity slot or nullptr) for every node of the active box,
-  /// in parallel over rows.
-  template <class Fn>
-  void for_each_active_node(Fn&& fn) {
+  /// The grid update's loop over every node of the active box, in parallel over rows. A row for
+  /// which free(first, last node coordinates) holds goes to inner(nodes, old velocity slots or
+  /// nullptr, count) at once; every node of the other rows to fn(node, node coordinates, old
+  /// velocity slot or nullptr).
+  template <class Free, class Inner, class Fn>
+  void for_each_active_node(Free&& free, Inner&& inner, Fn&& fn) {
     const int n = active_row_length();
     parallel::parallel_for(0, active_rows(), [&](std::int64_t r) {
       const std::int64_t k0 = active_row_start(r);
       IVec idx = coord(k0);
-      for (std::int64_t k = k0; k < k0 + n; ++k, ++idx[Dim - 1])
-        fn(nodes_[std::size_t(k)], idx, old_.empty() ? nullptr : &old_[std::size_t(k)]);
+      Node* row = nodes_.data() + k0;
+      Vec* row_old = old_.empty() ? nullptr : old_.data() + k0;
+      IVec last = idx;
+      last[Dim - 1] += n - 1;
+      if (free(idx, last)) {
+        inner(row, row_old, std::int64_t(n));
+        return;
+      }
+      for (int k = 0; k < n; ++k, ++idx[Dim - 1]) fn(row[k], idx, row_old ? row_old + k : nullptr);
     });
   }
 

@@ -136,14 +136,22 @@ class SparseGrid {
     });
   }
 
-  /// fn(node, node coordinates, old velocity slot or nullptr) for every allocated node, in
-  /// parallel over blocks (each call touches only its own node).
-  template <class Fn>
-  void for_each_active_node(Fn&& fn) {
+  /// The grid update's loop over every allocated node, in parallel over blocks (each call touches
+  /// only its own nodes). A block for which free(lowest, highest node coordinates) holds goes to
+  /// inner(nodes, old velocity slots or nullptr, count) at once; every node of the other blocks to
+  /// fn(node, node coordinates, old velocity slot or nullptr).
+  template <class Free, class Inner, class Fn>
+  void for_each_active_node(Free&& free, Inner&& inner, Fn&& fn) {
     Node* nodes = nodes_.data();
     Vec* old = keep_old_ ? old_.data() : nullptr;
     parallel::parallel_for(0, std::int64_t(active_.size()), [&](std::int64_t s) {
       const IVec first = active_[std::size_t(s)] * Shape::size;
+      Node* block = nodes + s * Shape::nodes;
+      Vec* block_old = old ? old + s * Shape::nodes : nullptr;
+      if (free(first, IVec(first.array() + (Shape::size - 1)))) {
+        inner(block, block_old, std::int64_t(Shape::nodes));
+        return;
+      }
       IVec idx;
       for (int k = 0; k < Shape::nodes; ++k) {
         int r = k;
@@ -151,8 +159,7 @@ class SparseGrid {
           idx[d] = first[d] + (r & (Shape::size - 1));
           r >>= Shape::log2;
         }
-        const std::int64_t i = s * Shape::nodes + k;
-        fn(nodes[i], idx, old ? old + i : nullptr);
+        fn(block[k], idx, block_old ? block_old + k : nullptr);
       }
     });
   }
