@@ -1017,10 +1017,24 @@ void Simulation<T, Dim>::return_mapping() {
     // was by std::max.
     T jp_min = std::numeric_limits<T>::infinity();
     std::int64_t yielded = 0;
-    for (auto i = bin.begin; i < bin.end; ++i) {
-      const auto p = order[i];
-      yielded += mat.project(P.F[p], P.plastic[p]);
-      jp_min = std::min(jp_min, P.plastic[p]);
+    if (mat.plastic_kind == PlasticModel::Snow) {  // the window tests 16 particles at a time
+      constexpr int W = 16;
+      bool inside[W];
+      for (auto i = bin.begin; i < bin.end; i += W) {
+        const int n = int(std::min<std::int64_t>(W, std::int64_t(bin.end) - std::int64_t(i)));
+        mat.snow.template inside_windows<Dim, W>(P.F.data(), order + i, n, inside);
+        for (int k = 0; k < n; ++k) {
+          const auto p = order[i + k];
+          if (!inside[k]) yielded += mat.snow.project_by_svd(P.F[p], P.plastic[p]);
+          jp_min = std::min(jp_min, P.plastic[p]);
+        }
+      }
+    } else {
+      for (auto i = bin.begin; i < bin.end; ++i) {
+        const auto p = order[i];
+        yielded += mat.project(P.F[p], P.plastic[p]);
+        jp_min = std::min(jp_min, P.plastic[p]);
+      }
     }
     projected_scratch_[std::size_t(bi)] = yielded;
     if (mat.plastic_kind == PlasticModel::Snow)  // then `snow` holds and hmax is sized

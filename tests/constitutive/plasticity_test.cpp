@@ -122,6 +122,8 @@ void window_test_agrees_with_svd(unsigned seed) {
   const double lo = 1 - 2.5e-2, hi = 1 + 7.5e-3;
   std::uniform_real_distribution<double> spread(lo - 0.01, hi + 0.01), pick(0, 1), edge(-1e-6, 1e-6);
   int skipped = 0, skipped_deep = 0, deep = 0, yielded = 0;
+  std::vector<Eigen::Matrix<T, D, D>> samples;
+  std::vector<char> svd_yields, is_deep;
   for (int k = 0; k < 20000; ++k) {
     Eigen::Matrix<double, D, 1> sigma;
     const bool inside = k % 2 == 0;
@@ -144,7 +146,25 @@ void window_test_agrees_with_svd(unsigned seed) {
     skipped += skip;
     if (inside) ++deep, skipped_deep += skip;
     yielded += yb;
+    samples.push_back(F0), svd_yields.push_back(yb), is_deep.push_back(inside);
   }
+  // The 16-lane form, inside_windows(), through an index list (reversed, the last batch partial):
+  // a lane it clears must be one the SVD path leaves alone, and it must clear most deep ones.
+  std::vector<std::uint32_t> ids(samples.size() - 3);
+  for (std::size_t i = 0; i < ids.size(); ++i) ids[i] = std::uint32_t(ids.size() - 1 - i);
+  int lanes_deep = 0, ids_deep = 0;
+  for (std::size_t i = 0; i < ids.size(); i += 16) {
+    const int n = int(std::min<std::size_t>(16, ids.size() - i));
+    bool in[16];
+    snow.template inside_windows<D, 16>(samples.data(), ids.data() + i, n, in);
+    for (int k = 0; k < n; ++k) {
+      const auto q = ids[i + std::size_t(k)];
+      if (in[k]) ASSERT_FALSE(svd_yields[q]) << "sample " << q;
+      lanes_deep += in[k] && is_deep[q];
+      ids_deep += is_deep[q];
+    }
+  }
+  EXPECT_GT(lanes_deep, ids_deep * 9 / 10);
   EXPECT_GT(yielded, 3000);                // the edges and the spread do yield
   EXPECT_GT(skipped_deep, deep * 9 / 10);  // the test skips the SVD for most particles inside
   std::printf("%s %dD: SVD skipped for %d of %d samples well inside the window\n", sizeof(T) == 4 ? "float" : "double",
