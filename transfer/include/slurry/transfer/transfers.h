@@ -395,6 +395,18 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
     }
   };
 
+  // The caller's state update runs a batch behind, 16 particles at a time: called once per
+  // particle from the sums' loop, it cost 9% of a 2D snow substep. Nothing in the loop reads
+  // what it writes.
+  constexpr int Q = StencilBatch<T, Dim, Order>::size;
+  std::int64_t queued[Q];
+  Mat queued_grad[Q];
+  int nq = 0;
+  auto flush = [&] {
+    for (int j = 0; j < nq; ++j) state(queued[j], queued_grad[j]);
+    nq = 0;
+  };
+
   T vmax2 = 0;
   for (std::int64_t i = begin; i < end; ++i) {
     const std::int64_t p = ids ? std::int64_t(ids[i]) : i;
@@ -484,16 +496,24 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
     if constexpr (S == Scheme::FLIP) vnew = flip_ratio * (v[p] + dv) + (T(1) - flip_ratio) * vpic;
     v[p] = vnew;
     x[p] += dt * vpic;
-    if (!((x[p].array() >= x_lo.array()).all() && (x[p].array() <= x_hi.array()).all()))
+    if (!((x[p].array() >= x_lo.array()).all() && (x[p].array() <= x_hi.array()).all())) {
+      flush();
       return std::numeric_limits<T>::infinity();
+    }
+    queued[nq] = p;
     if constexpr (S == Scheme::MLS)
-      state(p, C[p]);
+      queued_grad[nq] = C[p];
     else
-      state(p, gv);
+      queued_grad[nq] = gv;
+    if (++nq == Q) flush();
     const T s2 = vnew.squaredNorm();
-    if (!(s2 <= std::numeric_limits<T>::max())) return std::numeric_limits<T>::infinity();
+    if (!(s2 <= std::numeric_limits<T>::max())) {
+      flush();
+      return std::numeric_limits<T>::infinity();
+    }
     vmax2 = std::max(vmax2, s2);
   }
+  flush();
   return vmax2;
 }
 
