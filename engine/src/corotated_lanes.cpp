@@ -91,14 +91,6 @@ void fixed_corotated_stress_lanes(T mu, T lambda, const T* factor, T dt, const s
   }
 }
 
-#define SLURRY_COROTATED_LANES(T, Dim)                                       \
-  template void fixed_corotated_stress_lanes<T, Dim>(                        \
-      T, T, const T*, T, const std::uint32_t*, std::uint32_t, std::uint32_t, \
-      const Eigen::Matrix<T, Dim, Dim>*, const T*, std::size_t, Eigen::Matrix<T, Dim, Dim>*);
-SLURRY_COROTATED_LANES(float, 2)
-SLURRY_COROTATED_LANES(double, 2)
-SLURRY_COROTATED_LANES(float, 3)
-SLURRY_COROTATED_LANES(double, 3)
-#undef SLURRY_COROTATED_LANES
+SLURRY_COROTATED_LANES_FOR_EACH(SLURRY_COROTATED_LANES_INSTANCE)
 
 }  // namespace slurry::detail

@@ -22,14 +22,14 @@ void fixed_corotated_stress_lanes(T mu, T lambda, const T* factor, T dt, const s
                                   const Eigen::Matrix<T, Dim, Dim>* F, const T* vol0,
                                   std::size_t vol0_mask, Eigen::Matrix<T, Dim, Dim>* K);
 
-#define SLURRY_COROTATED_LANES(T, Dim)                                       \
-  extern template void fixed_corotated_stress_lanes<T, Dim>(                 \
+// The instantiations: one list, declared extern here and defined in corotated_lanes.cpp.
+#define SLURRY_COROTATED_LANES_FOR_EACH(X) X(float, 2) X(double, 2) X(float, 3) X(double, 3)
+#define SLURRY_COROTATED_LANES_INSTANCE(T, Dim)                              \
+  template void fixed_corotated_stress_lanes<T, Dim>(                        \
       T, T, const T*, T, const std::uint32_t*, std::uint32_t, std::uint32_t, \
       const Eigen::Matrix<T, Dim, Dim>*, const T*, std::size_t, Eigen::Matrix<T, Dim, Dim>*);
-SLURRY_COROTATED_LANES(float, 2)
-SLURRY_COROTATED_LANES(double, 2)
-SLURRY_COROTATED_LANES(float, 3)
-SLURRY_COROTATED_LANES(double, 3)
-#undef SLURRY_COROTATED_LANES
+#define SLURRY_COROTATED_LANES_EXTERN(T, Dim) extern SLURRY_COROTATED_LANES_INSTANCE(T, Dim)
+SLURRY_COROTATED_LANES_FOR_EACH(SLURRY_COROTATED_LANES_EXTERN)
+#undef SLURRY_COROTATED_LANES_EXTERN
 
 }  // namespace slurry::detail

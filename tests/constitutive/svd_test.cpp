@@ -399,13 +399,27 @@ TEST(PolarRotation, MatchesSvdPolarFloat2D) {
 }
 // The 2D closed form's one degenerate input, F = [p q; q -p] (every rotation gives the same
 // tr(R^T F) = 0), takes the SVD's rotation: still a rotation, and still F's polar factor.
+// A reflection F: (F00 + F11, F10 - F01) vanishes, so polar_rotation falls back to the SVD,
+// and every rotation maximises tr(R^T F) (it is 0 for all). What must hold is what defines the
+// rotation-variant polar factor: R a rotation, S = R^T F symmetric, and tr(R^T F) at least that
+// of any other rotation (360 sampled). The same for the reflection perturbed by +-1e-9, where the
+// closed form runs on a vector of length 1e-9 and R flips between I and -I with its sign.
 TEST(PolarRotation, DegenerateReflection2D) {
-  Eigen::Matrix2d F, R, R_ref, S;
-  F << 0.6, 0.8, 0.8, -0.6;
-  slurry::constitutive::polar_rotation<double, 2>(F, R);
-  slurry::constitutive::polar(F, R_ref, S);
-  EXPECT_LT((R - R_ref).norm(), 1e-14);
-  EXPECT_NEAR(R.determinant(), 1.0, 1e-14);
+  for (const double eps : {0.0, 1e-9, -1e-9}) {
+    Eigen::Matrix2d F, R;
+    F << 0.6 + eps, 0.8, 0.8, -0.6;
+    slurry::constitutive::polar_rotation<double, 2>(F, R);
+    EXPECT_LT((R.transpose() * R - Eigen::Matrix2d::Identity()).norm(), 1e-14) << "eps " << eps;
+    EXPECT_NEAR(R.determinant(), 1.0, 1e-14) << "eps " << eps;
+    const Eigen::Matrix2d S = R.transpose() * F;
+    EXPECT_NEAR(S(0, 1), S(1, 0), 1e-14) << "eps " << eps;
+    for (int deg = 0; deg < 360; ++deg) {
+      const double a = deg * M_PI / 180;
+      Eigen::Matrix2d Q;
+      Q << std::cos(a), -std::sin(a), std::sin(a), std::cos(a);
+      EXPECT_LE((Q.transpose() * F).trace(), S.trace() + 1e-14) << "eps " << eps << ", " << deg << " degrees";
+    }
+  }
 }
 }  // namespace
 

@@ -91,12 +91,7 @@ class ParticleBins {
     //    of equal keys (neighbouring particles mostly share a block, so runs are few). The keys
     //    live in order_ until the last pass, which computes them again from base_of while it
     //    fills order_: no key array of its own (4 bytes per particle).
-    auto block_key = [&](std::int64_t p) {
-      const IVec b = base_of(p);
-      std::int64_t k = 0;
-      for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + (b[d] >> Shape::log2);
-      return std::int32_t(k);
-    };
+    auto block_key = [&](std::int64_t p) { return key_of(block_of_base(base_of(p))); };
     std::int32_t* key = reinterpret_cast<std::int32_t*>(order_.data());
     const std::int64_t scan_chunks = (n + kScanChunk - 1) / kScanChunk;
     if (std::int64_t(runs_.size()) < scan_chunks) runs_.resize(std::size_t(scan_chunks));
@@ -168,12 +163,7 @@ class ParticleBins {
     bins_.clear();
     groups_.clear();
     for (std::int64_t j = 0; j < nb; ++j) {
-      IVec block;
-      std::int64_t k = distinct_[std::size_t(j)];
-      for (int d = Dim - 1; d >= 0; --d) {
-        block[d] = int(k % block_res_[d]);
-        k /= block_res_[d];
-      }
+      const IVec block = block_of_key(distinct_[std::size_t(j)]);
       groups_.push_back(std::uint32_t(bins_.size()));
       for (std::int64_t m = 0; m < nm; ++m) {
         const std::uint32_t begin = start[j * nm + m], end = start[j * nm + m + 1];
@@ -266,12 +256,7 @@ class ParticleBins {
   template <class BaseOf, class MaterialOf, class RankOf>
   bool update(std::int64_t n, BaseOf&& base_of, MaterialOf&& material_of, RankOf&& rank_of) {
     if (!ranked_ || n != std::int64_t(order_.size()) || n == 0) return false;
-    auto block_key = [&](std::int64_t p) {
-      const IVec b = base_of(p);
-      std::int64_t k = 0;
-      for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + (b[d] >> Shape::log2);
-      return std::int32_t(k);
-    };
+    auto block_key = [&](std::int64_t p) { return key_of(block_of_base(base_of(p))); };
     // 1. Per bin: which of its particles moved (another block or material), and whether the
     //    ones that stay are still in rank order.
     //    Nothing is stored per particle in this pass (a byte store may alias anything, and made
@@ -285,8 +270,7 @@ class ParticleBins {
     std::uint32_t* bin_moved = bin_moved_.data();
     parallel::parallel_tasks(0, nbins, [&, order, bins, bin_moved](std::int64_t b) {
       const Bin bin = bins[b];
-      std::int32_t k = 0;
-      for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + bin.block[d];
+      const std::int32_t k = key_of(bin.block);
       std::uint32_t count = 0;
       bool ranked = true, any_kept = false;
       auto last_rank = rank_of(order[bin.begin]);
@@ -318,8 +302,7 @@ class ParticleBins {
     for (std::int64_t b = 0; b < nbins; ++b) {
       if (bin_moved_[std::size_t(b)] == 0) continue;
       const Bin& bin = bins_[std::size_t(b)];
-      std::int32_t k = 0;
-      for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + bin.block[d];
+      const std::int32_t k = key_of(bin.block);
       for (std::uint32_t i = bin.begin; i < bin.end; ++i) {
         const std::uint32_t p = order[i];
         moved[i] = block_key(p) != k || std::uint32_t(material_of(p)) != bin.material;
@@ -359,12 +342,7 @@ class ParticleBins {
       std::int64_t b = 0;
       std::size_t m = 0;
       const std::size_t nm = movers_.size();
-      auto bin_key = [&](std::int64_t bi) {
-        const Bin& bin = bins_[std::size_t(bi)];
-        std::int64_t k = 0;
-        for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + bin.block[d];
-        return std::int32_t(k);
-      };
+      auto bin_key = [&](std::int64_t bi) { return key_of(bins_[std::size_t(bi)].block); };
       while (b < nbins || m < nm) {
         Slot sl{};
         const bool from_bin = b < nbins;
@@ -425,12 +403,7 @@ class ParticleBins {
         distinct_.push_back(sl.key);
         groups_.push_back(std::uint32_t(bins_.size()));
       }
-      IVec block;
-      std::int64_t k = sl.key;
-      for (int d = Dim - 1; d >= 0; --d) {
-        block[d] = int(k % block_res_[d]);
-        k /= block_res_[d];
-      }
+      const IVec block = block_of_key(sl.key);
       bins_.push_back({block, sl.material, sl.kept_begin, sl.kept_end});
     }
     groups_.push_back(std::uint32_t(bins_.size()));
@@ -474,6 +447,26 @@ class ParticleBins {
   }
 
  private:
+  /// The block holding stencil base node `base`.
+  static IVec block_of_base(IVec base) {
+    for (int d = 0; d < Dim; ++d) base[d] >>= Shape::log2;
+    return base;
+  }
+  /// Block b's linear index in the block lattice (block_res()), the last axis fastest; and back.
+  std::int32_t key_of(const IVec& b) const {
+    std::int64_t k = 0;
+    for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + b[d];
+    return std::int32_t(k);
+  }
+  IVec block_of_key(std::int64_t k) const {
+    IVec b;
+    for (int d = Dim - 1; d >= 0; --d) {
+      b[d] = int(k % block_res_[d]);
+      k /= block_res_[d];
+    }
+    return b;
+  }
+
   void colour_blocks() {
     for (auto& c : colour_) c.clear();
     const std::size_t nb = distinct_.size();
