@@ -159,7 +159,9 @@ void window_test_agrees_with_svd(unsigned seed) {
     snow.template inside_windows<D, 16>(samples.data(), ids.data() + i, n, in);
     for (int k = 0; k < n; ++k) {
       const auto q = ids[i + std::size_t(k)];
-      if (in[k]) ASSERT_FALSE(svd_yields[q]) << "sample " << q;
+      if (in[k]) {
+        ASSERT_FALSE(svd_yields[q]) << "sample " << q;
+      }
       lanes_deep += in[k] && is_deep[q];
       ids_deep += is_deep[q];
     }

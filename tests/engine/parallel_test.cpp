@@ -287,8 +287,12 @@ TEST(ParticleBins, UpdateGivesTheFullBuildsBins) {
       updated.build(n, base_of, material_of, 3);
       updated.sort_within_bins(rank_of);
     }
-    if (kind <= 3) EXPECT_TRUE(used) << "step " << step;
-    if (kind == 4) EXPECT_FALSE(used) << "step " << step;
+    if (kind <= 3) {
+      EXPECT_TRUE(used) << "step " << step;
+    }
+    if (kind == 4) {
+      EXPECT_FALSE(used) << "step " << step;
+    }
     Bins full;
     full.resize(IVec(64, 64));
     full.build(n, base_of, material_of, 3);

@@ -297,7 +297,9 @@ TEST(Physics, ColliderMayReachHoldsForEveryBoxItTouches) {
             touched = c.inside(x, t, n);
           }
       const bool may = c.may_reach(lo, hi, t, slack);
-      if (touched) EXPECT_TRUE(may) << "shape " << int(c.shape) << " box " << lo.transpose() << " / " << hi.transpose();
+      if (touched) {
+        EXPECT_TRUE(may) << "shape " << int(c.shape) << " box " << lo.transpose() << " / " << hi.transpose();
+      }
       reached += may, clear += !may;
     }
     EXPECT_GT(clear, 200) << "shape " << int(c.shape) << ": hardly any box counted as clear";
