@@ -87,23 +87,20 @@ struct SnowPlasticity {
   }
 
   /// Whether every singular value of Fe is certainly inside the window (see project()).
+  /// One lane of inside_windows().
   template <int Dim>
   bool inside_window(const Eigen::Matrix<T, Dim, Dim>& Fe) const {
-    const Eigen::Matrix<T, Dim, Dim> A = Fe.transpose() * Fe;
-    const T m = A.trace() / T(Dim);
-    const T lo = T(1) - critical_compression, hi = T(1) + critical_stretch;
-    const T room = std::min(hi * hi - m, m - lo * lo) - T(1e-5);
-    if (!(room > T(0))) return false;
-    const T dev2 = (A - m * Eigen::Matrix<T, Dim, Dim>::Identity()).squaredNorm();
-    return dev2 * T(Dim - 1) < T(Dim) * room * room;
+    bool inside = false;
+    inside_windows<Dim, 1>(&Fe, nullptr, 1, &inside);
+    return inside;
   }
 
-  /// inside_window() of n <= W gradients at once: inside[k] for F[ids[k]] (F[k] when ids is
-  /// null), k < n. The arithmetic runs lane by lane over W lanes, which the compiler vectorises
-  /// (one particle at a time, the test cost 8% of a 2D snow substep). Its roundings need not be
-  /// inside_window()'s: both are sufficient conditions with a margin far above round-off, and a
-  /// gradient either test cannot clear goes through project_by_svd(), which leaves one inside the
-  /// window bitwise as it is.
+  /// The window test of project() for n <= W gradients at once: inside[k] for F[ids[k]] (F[k]
+  /// when ids is null), k < n. The arithmetic runs lane by lane over W lanes, which the compiler
+  /// vectorises (one particle at a time, the test cost 8% of a 2D snow substep). Its roundings
+  /// may depend on W and on the compiler's fusion: that changes no result, as the test is a
+  /// sufficient condition with a margin far above round-off, and a gradient it does not clear
+  /// goes through project_by_svd(), which leaves one inside the window bitwise as it is.
   template <int Dim, int W = 16>
   void inside_windows(const Eigen::Matrix<T, Dim, Dim>* F, const std::uint32_t* ids, int n, bool* inside) const {
     constexpr int E = Dim * Dim;
