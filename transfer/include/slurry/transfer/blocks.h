@@ -27,6 +27,7 @@
 #include <stdexcept>
 #include <vector>
 
+#include "slurry/transfer/lattice.h"
 #include "slurry/transfer/parallel.h"
 
 namespace slurry::transfer {
@@ -458,14 +459,7 @@ class ParticleBins {
     for (int d = 0; d < Dim; ++d) k = k * block_res_[d] + b[d];
     return std::int32_t(k);
   }
-  IVec block_of_key(std::int64_t k) const {
-    IVec b;
-    for (int d = Dim - 1; d >= 0; --d) {
-      b[d] = int(k % block_res_[d]);
-      k /= block_res_[d];
-    }
-    return b;
-  }
+  IVec block_of_key(std::int64_t k) const { return lattice_coord<Dim>(k, block_res_); }
 
   void colour_blocks() {
     for (auto& c : colour_) c.clear();

@@ -24,6 +24,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "slurry/transfer/lattice.h"
+
 namespace slurry::flip {
 
 template <class T, int Dim>
@@ -90,14 +92,7 @@ struct MacGrid {
     return s;
   }
   /// Cell coordinates of a cell index (inverse of cell()).
-  IVec cell_coord(std::int64_t k) const {
-    IVec i;
-    for (int d = Dim - 1; d >= 0; --d) {
-      i[d] = int(k % res[d]);
-      k /= res[d];
-    }
-    return i;
-  }
+  IVec cell_coord(std::int64_t k) const { return transfer::lattice_coord<Dim>(k, res); }
 
   /// Axis-d face i separates cells i - e_d and i; it sits at origin + dx (i + 1/2 - 1/2 e_d).
   std::int64_t face(int d, const IVec& i) const {
@@ -114,15 +109,7 @@ struct MacGrid {
     return s;
   }
   /// Face coordinates of an axis-d face index (inverse of face()).
-  IVec face_coord(int d, std::int64_t k) const {
-    const IVec fr = face_res(d);
-    IVec i;
-    for (int a = Dim - 1; a >= 0; --a) {
-      i[a] = int(k % fr[a]);
-      k /= fr[a];
-    }
-    return i;
-  }
+  IVec face_coord(int d, std::int64_t k) const { return transfer::lattice_coord<Dim>(k, face_res(d)); }
   /// Axis-d faces per axis: res + e_d.
   IVec face_res(int d) const {
     IVec r = res;

@@ -1,0 +1,21 @@
+#pragma once
+/// \file lattice.h
+/// Row-major lattice indexing (the last axis fastest), shared by the particle bins' block keys
+/// (blocks.h) and the FLIP MAC grid's cells and faces (engine/flip/mac_grid.h).
+#include <Eigen/Core>
+#include <cstdint>
+
+namespace slurry::transfer {
+
+/// The coordinates of row-major index k in a lattice of res[d] points per axis.
+template <int Dim, class Res>
+Eigen::Matrix<int, Dim, 1> lattice_coord(std::int64_t k, const Res& res) {
+  Eigen::Matrix<int, Dim, 1> i;
+  for (int d = Dim - 1; d >= 0; --d) {
+    i[d] = int(k % res[d]);
+    k /= res[d];
+  }
+  return i;
+}
+
+}  // namespace slurry::transfer
