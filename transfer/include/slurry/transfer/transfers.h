@@ -113,6 +113,15 @@ inline Eigen::Matrix<T, 4, 1> fmadd(T a, const Eigen::Matrix<T, 4, 1>& b,
   r = a * b + c;
   return r;
 }
+#if defined(__AVX__)
+/// (lo x4, hi x4): two nodes' scalars, one per 128-bit half.
+inline __m256 pair_ps(float lo, float hi) { return _mm256_set_m128(_mm_set1_ps(hi), _mm_set1_ps(lo)); }
+/// A float node in both 128-bit halves.
+inline __m256 both_ps(const Eigen::Matrix<float, 4, 1>& n) {
+  const __m128 h = _mm_load_ps(n.data());
+  return _mm256_set_m128(h, h);
+}
+#endif
 }  // namespace detail
 
 namespace detail {
@@ -253,6 +262,40 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
     }
     Node* n0 = nodes + grid.index(s.base);
     constexpr int N = St::N;
+#if defined(__AVX__) && defined(__FMA__)
+    if constexpr (Dim == 3 && std::is_same_v<T, float> && S == Scheme::MLS && N >= 2) {
+      // MLS in float (an affine term, no gradient term): two nodes of a row per 256-bit
+      // register, as in 2D below, each lane doing the multiply-adds of the 4-wide form that
+      // follows, in the same order: the same bits with fewer instructions.
+      using detail::pair_ps, detail::both_ps;
+      constexpr int pairs = N / 2;
+      __m256 w2[pairs], o2[pairs];
+      for (int k = 0; k < pairs; ++k) {
+        w2[k] = pair_ps(s.w[2][2 * k], s.w[2][2 * k + 1]);
+        o2[k] = pair_ps(s.offset[2][2 * k], s.offset[2][2 * k + 1]);
+      }
+      const __m256 a2 = both_ps(a[2]);
+      for (int ia = 0; ia < N; ++ia) {
+        const Node ua = detail::fmadd(s.offset[0][ia], a[0], u0);
+        for (int ib = 0; ib < N; ++ib) {
+          const T wab = s.w[0][ia] * s.w[1][ib];
+          const Node uab = detail::fmadd(s.offset[1][ib], a[1], ua);
+          const __m256 uab2 = both_ps(uab), wab2 = _mm256_set1_ps(wab);
+          Node* row = n0 + ia * stride[0] + ib * stride[1];
+          for (int k = 0; k < pairs; ++k) {
+            float* r = row[2 * k].data();
+            const __m256 u = _mm256_fmadd_ps(o2[k], a2, uab2);
+            _mm256_storeu_ps(r, _mm256_fmadd_ps(_mm256_mul_ps(wab2, w2[k]), u, _mm256_loadu_ps(r)));
+          }
+          if constexpr (N % 2 == 1) {
+            constexpr int ic = N - 1;
+            row[ic] = detail::fmadd(wab * s.w[2][ic], detail::fmadd(s.offset[2][ic], a[2], uab), row[ic]);
+          }
+        }
+      }
+      continue;
+    }
+#endif
     if constexpr (Dim == 3) {
       for (int ia = 0; ia < N; ++ia) {
         const Node ua = has_A ? Node(u0 + s.offset[0][ia] * a[0]) : u0;
@@ -281,22 +324,18 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
         // register, each lane doing the multiply-adds of the 4-wide form below, in the same
         // order: the same bits with half the instructions.
         constexpr int pairs = N / 2;
-        auto pair = [](T lo, T hi) { return _mm256_set_m128(_mm_set1_ps(hi), _mm_set1_ps(lo)); };
-        auto both = [](const Node& n) {
-          const __m128 h = _mm_load_ps(n.data());
-          return _mm256_set_m128(h, h);
-        };
+        using detail::pair_ps, detail::both_ps;
         __m256 w1[pairs], o1[pairs], d1[pairs];
         for (int k = 0; k < pairs; ++k) {
-          w1[k] = pair(s.w[1][2 * k], s.w[1][2 * k + 1]);
-          if (has_A) o1[k] = pair(s.offset[1][2 * k], s.offset[1][2 * k + 1]);
-          if (has_G) d1[k] = pair(s.dw[1][2 * k], s.dw[1][2 * k + 1]);
+          w1[k] = pair_ps(s.w[1][2 * k], s.w[1][2 * k + 1]);
+          if (has_A) o1[k] = pair_ps(s.offset[1][2 * k], s.offset[1][2 * k + 1]);
+          if (has_G) d1[k] = pair_ps(s.dw[1][2 * k], s.dw[1][2 * k + 1]);
         }
-        const __m256 a1 = both(a[1]), g0 = both(g[0]), g1 = both(g[1]);
+        const __m256 a1 = both_ps(a[1]), g0 = both_ps(g[0]), g1 = both_ps(g[1]);
         for (int ia = 0; ia < N; ++ia) {
           const Node ua =
               has_A ? detail::fmadd(mp, vm, Node(s.offset[0][ia] * a[0])) : Node(mp * vm);
-          const __m256 ua2 = both(ua);
+          const __m256 ua2 = both_ps(ua);
           const __m256 w0 = _mm256_set1_ps(s.w[0][ia]);
           T* row = (n0 + ia * stride[0])->data();
           for (int k = 0; k < pairs; ++k) {
