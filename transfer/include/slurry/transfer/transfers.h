@@ -113,6 +113,12 @@ inline Eigen::Matrix<T, 4, 1> fmadd(T a, const Eigen::Matrix<T, 4, 1>& b,
   r = a * b + c;
   return r;
 }
+/// fn(p, m), called out of line (its code is then the same wherever it is called from).
+template <class Fn, class M>
+[[gnu::noinline]] void call_out_of_line(Fn& fn, std::int64_t p, const M& m) {
+  fn(p, m);
+}
+
 #if defined(__AVX__)
 /// (lo x4, hi x4): two nodes' scalars, one per 128-bit half.
 inline __m256 pair_ps(float lo, float hi) { return _mm256_set_m128(_mm_set1_ps(hi), _mm_set1_ps(lo)); }
@@ -446,17 +452,26 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
     }
   };
 
-  // In 2D the caller's state update runs a batch behind, 16 particles at a time: called once
-  // per particle from the sums' loop, it cost 9% of a 2D snow substep (G2P 0.33 -> 0.31 ms).
-  // Nothing in the loop reads what it writes. In 3D the queue made G2P slower (1 M particles,
-  // one thread: 42.5-43.4 -> 45.3-46.0 ms per substep), so there it is called in the loop.
-  constexpr bool queue_state = Dim == 2;
+  // The caller's state update runs a batch behind, 16 particles at a time, in 2D and on the
+  // packed 3D path. Called once per particle from the sums' loop, it cost 9% of a 2D snow
+  // substep (G2P 0.33 -> 0.31 ms); in 3D it read C back just after the loop had stored it, a
+  // store-to-load forwarding stall per particle. Nothing in the loop reads what it writes. In 3D
+  // the update is called out of line, as from the loop: inlined into the queue's loop, GCC fused
+  // its multiply-adds differently (frames changed at round-off) and G2P was slower (1 M
+  // particles, one thread: 42.5-43.4 -> 45.3-46.0 ms per substep, when C was copied in).
+  constexpr bool packed3 = Dim == 3 && detail::kPackedGather3<T, S> && Order > 1;
+  constexpr bool queue_state = Dim == 2 || packed3;
   constexpr int Q = StencilBatch<T, Dim, Order>::size;
   std::int64_t queued[Q];
   Mat queued_grad[Q];
   int nq = 0;
   auto flush = [&] {
-    for (int j = 0; j < nq; ++j) state(queued[j], queued_grad[j]);
+    for (int j = 0; j < nq; ++j) {
+      if constexpr (Dim == 3)
+        detail::call_out_of_line(state, queued[j], queued_grad[j]);
+      else
+        state(queued[j], queued_grad[j]);
+    }
     nq = 0;
   };
 
@@ -575,9 +590,12 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
         const __m256 c2 = _mm256_castps128_ps256(_mm_load_ps(bc[2].data()));
         const __m256 lo = _mm256_permutevar8x32_ps(c01, _mm256_setr_epi32(0, 1, 2, 4, 5, 6, 0, 0));
         const __m256 hi = _mm256_permutevar8x32_ps(c2, _mm256_setr_epi32(0, 0, 0, 0, 0, 0, 0, 1));
-        float* c = C[p].data();
-        _mm256_storeu_ps(c, _mm256_mul_ps(_mm256_set1_ps(Dinv), _mm256_blend_ps(lo, hi, 0xC0)));
-        c[8] = Dinv * bc[2][2];
+        const __m256 c8 = _mm256_mul_ps(_mm256_set1_ps(Dinv), _mm256_blend_ps(lo, hi, 0xC0));
+        const float c9 = Dinv * bc[2][2];
+        for (float* c : {C[p].data(), queued_grad[nq].data()}) {  // the queue's copy from registers
+          _mm256_storeu_ps(c, c8);
+          c[8] = c9;
+        }
 #endif
       } else if constexpr (Order > 1) {
         C[p] = Dinv * B;
@@ -600,7 +618,9 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
     }
     if constexpr (queue_state) {
       queued[nq] = p;
-      if constexpr (S == Scheme::MLS)
+      if constexpr (packed3)
+        ;  // stored with C
+      else if constexpr (S == Scheme::MLS)
         queued_grad[nq] = C[p];
       else
         queued_grad[nq] = gv;
