@@ -269,10 +269,12 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
     Node* n0 = nodes + grid.index(s.base);
     constexpr int N = St::N;
 #if defined(__AVX__) && defined(__FMA__)
-    if constexpr (Dim == 3 && std::is_same_v<T, float> && S == Scheme::MLS && N >= 2) {
-      // MLS in float (an affine term, no gradient term): two nodes of a row per 256-bit
-      // register, as in 2D below, each lane doing the multiply-adds of the 4-wide form that
-      // follows, in the same order: the same bits with fewer instructions.
+    if constexpr (Dim == 3 && std::is_same_v<T, float> && S == Scheme::MLS && N == 3) {
+      // MLS in float (an affine term, no gradient term), quadratic kernel: two nodes of a row
+      // per 256-bit register, as in 2D below, each lane doing the multiply-adds of the 4-wide
+      // form that follows, in the same order: the same bits with fewer instructions. Not for
+      // the cubic kernel: GCC compiles the 4-wide form's rows of 4 nodes with other roundings,
+      // and pairs there changed its frames at round-off (4e-7 m after 6 frames).
       using detail::pair_ps, detail::both_ps;
       constexpr int pairs = N / 2;
       __m256 w2[pairs], o2[pairs];
