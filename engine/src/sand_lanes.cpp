@@ -3,6 +3,8 @@
 
 #include <algorithm>
 
+#include "lanes_io.h"
+
 #include "slurry/constitutive/lanes.h"
 #include "slurry/constitutive/svd_lanes.h"
 
@@ -18,19 +20,21 @@ std::int64_t project_and_stress_lanes(const constitutive::DruckerPrager<T>& dp, 
   lanes::Mat3<T, W> Fl, tau;
   lanes::Lane<T, W> state;
   std::int64_t yielded = 0;
+  lanes::Lane<T, W> scale;
   for (auto i0 = begin; i0 < end; i0 += W) {
     const int count = int(std::min<std::uint32_t>(W, end - i0));
+    // Spare lanes of a short batch repeat its first particle.
+    auto p = [&](int l) { return order[i0 + (l < count ? l : 0)]; };
+    load_lanes<3>(Fl, [&](int l) { return &F[p(l)]; });
     for (int l = 0; l < W; ++l) {
-      const auto p = order[i0 + (l < count ? l : 0)];
-      Fl.put(l, F[p]);
-      state[l] = plastic[p];
+      state[l] = plastic[p(l)];
+      scale[l] = -dt * vol0[p(l) & vol0_mask];
     }
     const auto yielded_lanes = dp.project_with_stress(Fl, state, mu, lambda, tau);
+    store_lanes<3>(Fl, nullptr, count, [&](int l) { return &F[p(l)]; });
+    store_lanes<3>(tau, scale.data(), count, [&](int l) { return &K[i0 + l - begin]; });
     for (int l = 0; l < count; ++l) {
-      const auto p = order[i0 + l];
-      F[p] = Fl.get(l);
-      plastic[p] = state[l];
-      K[i0 + l - begin] = (-dt * vol0[p & vol0_mask]) * tau.get(l);
+      plastic[p(l)] = state[l];
       yielded += yielded_lanes.bits[l] != T(0);
     }
   }
