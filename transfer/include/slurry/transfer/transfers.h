@@ -619,13 +619,8 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
       return std::numeric_limits<T>::infinity();
     }
     if constexpr (queue_state) {
-      queued[nq] = p;
-      if constexpr (packed3)
-        ;  // stored with C
-      else if constexpr (S == Scheme::MLS)
-        queued_grad[nq] = C[p];
-      else
-        queued_grad[nq] = gv;
+      queued[nq] = p;  // packed3: queued_grad[nq] was stored with C, from registers
+      if constexpr (!packed3) queued_grad[nq] = S == Scheme::MLS ? C[p] : gv;
       if (++nq == Q) flush();
     } else if constexpr (S == Scheme::MLS) {
       state(p, C[p]);
