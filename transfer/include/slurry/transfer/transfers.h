@@ -192,26 +192,20 @@ void scatter_particles(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
   IVec hi = IVec::Constant(std::numeric_limits<int>::min());
   auto* nodes = grid.data();
   // The stencils a batch at a time over SIMD lanes (kernels.h), bases clamped to the patch.
-  constexpr bool batched = true;
   StencilBatch<T, Dim, Order> batch;
   int base_lo[Dim], base_hi[Dim];
   const bool clamp = detail::patch_bases<St::N>(grid, base_lo, base_hi);
-  auto stencil = [&](std::int64_t i, std::int64_t p) {
-    if constexpr (batched) {
-      const int k = int((i - begin) % StencilBatch<T, Dim, Order>::size);
-      if (k == 0)
-        batch.compute(x, ids, i,
-                      int(std::min<std::int64_t>(StencilBatch<T, Dim, Order>::size, end - i)),
-                      origin, inv_dx, dx, clamp ? base_lo : nullptr, base_hi);
-      return batch.get(k);
-    } else {
-      return St(x[p] - origin, inv_dx, dx);
-    }
+  auto stencil = [&](std::int64_t i) {
+    const int k = int((i - begin) % StencilBatch<T, Dim, Order>::size);
+    if (k == 0)
+      batch.compute(x, ids, i, int(std::min<std::int64_t>(StencilBatch<T, Dim, Order>::size, end - i)),
+                    origin, inv_dx, dx, clamp ? base_lo : nullptr, base_hi);
+    return batch.get(k);
   };
 
   for (std::int64_t i = begin; i < end; ++i) {
     const std::int64_t p = ids ? std::int64_t(ids[i]) : i;
-    const St s = stencil(i, p);
+    const St s = stencil(i);
     const IVec base = Eigen::Map<const IVec>(s.base.data());
     lo = lo.cwiseMin(base);
     hi = hi.cwiseMax(base);
@@ -437,21 +431,15 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
 
   // The stencils a batch at a time over SIMD lanes (kernels.h), bases clamped to the patch,
   // computed before any particle of the batch moves.
-  constexpr bool batched = true;
   StencilBatch<T, Dim, Order> batch;
   int base_lo[Dim], base_hi[Dim];
   const bool clamp = detail::patch_bases<St::N>(grid, base_lo, base_hi);
-  auto stencil = [&](std::int64_t i, std::int64_t p) {
-    if constexpr (batched) {
-      const int k = int((i - begin) % StencilBatch<T, Dim, Order>::size);
-      if (k == 0)
-        batch.compute(x, ids, i,
-                      int(std::min<std::int64_t>(StencilBatch<T, Dim, Order>::size, end - i)),
-                      origin, inv_dx, dx, clamp ? base_lo : nullptr, base_hi);
-      return batch.get(k);
-    } else {
-      return St(x[p] - origin, inv_dx, dx);
-    }
+  auto stencil = [&](std::int64_t i) {
+    const int k = int((i - begin) % StencilBatch<T, Dim, Order>::size);
+    if (k == 0)
+      batch.compute(x, ids, i, int(std::min<std::int64_t>(StencilBatch<T, Dim, Order>::size, end - i)),
+                    origin, inv_dx, dx, clamp ? base_lo : nullptr, base_hi);
+    return batch.get(k);
   };
 
   // The caller's state update runs a batch behind, 16 particles at a time, in 2D and on the
@@ -480,7 +468,7 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
   T vmax2 = 0;
   for (std::int64_t i = begin; i < end; ++i) {
     const std::int64_t p = ids ? std::int64_t(ids[i]) : i;
-    const St s = stencil(i, p);
+    const St s = stencil(i);
     // Sums over the stencil, axis by axis: for each row (a, b) of nodes along the last axis,
     // T_ab = sum_c wz_c v, O_ab = sum_c wz_c oz_c v and U_ab = sum_c dwz_c v; then
     // v_pic = sum wab T_ab, B = sum w v (x_i - x_p)^T has columns sum wab ox_a T_ab,
