@@ -10,6 +10,7 @@
 #include <Eigen/Core>
 
 #include <type_traits>
+#include <utility>
 
 #if defined(__SSE2__)
 #include <immintrin.h>
@@ -17,14 +18,26 @@
 
 namespace slurry::detail {
 
+/// The scalar and width of a lanes matrix, and whether its float transposes apply.
+template <class MatL>
+struct LanesOf {
+  using Lane = std::decay_t<decltype(std::declval<MatL&>().a[0][0])>;
+  using T = typename Lane::Scalar;
+  static constexpr int W = Lane::RowsAtCompileTime;
+  static constexpr bool transposed = std::is_same_v<T, float> && W % 4 == 0;
+};
+/// The lanes of column-major entry e of a Dim x Dim matrix: (e % Dim, e / Dim).
+template <int Dim, class MatL>
+inline auto* entry_lanes(MatL& L, int e) {
+  return L.a[e % Dim][e / Dim].data();
+}
+
 /// Lane k of L <- *src(k), k < W (src(k) a pointer to a Dim x Dim matrix).
 template <int Dim, class MatL, class Src>
 inline void load_lanes(MatL& L, Src&& src) {
-  using Lane = std::decay_t<decltype(L.a[0][0])>;
-  using T = typename Lane::Scalar;
-  constexpr int W = Lane::RowsAtCompileTime;
+  constexpr int W = LanesOf<MatL>::W;
 #if defined(__SSE2__)
-  if constexpr (std::is_same_v<T, float> && W % 4 == 0) {
+  if constexpr (LanesOf<MatL>::transposed) {
     constexpr int E = Dim * Dim;
     for (int g = 0; g < W; g += 4) {
       const float* f[4];
@@ -33,10 +46,10 @@ inline void load_lanes(MatL& L, Src&& src) {
         __m128 r[4];
         for (int k = 0; k < 4; ++k) r[k] = _mm_loadu_ps(f[k] + 4 * q);
         _MM_TRANSPOSE4_PS(r[0], r[1], r[2], r[3]);
-        for (int e = 0; e < 4; ++e) _mm_storeu_ps(L.a[(4 * q + e) % Dim][(4 * q + e) / Dim].data() + g, r[e]);
+        for (int e = 0; e < 4; ++e) _mm_storeu_ps(entry_lanes<Dim>(L, 4 * q + e) + g, r[e]);
       }
       if constexpr (E % 4 == 1)
-        _mm_storeu_ps(L.a[Dim - 1][Dim - 1].data() + g, _mm_setr_ps(f[0][E - 1], f[1][E - 1], f[2][E - 1], f[3][E - 1]));
+        _mm_storeu_ps(entry_lanes<Dim>(L, E - 1) + g, _mm_setr_ps(f[0][E - 1], f[1][E - 1], f[2][E - 1], f[3][E - 1]));
     }
     return;
   }
@@ -46,16 +59,12 @@ inline void load_lanes(MatL& L, Src&& src) {
 
 /// *dst(k) <- scale[k] * (lane k of L), or lane k itself when scale is null, for k < count.
 template <int Dim, class MatL, class Dst>
-inline void store_lanes(const MatL& L, const typename std::decay_t<decltype(L.a[0][0])>::Scalar* scale, int count,
-                        Dst&& dst) {
-  using Lane = std::decay_t<decltype(L.a[0][0])>;
-  using T = typename Lane::Scalar;
-  constexpr int W = Lane::RowsAtCompileTime;
+inline void store_lanes(const MatL& L, const typename LanesOf<MatL>::T* scale, int count, Dst&& dst) {
 #if defined(__SSE2__)
-  if constexpr (std::is_same_v<T, float> && W % 4 == 0) {
+  if constexpr (LanesOf<MatL>::transposed) {
     constexpr int E = Dim * Dim;
     auto lane = [&](int e, int g) {
-      const __m128 v = _mm_loadu_ps(L.a[e % Dim][e / Dim].data() + g);
+      const __m128 v = _mm_loadu_ps(entry_lanes<Dim>(L, e) + g);
       return scale ? _mm_mul_ps(_mm_loadu_ps(scale + g), v) : v;
     };
     for (int g = 0; g < count; g += 4) {
