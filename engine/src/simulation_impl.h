@@ -565,20 +565,14 @@ void Simulation<T, Dim>::bin_particles() {
 template <class T, int Dim>
 template <int Order>
 void Simulation<T, Dim>::bin_particles_order() {
-  using IVec = Eigen::Matrix<int, Dim, 1>;
   const Vec* x = particles_.x.data();
   const T inv_dx = T(1) / dx_;
   const std::uint16_t* material = particles_.material.empty() ? nullptr : particles_.material.data();
   const std::uint32_t* id = particles_.id.data();
   const Vec origin = origin_;
-  auto base_of = [x, origin, inv_dx](std::int64_t p) {
-    IVec b;
-    for (int d = 0; d < Dim; ++d)
-      b[d] = transfer::BSpline<Order>::base((x[p][d] - origin[d]) * inv_dx);
-    return b;
-  };
-  auto material_of = [material](std::int64_t p) { return material ? int(material[p]) : 0; };
-  auto rank_of = [id](std::uint32_t p) { return id[p]; };
+  const transfer::PositionBases<Order, T, Dim> base_of{x, origin, inv_dx};
+  const transfer::ChannelValues<std::uint16_t> material_of{material};
+  const transfer::ChannelValues<std::uint32_t> rank_of{id};
   // Few particles change blocks in a substep: the last substep's bins, updated (the same bins
   // and order as a full build, blocks.h), when that is cheaper.
   if (bins_.update(std::int64_t(particles_.size()), base_of, material_of, rank_of)) return;

@@ -320,6 +320,165 @@ TEST(ParticleBins, UpdateGivesTheFullBuildsBins) {
   EXPECT_GE(refused, 10);
 }
 
+// ParticleBins::update on 3D float positions (PositionBases, ChannelValues): where a bin's
+// particles are stored one after the other it checks them 8 at a time (blocks.h,
+// still_in_place). Its verdict must be the per-particle one: the test moves single particles
+// across a block face along each axis, at every place of a bin (each lane of the 8 and the
+// tail), puts particles within a few ulps of the faces, where a rounding different from
+// PositionBases's would put them in the other block, changes one material and swaps two ranks.
+// After each change the updated bins must equal a full build's.
+template <int Order>
+void check_vector_bin_check() {
+  using Vec = Eigen::Vector3f;
+  using IVec = Eigen::Vector3i;
+  using Bins = slurry::transfer::ParticleBins<3>;
+  std::mt19937 rng(23 + Order);
+  const int cells = 24;  // 24^3 nodes: 6^3 blocks of 4^3
+  const float inv_dx = 15.3f, dx = 1 / inv_dx;  // x inv_dx rounds: not a power of two
+  const Vec origin(-0.3f, 0.1f, -0.05f);
+  const std::int64_t n = 6000;  // about 28 per block: full chunks of 8 and tails
+  std::vector<Vec> x(static_cast<std::size_t>(n));
+  std::vector<std::uint16_t> material(static_cast<std::size_t>(n));
+  std::vector<std::uint32_t> rank(static_cast<std::size_t>(n));
+  // Positions whose stencil stays inside the lattice for every kernel order.
+  std::uniform_real_distribution<float> u(4.0f * dx, (cells - 5) * dx);
+  std::uniform_int_distribution<int> mat(0, 1);
+  for (std::int64_t p = 0; p < n; ++p) {
+    x[std::size_t(p)] = origin + Vec(u(rng), u(rng), u(rng));
+    material[std::size_t(p)] = std::uint16_t(mat(rng));
+    rank[std::size_t(p)] = std::uint32_t(p);
+  }
+  std::shuffle(rank.begin(), rank.end(), rng);
+  const slurry::transfer::PositionBases<Order, float, 3> base_of{x.data(), origin, inv_dx};
+  const slurry::transfer::ChannelValues<std::uint16_t> material_of{material.data()};
+  const slurry::transfer::ChannelValues<std::uint32_t> rank_of{rank.data()};
+  Bins bins;
+  bins.resize(IVec::Constant(cells));
+  bins.build(n, base_of, material_of, 2);
+  bins.sort_within_bins(rank_of);
+  // Stores the particles in bin order, as Simulation::reorder_particles does.
+  auto reorder = [&] {
+    auto permute = [&](auto& channel) {
+      auto copy = channel;
+      for (std::int64_t i = 0; i < n; ++i) channel[std::size_t(i)] = copy[bins.order()[i]];
+    };
+    permute(x), permute(material), permute(rank);
+    bins.reset_order();
+  };
+  // The update against a full build; false when update() refused (then the bins are rebuilt).
+  auto check = [&](const std::string& what) {
+    const bool used = bins.update(n, base_of, material_of, rank_of);
+    if (!used) {
+      bins.build(n, base_of, material_of, 2);
+      bins.sort_within_bins(rank_of);
+    }
+    Bins full;
+    full.resize(IVec::Constant(cells));
+    full.build(n, base_of, material_of, 2);
+    full.sort_within_bins(rank_of);
+    EXPECT_EQ(std::memcmp(bins.order(), full.order(), std::size_t(n) * sizeof(std::uint32_t)), 0) << what;
+    EXPECT_EQ(bins.bins().size(), full.bins().size()) << what;
+    for (std::size_t b = 0; b < std::min(bins.bins().size(), full.bins().size()); ++b) {
+      const auto &a = bins.bins()[b], &f = full.bins()[b];
+      EXPECT_TRUE(a.block == f.block && a.material == f.material && a.begin == f.begin && a.end == f.end)
+          << what << ": bin " << b;
+    }
+    reorder();
+    return used;
+  };
+  reorder();
+  EXPECT_TRUE(check("nothing moved"));
+  auto largest_bin = [&] {
+    std::size_t largest = 0;
+    for (std::size_t b = 0; b < bins.bins().size(); ++b)
+      if (bins.bins()[b].end - bins.bins()[b].begin > bins.bins()[largest].end - bins.bins()[largest].begin)
+        largest = b;
+    return largest;
+  };
+  // One particle across a face, for every place in the largest bin and every axis.
+  {
+    const std::size_t largest = largest_bin();
+    const std::uint32_t len = bins.bins()[largest].end - bins.bins()[largest].begin;
+    ASSERT_GE(len, 17u) << "two chunks of 8 and a tail";
+    for (std::uint32_t j = 0; j < len; ++j)
+      for (int d = 0; d < 3; ++d) {
+        const auto bin = bins.bins()[largest];
+        ASSERT_EQ(bins.order()[bin.begin], bin.begin) << "stored in bin order";
+        const std::uint32_t p = bin.begin + j;
+        const Vec before = x[p];
+        const std::uint32_t id = rank[p];
+        x[p][d] += (bin.block[d] % 2 == 0 ? 4.0f : -4.0f) * dx;  // into a neighbour block
+        ASSERT_NE(base_of(p)[d] >> 2, bin.block[d]);
+        EXPECT_TRUE(check("particle " + std::to_string(j) + " of " + std::to_string(len) + ", axis " +
+                          std::to_string(d)));
+        // Back where it was (stored elsewhere since the re-sort): a move into the block it left.
+        x[std::size_t(std::find(rank.begin(), rank.end(), id) - rank.begin())] = before;
+        EXPECT_TRUE(check("moved back"));
+      }
+  }
+  // Within a few ulps of block faces: the node coordinate at which the base's block changes.
+  {
+    std::uniform_int_distribution<std::int64_t> pick(0, n - 1);
+    std::uniform_int_distribution<int> ulps(-3, 3), face(2, cells / 4 - 2), axis(0, 2);
+    for (int round = 0; round < 20; ++round) {
+      for (int k = 0; k < 150; ++k) {
+        auto& y = x[std::size_t(pick(rng))];
+        const int d = axis(rng);
+        // base(g) = 4 f at g = 4 f (linear), 4 f + 1/2 (quadratic), 4 f + 1 (cubic), in cells.
+        const float g = 4.0f * float(face(rng)) + (Order == 2 ? 0.5f : Order == 3 ? 1.0f : 0.0f);
+        float v = origin[d] + g * dx;
+        for (int s = ulps(rng); s != 0; s += s > 0 ? -1 : 1) v = std::nextafter(v, s > 0 ? 1.0f : -1.0f);
+        y[d] = v;
+      }
+      check("near the faces, round " + std::to_string(round));
+    }
+  }
+  // The quadratic kernel's base is floor(fma(x - origin, inv_dx, -1/2)) as GCC compiles
+  // PositionBases with FMA; rounded twice instead, it puts some positions next to a face in the
+  // other block. One particle at a time at such a position, inside its bin's block by the
+  // double rounding and outside by PositionBases: the check must see it move.
+  if constexpr (Order == 2) {
+    auto fused = [&](float v, int d) { return int(std::floor(std::fma(v - origin[d], inv_dx, -0.5f))); };
+    auto twice = [&](float v, int d) {
+      volatile float t = (v - origin[d]) * inv_dx;
+      return int(std::floor(t - 0.5f));
+    };
+    int found = 0;
+    for (int trial = 0; trial < 400 && found < 12; ++trial) {
+      const auto bin = bins.bins()[std::size_t(trial * 7919) % bins.bins().size()];
+      const std::uint32_t p = bin.begin + std::uint32_t(trial) % (bin.end - bin.begin);
+      const int d = trial % 3, face = 4 * (bin.block[d] + (trial / 3) % 2);  // lower or upper face
+      float v = origin[d] + (float(face) + 0.5f) * dx;
+      for (int k = 0; k < 32; ++k) v = std::nextafter(v, -1.0f);
+      for (int k = 0; k < 64; ++k, v = std::nextafter(v, 1.0f)) {
+        if ((twice(v, d) >> 2) != bin.block[d] || (fused(v, d) >> 2) == bin.block[d]) continue;
+        x[p][d] = v;
+        ASSERT_EQ(base_of(p)[d], fused(v, d)) << "PositionBases rounds as one fused multiply-add";
+        ++found;
+        EXPECT_TRUE(check("one particle " + std::to_string(k - 32) + " ulps from a face")) << found;
+        break;
+      }
+    }
+    EXPECT_GE(found, 12) << "positions where the two roundings give different blocks";
+  }
+  // A material changed; two ranks swapped within a bin (the update must refuse).
+  {
+    const auto bin = bins.bins()[bins.bins().size() / 2];
+    material[bin.begin + 3] = std::uint16_t(1 - material[bin.begin + 3]);
+    EXPECT_TRUE(check("a material"));
+    const auto other = bins.bins()[largest_bin()];
+    ASSERT_GE(other.end - other.begin, 12u);
+    std::swap(rank[other.begin + 2], rank[other.begin + 10]);
+    EXPECT_FALSE(check("two ranks swapped"));
+  }
+}
+
+TEST(ParticleBins, VectorBinCheckMatchesThePerParticleOne) {
+  check_vector_bin_check<1>();
+  check_vector_bin_check<2>();
+  check_vector_bin_check<3>();
+}
+
 // A patch added to and read back from a sparse grid lands on the same nodes as in a dense grid,
 // including patches that straddle block boundaries and reach the lattice's end.
 TEST(SparseGrid, PatchesMatchTheDenseGrid) {

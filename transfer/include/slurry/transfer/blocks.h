@@ -25,10 +25,16 @@
 #include <cstdint>
 #include <limits>
 #include <stdexcept>
+#include <type_traits>
 #include <vector>
 
+#include "slurry/transfer/kernels.h"
 #include "slurry/transfer/lattice.h"
 #include "slurry/transfer/parallel.h"
+
+#if defined(__AVX2__) && defined(__FMA__)
+#include <immintrin.h>
+#endif
 
 namespace slurry::transfer {
 
@@ -47,6 +53,28 @@ struct BlockShape {
 /// read a node with one vector instruction instead of three scalar ones.
 template <class T, int Dim>
 using GridNode = Eigen::Matrix<T, 4, 1>;
+
+/// A ParticleBins `base_of` for particles at positions x: per axis the B-spline stencil base
+/// BSpline<Order>::base((x[p] - origin) inv_dx) (kernels.h). A type of its own (not a lambda)
+/// so that ParticleBins::update can check 8 particles at a time with the same roundings.
+template <int Order, class T, int Dim>
+struct PositionBases {
+  const Eigen::Matrix<T, Dim, 1>* x;
+  Eigen::Matrix<T, Dim, 1> origin;
+  T inv_dx;
+  Eigen::Matrix<int, Dim, 1> operator()(std::int64_t p) const {
+    Eigen::Matrix<int, Dim, 1> b;
+    for (int d = 0; d < Dim; ++d) b[d] = BSpline<Order>::base((x[p][d] - origin[d]) * inv_dx);
+    return b;
+  }
+};
+/// A ParticleBins `material_of` or `rank_of`: a per-particle channel of unsigned integers, or 0
+/// for every particle when `values` is null.
+template <class U>
+struct ChannelValues {
+  const U* values;
+  std::uint32_t operator()(std::int64_t p) const { return values ? std::uint32_t(values[p]) : 0u; }
+};
 
 /// Particle indices sorted by the block of their stencil base node, and within a block by
 /// material: bins are (block, material) pairs, block-major, so the bins of one block are
@@ -272,6 +300,12 @@ class ParticleBins {
     parallel::parallel_tasks(0, nbins, [&, order, bins, bin_moved](std::int64_t b) {
       const Bin bin = bins[b];
       const std::int32_t k = key_of(bin.block);
+      if constexpr (kVectorCheck<BaseOf, MaterialOf, RankOf>) {
+        if (still_in_place(bin, k, order, base_of, material_of, rank_of)) {
+          bin_moved[b] = 0;
+          return;
+        }
+      }
       std::uint32_t count = 0;
       bool ranked = true, any_kept = false;
       auto last_rank = rank_of(order[bin.begin]);
@@ -448,6 +482,106 @@ class ParticleBins {
   }
 
  private:
+  /// Whether update() can check bins 8 particles at a time (still_in_place): 3D float positions
+  /// binned by PositionBases, materials and ranks from ChannelValues, on AVX2 with FMA.
+  template <class BaseOf, class MaterialOf, class RankOf>
+  static constexpr bool kVectorCheck =
+#if defined(__AVX2__) && defined(__FMA__)
+      Dim == 3 && (std::is_same_v<std::decay_t<BaseOf>, PositionBases<1, float, 3>> ||
+                   std::is_same_v<std::decay_t<BaseOf>, PositionBases<2, float, 3>> ||
+                   std::is_same_v<std::decay_t<BaseOf>, PositionBases<3, float, 3>>) &&
+      std::is_same_v<std::decay_t<MaterialOf>, ChannelValues<std::uint16_t>> &&
+      std::is_same_v<std::decay_t<RankOf>, ChannelValues<std::uint32_t>>;
+#else
+      false;
+#endif
+
+#if defined(__AVX2__) && defined(__FMA__)
+  /// update()'s check of one bin in the common case, 8 particles at a time: true when the bin's
+  /// particles are stored one after the other (as reset_order() leaves them), none of them
+  /// changed block or material, and their ranks ascend; false when any of that fails to hold,
+  /// and the per-particle check decides. The bases are BSpline<Order>::base((x - origin)
+  /// inv_dx) as PositionBases computes them, with the roundings GCC gives that expression when
+  /// FMA is available: x - origin rounded, then the product and the quadratic kernel's -1/2 in
+  /// one fused multiply-add (tests/transfer: BlocksTest.VectorCheckMatchesScalarBases).
+  template <int Order>
+  bool still_in_place(const Bin& bin, std::int32_t k, const std::uint32_t* order,
+                      const PositionBases<Order, float, 3>& bases, const ChannelValues<std::uint16_t>& material_of,
+                      const ChannelValues<std::uint32_t>& rank_of) const {
+    const std::uint32_t* at = order + bin.begin;
+    const std::int64_t len = std::int64_t(bin.end) - std::int64_t(bin.begin), first = at[0];
+    {
+      // at[j] == first + j for every j.
+      const __m256i step = _mm256_set1_epi32(8);
+      __m256i want = _mm256_add_epi32(_mm256_set1_epi32(std::int32_t(first)), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
+      __m256i off = _mm256_setzero_si256();
+      std::int64_t j = 0;
+      for (; j + 8 <= len; j += 8, want = _mm256_add_epi32(want, step))
+        off = _mm256_or_si256(off, _mm256_xor_si256(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(at + j)), want));
+      if (!_mm256_testz_si256(off, off)) return false;
+      for (; j < len; ++j)
+        if (std::int64_t(at[j]) != first + j) return false;
+    }
+    const float* xs = bases.x[first].data();
+    const std::uint16_t* material = material_of.values ? material_of.values + first : nullptr;
+    const __m256 o[3] = {_mm256_set1_ps(bases.origin[0]), _mm256_set1_ps(bases.origin[1]),
+                         _mm256_set1_ps(bases.origin[2])};
+    const __m256 s = _mm256_set1_ps(bases.inv_dx), half = _mm256_set1_ps(-0.5f);
+    const __m256i r1 = _mm256_set1_epi32(block_res_[1]), r2 = _mm256_set1_epi32(block_res_[2]);
+    const __m256i key = _mm256_set1_epi32(k), mat = _mm256_set1_epi32(std::int32_t(bin.material));
+    // Lanes line up by particle after the blends: particles (0, 3, 6, 1, 4, 7, 2, 5) of the 8,
+    // enough to compare each one's key.
+    const __m256i rot1 = _mm256_setr_epi32(1, 2, 3, 4, 5, 6, 7, 0), rot2 = _mm256_setr_epi32(2, 3, 4, 5, 6, 7, 0, 1);
+    __m256i differ = _mm256_setzero_si256();
+    std::int64_t j = 0;
+    for (; j + 8 <= len; j += 8, xs += 24) {
+      const __m256 a = _mm256_loadu_ps(xs), b = _mm256_loadu_ps(xs + 8), c = _mm256_loadu_ps(xs + 16);
+      const __m256 u[3] = {
+          _mm256_blend_ps(_mm256_blend_ps(a, b, 0x92), c, 0x24),
+          _mm256_permutevar8x32_ps(_mm256_blend_ps(_mm256_blend_ps(a, b, 0x24), c, 0x49), rot1),
+          _mm256_permutevar8x32_ps(_mm256_blend_ps(_mm256_blend_ps(a, b, 0x49), c, 0x92), rot2)};
+      __m256i blk[3];
+      for (int d = 0; d < 3; ++d) {
+        const __m256 g = _mm256_sub_ps(u[d], o[d]);
+        const __m256 y = Order == 2 ? _mm256_fmadd_ps(g, s, half) : _mm256_mul_ps(g, s);
+        __m256i base = _mm256_cvttps_epi32(_mm256_floor_ps(y));
+        if constexpr (Order == 3) base = _mm256_sub_epi32(base, _mm256_set1_epi32(1));
+        blk[d] = _mm256_srai_epi32(base, Shape::log2);
+      }
+      // key_of in 32-bit arithmetic: the same low 32 bits as its 64-bit sum, which it truncates.
+      const __m256i kk = _mm256_add_epi32(
+          _mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(blk[0], r1), blk[1]), r2), blk[2]);
+      differ = _mm256_or_si256(differ, _mm256_xor_si256(kk, key));
+      if (material) {
+        const __m256i m = _mm256_cvtepu16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(material + j)));
+        differ = _mm256_or_si256(differ, _mm256_xor_si256(m, mat));
+      }
+    }
+    if (!_mm256_testz_si256(differ, differ)) return false;
+    for (; j < len; ++j)
+      if (key_of(block_of_base(bases(first + j))) != k || material_of(first + j) != bin.material) return false;
+    // rank[i - 1] < rank[i] for every i, unsigned (compared as signed with the sign bits flipped).
+    const std::uint32_t* rank = rank_of.values + first;
+    const __m256i flip = _mm256_set1_epi32(std::numeric_limits<std::int32_t>::min());
+    __m256i ascending = _mm256_set1_epi32(-1);
+    std::int64_t i = 1;
+    for (; i + 8 <= len; i += 8) {
+      const __m256i lo = _mm256_xor_si256(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(rank + i - 1)), flip);
+      const __m256i hi = _mm256_xor_si256(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(rank + i)), flip);
+      ascending = _mm256_and_si256(ascending, _mm256_cmpgt_epi32(hi, lo));
+    }
+    if (_mm256_movemask_epi8(ascending) != -1) return false;
+    for (; i < len; ++i)
+      if (!(rank[i - 1] < rank[i])) return false;
+    return true;
+  }
+#else
+  template <class... A>
+  bool still_in_place(const A&...) const {
+    return false;
+  }
+#endif
+
   /// The block holding stencil base node `base`.
   static IVec block_of_base(IVec base) {
     for (int d = 0; d < Dim; ++d) base[d] >>= Shape::log2;
