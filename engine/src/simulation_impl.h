@@ -723,33 +723,41 @@ void Simulation<T, Dim>::reorder_particles() {
   // is permuted in place by following the cycles of the order (new[j] = old[order[j]]): one
   // value of temporary storage and one bit per particle, where a gather through a scratch
   // channel would hold a second copy of the largest channel (36 bytes per particle in 3D float).
-  // The particles moved in a few substeps, so the cycles are short and local. Serial per
-  // channel: the walk is bound by memory latency, which a second thread does not share well
-  // (the parallel gather was slower on two threads than on one, RESULTS.md 2026-11-21).
+  // The particles moved in a few substeps, so the cycles are short and local. Each walk is
+  // serial, bound by memory latency; the channels are shared out between the threads, each
+  // with a bitmap of its own (the parallel gather of one channel was slower on two threads than
+  // on one, RESULTS.md 2026-11-21). Channel k goes to thread k mod threads: in the order of
+  // for_each_channel that pairs x with F and v with C.
   auto& P = particles_;
   const std::uint32_t* order = bins_.order();
-  const std::size_t n = P.size();
-  std::vector<std::uint64_t>& done = reorder_done_;
-  auto permute = [&](auto& channel) {
-    if (channel.empty()) return;
-    done.assign((n + 63) / 64, 0);
-    auto* c = channel.data();
-    for (std::size_t i = 0; i < n; ++i) {
-      if (done[i >> 6] >> (i & 63) & 1) continue;
-      if (order[i] == i) continue;  // a fixed point is never reached from another cycle
-      const auto first = c[i];
-      std::size_t j = i;
-      for (;;) {
-        done[j >> 6] |= std::uint64_t(1) << (j & 63);
-        const std::size_t k = order[j];
-        if (k == i) break;
-        c[j] = c[k];
-        j = k;
+  const std::size_t n = P.size(), words = (n + 63) / 64;
+  int channels = 0;
+  P.for_each_channel([&](auto& channel) { channels += !channel.empty(); });
+  const int groups = std::max(1, std::min(channels, parallel::max_threads()));
+  reorder_done_.resize(std::size_t(groups) * words);
+  parallel::parallel_tasks(0, groups, [&](std::int64_t g) {
+    std::uint64_t* done = reorder_done_.data() + std::size_t(g) * words;
+    int k = 0;
+    P.for_each_channel([&](auto& channel) {
+      if (channel.empty() || k++ % groups != g) return;
+      std::fill(done, done + words, 0);
+      auto* c = channel.data();
+      for (std::size_t i = 0; i < n; ++i) {
+        if (done[i >> 6] >> (i & 63) & 1) continue;
+        if (order[i] == i) continue;  // a fixed point is never reached from another cycle
+        const auto first = c[i];
+        std::size_t j = i;
+        for (;;) {
+          done[j >> 6] |= std::uint64_t(1) << (j & 63);
+          const std::size_t next = order[j];
+          if (next == i) break;
+          c[j] = c[next];
+          j = next;
+        }
+        c[j] = first;
       }
-      c[j] = first;
-    }
-  };
-  P.for_each_channel(permute);
+    });
+  });
   bins_.reset_order();
 }
 
