@@ -572,7 +572,7 @@ void Simulation<T, Dim>::bin_particles_order() {
   const Vec origin = origin_;
   const transfer::PositionBases<Order, T, Dim> base_of{x, origin, inv_dx};
   const transfer::ChannelValues<std::uint16_t> material_of{material};
-  const transfer::ChannelValues<std::uint32_t> rank_of{id};
+  const transfer::ChannelValues<std::uint32_t, false> rank_of{id};
   // Few particles change blocks in a substep: the last substep's bins, updated (the same bins
   // and order as a full build, blocks.h), when that is cheaper.
   if (bins_.update(std::int64_t(particles_.size()), base_of, material_of, rank_of)) return;
@@ -731,33 +731,38 @@ void Simulation<T, Dim>::reorder_particles() {
   auto& P = particles_;
   const std::uint32_t* order = bins_.order();
   const std::size_t n = P.size(), words = (n + 63) / 64;
+  // One channel's walk, on values only (captures by value: the loop keeps them in registers).
+  auto walk = [order, n, words](auto* c, std::uint64_t* done) {
+    std::fill(done, done + words, 0);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (done[i >> 6] >> (i & 63) & 1) continue;
+      if (order[i] == i) continue;  // a fixed point is never reached from another cycle
+      const auto first = c[i];
+      std::size_t j = i;
+      for (;;) {
+        done[j >> 6] |= std::uint64_t(1) << (j & 63);
+        const std::size_t next = order[j];
+        if (next == i) break;
+        c[j] = c[next];
+        j = next;
+      }
+      c[j] = first;
+    }
+  };
   int channels = 0;
   P.for_each_channel([&](auto& channel) { channels += !channel.empty(); });
   const int groups = std::max(1, std::min(channels, parallel::max_threads()));
   reorder_done_.resize(std::size_t(groups) * words);
-  parallel::parallel_tasks(0, groups, [&](std::int64_t g) {
-    std::uint64_t* done = reorder_done_.data() + std::size_t(g) * words;
+  auto group = [&](int g) {
     int k = 0;
     P.for_each_channel([&](auto& channel) {
-      if (channel.empty() || k++ % groups != g) return;
-      std::fill(done, done + words, 0);
-      auto* c = channel.data();
-      for (std::size_t i = 0; i < n; ++i) {
-        if (done[i >> 6] >> (i & 63) & 1) continue;
-        if (order[i] == i) continue;  // a fixed point is never reached from another cycle
-        const auto first = c[i];
-        std::size_t j = i;
-        for (;;) {
-          done[j >> 6] |= std::uint64_t(1) << (j & 63);
-          const std::size_t next = order[j];
-          if (next == i) break;
-          c[j] = c[next];
-          j = next;
-        }
-        c[j] = first;
-      }
+      if (!channel.empty() && k++ % groups == g) walk(channel.data(), reorder_done_.data() + std::size_t(g) * words);
     });
-  });
+  };
+  if (groups == 1)
+    group(0);
+  else
+    parallel::parallel_tasks(0, groups, [&](std::int64_t g) { group(int(g)); });
   bins_.reset_order();
 }
 

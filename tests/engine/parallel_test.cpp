@@ -351,7 +351,7 @@ void check_vector_bin_check() {
   std::shuffle(rank.begin(), rank.end(), rng);
   const slurry::transfer::PositionBases<Order, float, 3> base_of{x.data(), origin, inv_dx};
   const slurry::transfer::ChannelValues<std::uint16_t> material_of{material.data()};
-  const slurry::transfer::ChannelValues<std::uint32_t> rank_of{rank.data()};
+  const slurry::transfer::ChannelValues<std::uint32_t, false> rank_of{rank.data()};
   Bins bins;
   bins.resize(IVec::Constant(cells));
   bins.build(n, base_of, material_of, 2);

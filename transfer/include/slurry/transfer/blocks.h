@@ -68,12 +68,17 @@ struct PositionBases {
     return b;
   }
 };
-/// A ParticleBins `material_of` or `rank_of`: a per-particle channel of unsigned integers, or 0
-/// for every particle when `values` is null.
-template <class U>
+/// A ParticleBins `material_of` or `rank_of`: a per-particle channel of unsigned integers; when
+/// Optional, 0 for every particle if `values` is null (a channel stored only when it varies).
+template <class U, bool Optional = true>
 struct ChannelValues {
   const U* values;
-  std::uint32_t operator()(std::int64_t p) const { return values ? std::uint32_t(values[p]) : 0u; }
+  std::uint32_t operator()(std::int64_t p) const {
+    if constexpr (Optional)
+      return values ? std::uint32_t(values[p]) : 0u;
+    else
+      return std::uint32_t(values[p]);
+  }
 };
 
 /// Particle indices sorted by the block of their stencil base node, and within a block by
@@ -491,7 +496,7 @@ class ParticleBins {
                    std::is_same_v<std::decay_t<BaseOf>, PositionBases<2, float, 3>> ||
                    std::is_same_v<std::decay_t<BaseOf>, PositionBases<3, float, 3>>) &&
       std::is_same_v<std::decay_t<MaterialOf>, ChannelValues<std::uint16_t>> &&
-      std::is_same_v<std::decay_t<RankOf>, ChannelValues<std::uint32_t>>;
+      std::is_same_v<std::decay_t<RankOf>, ChannelValues<std::uint32_t, false>>;
 #else
       false;
 #endif
@@ -507,7 +512,7 @@ class ParticleBins {
   template <int Order>
   bool still_in_place(const Bin& bin, std::int32_t k, const std::uint32_t* order,
                       const PositionBases<Order, float, 3>& bases, const ChannelValues<std::uint16_t>& material_of,
-                      const ChannelValues<std::uint32_t>& rank_of) const {
+                      const ChannelValues<std::uint32_t, false>& rank_of) const {
     const std::uint32_t* at = order + bin.begin;
     const std::int64_t len = std::int64_t(bin.end) - std::int64_t(bin.begin), first = at[0];
     {
