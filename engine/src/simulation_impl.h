@@ -726,8 +726,8 @@ void Simulation<T, Dim>::reorder_particles() {
   // The particles moved in a few substeps, so the cycles are short and local. Each walk is
   // serial, bound by memory latency; the channels are shared out between the threads, each
   // with a bitmap of its own (the parallel gather of one channel was slower on two threads than
-  // on one, RESULTS.md 2026-11-21). Channel k goes to thread k mod threads: in the order of
-  // for_each_channel that pairs x with F and v with C.
+  // on one, RESULTS.md 2026-11-21). Channel k goes to task k mod tasks, one task per thread: in
+  // the order of for_each_channel, two tasks pair x with F and v with C.
   auto& P = particles_;
   const std::uint32_t* order = bins_.order();
   const std::size_t n = P.size(), words = (n + 63) / 64;

@@ -336,7 +336,7 @@ void check_vector_bin_check() {
   const int cells = 24;  // 24^3 nodes: 6^3 blocks of 4^3
   const float inv_dx = 15.3f, dx = 1 / inv_dx;  // x inv_dx rounds: not a power of two
   const Vec origin(-0.3f, 0.1f, -0.05f);
-  const std::int64_t n = 6000;  // about 28 per block: full chunks of 8 and tails
+  const std::int64_t n = 6000;  // about 100 per block over 2 materials: full chunks of 8 and tails
   std::vector<Vec> x(static_cast<std::size_t>(n));
   std::vector<std::uint16_t> material(static_cast<std::size_t>(n));
   std::vector<std::uint32_t> rank(static_cast<std::size_t>(n));

@@ -508,13 +508,16 @@ class ParticleBins {
   /// and the per-particle check decides. The bases are BSpline<Order>::base((x - origin)
   /// inv_dx) as PositionBases computes them, with the roundings GCC gives that expression when
   /// FMA is available: x - origin rounded, then the product and the quadratic kernel's -1/2 in
-  /// one fused multiply-add (tests/transfer: BlocksTest.VectorCheckMatchesScalarBases).
+  /// one fused multiply-add (tests/engine/parallel_test.cpp:
+  /// ParticleBins.VectorBinCheckMatchesThePerParticleOne).
   template <int Order>
   bool still_in_place(const Bin& bin, std::int32_t k, const std::uint32_t* order,
                       const PositionBases<Order, float, 3>& bases, const ChannelValues<std::uint16_t>& material_of,
                       const ChannelValues<std::uint32_t, false>& rank_of) const {
     const std::uint32_t* at = order + bin.begin;
     const std::int64_t len = std::int64_t(bin.end) - std::int64_t(bin.begin), first = at[0];
+    // The last index in 64 bits: then the 32-bit comparisons below cannot wrap.
+    if (std::int64_t(at[len - 1]) != first + len - 1) return false;
     {
       // at[j] == first + j for every j.
       const __m256i step = _mm256_set1_epi32(8);
