@@ -2,7 +2,8 @@
 /// \file sand_lanes.h
 /// The 3D sand phase of P2G (Simulation::project_and_stress) over SIMD lanes: for the particles
 /// order[begin, end) of one bin, the Drucker-Prager return mapping of Klar et al. 2016 and the
-/// Kirchhoff stress from its own SVD, through the batched DruckerPrager::project_with_stress
+/// Kirchhoff stress from its own factorisation (the eigenvectors of Fe Fe^T, or the SVD where
+/// those are not accurate), through the batched DruckerPrager::project_with_stress
 /// (plasticity.h, svd_lanes.h), W = lanes::kWidth<T> particles at a time.
 ///
 /// It has a translation unit of its own (sand_lanes.cpp): instantiated inside

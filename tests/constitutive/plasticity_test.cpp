@@ -422,7 +422,9 @@ TEST(Plasticity, FloatInstantiation) {
 // every lane, Fe, state and tau to round-off (relative 1e-11 in double; 2e-5 in float, where
 // the logs and exps of the Hencky strain each add an ulp or so), Fe bitwise unchanged where
 // nothing yielded, and each lane's bits independent of its position and neighbours (the batch
-// reversed gives the same bits).
+// reversed gives the same bits). Lanes that the eigenvectors of Fe Fe^T may not serve (det Fe
+// < 0, sigma_min^2 < kLeftEigenRatio sigma_max^2, a floored sigma) must carry exactly the bits
+// of the full-SVD path, project_with_stress_svd, run on the same batch.
 template <class T>
 void check_drucker_prager_lanes(double tol) {
   constexpr int W = sc::lanes::kWidth<T>;
@@ -432,22 +434,36 @@ void check_drucker_prager_lanes(double tol) {
   std::uniform_real_distribution<double> u(-0.3, 0.3);
   std::uniform_real_distribution<double> st(0, 1);
   int counts[3] = {0, 0, 0};  // inside, cone, tip
+  int svd_lanes = 0;
   for (int batch = 0; batch < 3000 / W; ++batch) {
     sc::lanes::Mat3<T, W> F, F_rev, tau, tau_rev;
     sc::lanes::Lane<T, W> state, state_rev;
     std::vector<M> F0(W);
+    bool svd_lane[W];
     for (int l = 0; l < W; ++l) {
       const int k = batch * W + l;
       Eigen::Vector3d eps;
       for (int i = 0; i < 3; ++i) eps(i) = u(rng);
       if (k % 100 == 0) eps(2) = std::log(1e-6);           // floored
+      if (k % 100 == 50) eps(1) = std::log(0.01);          // sigma_min / sigma_max ~ 1e-2
       if (k % 7 == 0) eps.array() = eps.sum() / 3 - 0.01;  // pure compression: inside
-      F0[std::size_t(l)] = with_singular_values<3>(eps.array().exp().matrix(), rng).template cast<T>();
+      Eigen::Vector3d sv = eps.array().exp().matrix();
+      svd_lane[l] = sv.minCoeff() < 2 * double(dp.min_singular_value) ||
+                    sv.minCoeff() * sv.minCoeff() < double(sc::DruckerPrager<T>::kLeftEigenRatio) * sv.maxCoeff() * sv.maxCoeff();
+      if (k % 100 == 30 && k % 7 != 0) {  // inverted (not the isotropic case: which axis gets
+                                           // the sign, and so the floor, is arbitrary there)
+        sv(2) = -sv(2);
+        svd_lane[l] = true;
+      }
+      F0[std::size_t(l)] = with_singular_values<3>(sv, rng).template cast<T>();
       F.put(l, F0[std::size_t(l)]);
       F_rev.put(W - 1 - l, F0[std::size_t(l)]);
       state[l] = state_rev[W - 1 - l] = T(st(rng));
     }
     const sc::lanes::Lane<T, W> state0 = state;
+    sc::lanes::Mat3<T, W> F_svd = F, tau_svd;
+    sc::lanes::Lane<T, W> state_svd = state;
+    const auto yielded_svd = dp.project_with_stress_svd(F_svd, state_svd, T(kMu), T(kLambda), tau_svd);
     const auto yielded = dp.project_with_stress(F, state, T(kMu), T(kLambda), tau);
     const auto yielded_rev = dp.project_with_stress(F_rev, state_rev, T(kMu), T(kLambda), tau_rev);
     for (int l = 0; l < W; ++l) {
@@ -469,6 +485,13 @@ void check_drucker_prager_lanes(double tol) {
       EXPECT_EQ(taul, tau_rev.get(W - 1 - l));
       EXPECT_EQ(state[l], state_rev[W - 1 - l]);
       EXPECT_EQ(yielded.bits[l] != T(0), yielded_rev.bits[W - 1 - l] != T(0));
+      if (svd_lane[l]) {
+        ++svd_lanes;
+        EXPECT_EQ(Fl, F_svd.get(l)) << "lane " << l << " of batch " << batch << ": not the SVD path's bits";
+        EXPECT_EQ(taul, tau_svd.get(l));
+        EXPECT_EQ(state[l], state_svd[l]);
+        EXPECT_EQ(yl, yielded_svd.bits[l] != T(0));
+      }
       ++counts[!ys ? 0 : (tau_s.norm() == 0 ? 2 : 1)];
     }
     if (::testing::Test::HasFailure()) return;
@@ -476,6 +499,7 @@ void check_drucker_prager_lanes(double tol) {
   EXPECT_GT(counts[0], 300);
   EXPECT_GT(counts[1], 300);
   EXPECT_GT(counts[2], 300);
+  EXPECT_GT(svd_lanes, 60);  // about 3 in 100
 }
 TEST(DruckerPragerLanes, AgreesWithTheScalarProjectionDouble) { check_drucker_prager_lanes<double>(1e-11); }
 TEST(DruckerPragerLanes, AgreesWithTheScalarProjectionFloat) { check_drucker_prager_lanes<float>(2e-5); }

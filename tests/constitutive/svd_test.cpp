@@ -5,7 +5,9 @@
 
 #include <Eigen/Geometry>
 #include <Eigen/SVD>
+#include <algorithm>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <random>
 #include <vector>
@@ -421,6 +423,60 @@ TEST(PolarRotation, DegenerateReflection2D) {
     }
   }
 }
+// svd_lanes.h's left_eigen, the factorisation of the batched sand projection: F F^T =
+// U diag(lambda) U^T with M = U^T F, on the inputs that projection gives it (det F > 0,
+// sigma_min^2 >= 1e-3 sigma_max^2): near rotations with repeated singular values, random
+// stretches, and the extreme ratio. Checked against the singular values of the double F:
+// U a rotation and F = U M to c eps; lambda_i = sigma_i^2 to c eps sigma_max sigma_i (its stated
+// accuracy: relative eps sigma_max / sigma_i); the rows of M orthogonal to c eps sigma_max^2
+// (U diagonalises F F^T); c = 16. Each lane alone in a batch of others, as in check_svd.
+template <class T>
+void check_left_eigen() {
+  namespace lanes = slurry::constitutive::lanes;
+  constexpr int W = lanes::kWidth<T>;
+  constexpr double c = 16 * double(std::numeric_limits<T>::epsilon());
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> u(-1, 1);
+  std::vector<Eigen::Matrix3d> inputs;
+  for (double spread : {0.0, 1e-6, 1e-3, 0.3}) {
+    for (int k = 0; k < 40 * W; ++k) {
+      Eigen::Vector3d s;
+      for (int i = 0; i < 3; ++i) s(i) = 1 + spread * u(rng);
+      if (k % 5 == 0) s(1) = s(0);  // exactly repeated
+      inputs.push_back(with_singular_values<3>(s, rng));
+    }
+  }
+  for (int k = 0; k < 40 * W; ++k) {
+    Eigen::Vector3d s(1, std::pow(10.0, -0.75 * (1 + u(rng))), std::sqrt(1e-3));  // down to the threshold
+    inputs.push_back(std::exp(u(rng)) * with_singular_values<3>(s, rng));
+  }
+  for (std::size_t b0 = 0; b0 < inputs.size(); b0 += W) {
+    lanes::Mat3<T, W> F, U, M;
+    lanes::Vec3<T, W> lam;
+    for (int l = 0; l < W; ++l) F.put(l, inputs[b0 + std::size_t(l)].template cast<T>());
+    lanes::left_eigen(F, U, lam, M);
+    for (int l = 0; l < W; ++l) {
+      const Eigen::Matrix3d Fd = F.get(l).template cast<double>();  // the rounded input
+      const Eigen::Matrix3d Ud = U.get(l).template cast<double>(), Md = M.get(l).template cast<double>();
+      Eigen::Vector3d sigma = Eigen::JacobiSVD<Eigen::Matrix3d>(Fd).singularValues();  // decreasing
+      Eigen::Vector3d got(double(lam.c[0][l]), double(lam.c[1][l]), double(lam.c[2][l]));
+      std::sort(got.data(), got.data() + 3, std::greater<double>());
+      const double smax = sigma(0);
+      EXPECT_LT((Ud.transpose() * Ud - Eigen::Matrix3d::Identity()).norm(), c) << Fd;
+      EXPECT_GT(Ud.determinant(), 0);
+      EXPECT_LT((Ud * Md - Fd).norm(), c * Fd.norm()) << Fd;
+      for (int i = 0; i < 3; ++i) {
+        EXPECT_NEAR(got(i), sigma(i) * sigma(i), c * smax * sigma(i)) << "sigma_" << i << " of\n" << Fd;
+        EXPECT_NEAR(double(lam.c[i][l]), Md.row(i).squaredNorm(), c * smax * smax);
+        for (int j = i + 1; j < 3; ++j) EXPECT_LT(std::abs(Md.row(i).dot(Md.row(j))), c * smax * smax) << Fd;
+      }
+      if (::testing::Test::HasFailure()) return;
+    }
+  }
+}
+TEST(LeftEigenLanes, DiagonalisesFFtFloat) { check_left_eigen<float>(); }
+TEST(LeftEigenLanes, DiagonalisesFFtDouble) { check_left_eigen<double>(); }
+
 }  // namespace
 
 // Regression: the 3D sand example (sand_column_3d) blew up because the 3x3 SVD returned NaN

@@ -5,7 +5,8 @@
 /// the yield surface, updating one scalar of plastic state per particle. Each returns whether the
 /// particle yielded. All use the rotation-variant SVD of svd.h; the projection only changes the
 /// singular values, so U and V (the rotations) are kept. DruckerPrager also projects 16 float (8
-/// double) 3x3 Fe at once over SIMD lanes, on the batched SVD of svd_lanes.h.
+/// double) 3x3 Fe at once over SIMD lanes, on the eigenvectors of Fe Fe^T (svd_lanes.h's
+/// left_eigen; V is never formed) or, where those are not accurate, the batched SVD.
 ///
 /// - SnowPlasticity: singular value clamping of Stomakhin et al. 2013.
 /// - DruckerPrager: cohesionless Drucker-Prager in Hencky strain, Klar et al. 2016.
@@ -246,15 +247,24 @@ struct DruckerPrager {
     return project_impl<Dim>(Fe, state, mu, lambda, &tau);
   }
 
-  /// project_with_stress() for W 3x3 matrices at once, one per SIMD lane (lanes.h): the same
-  /// return mapping on the batched SVD of svd_lanes.h, with packet log and exp. Results agree
-  /// with the scalar project_with_stress() to round-off, not bitwise; each lane depends only on
-  /// its own Fe and state. Fe is left bitwise unchanged in the lanes that do not yield. Returns
-  /// the lanes that yielded (the scalar function's return value, per lane).
+  /// project_with_stress() for W 3x3 matrices at once, one per SIMD lane (lanes.h), with packet
+  /// log and exp. Results agree with the scalar project_with_stress() to round-off, not bitwise;
+  /// each lane depends only on its own Fe and state. Fe is left bitwise unchanged in the lanes
+  /// that do not yield. Returns the lanes that yielded (the scalar function's return value, per
+  /// lane).
+  ///
+  /// Two factorisations, chosen per lane:
+  /// - where det Fe > 0 and sigma_min^2 >= kLeftEigenRatio sigma_max^2 and sigma_min >
+  ///   2 min_singular_value (no floor applies): U and sigma^2 from the eigenvectors of Fe Fe^T
+  ///   (svd_lanes.h's left_eigen, M = U^T Fe), with eps = log(sigma^2) / 2 and the projected
+  ///   Fe = U diag(e^e) V^T = U diag(e^(e - eps)) M, where e - eps = -(delta_gamma /
+  ///   ||eps^||) eps^ on the cone and -eps at the tip: no V and no division by sigma;
+  /// - elsewhere (inverted, nearly collapsed or floored lanes) the full SVD of svd_lanes.h, as
+  ///   project_with_stress_svd(); those lanes pay for both when a batch has one.
 #if defined(__GNUC__) && !defined(__clang__)
 // GCC 12 reports -Wuninitialized inside its AVX-512 intrinsics (the _mm512_undefined_ps()
 // pass-through of unmasked operations, GCC bug 105593) when Eigen's packet log and exp are
-// inlined here: a false positive, silenced for this function.
+// inlined here: a false positive, silenced for these functions.
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wuninitialized"
 #endif
@@ -263,50 +273,78 @@ struct DruckerPrager {
                                         lanes::Mat3<T, W>& tau) const {
     using L = lanes::Lane<T, W>;
     using lanes::select;
+    lanes::Mat3<T, W> U, M, F_new;
+    lanes::Vec3<T, W> lam;
+    lanes::left_eigen(Fe, U, lam, M);
+    const L det = Fe.a[0][0] * (Fe.a[1][1] * Fe.a[2][2] - Fe.a[1][2] * Fe.a[2][1]) -
+                  Fe.a[0][1] * (Fe.a[1][0] * Fe.a[2][2] - Fe.a[1][2] * Fe.a[2][0]) +
+                  Fe.a[0][2] * (Fe.a[1][0] * Fe.a[2][1] - Fe.a[1][1] * Fe.a[2][0]);
+    const L lmax = lam.c[0].max(lam.c[1]).max(lam.c[2]), lmin = lam.c[0].min(lam.c[1]).min(lam.c[2]);
+    // NaN anywhere fails the tests and goes to the SVD as before.
+    const lanes::Mask<T, W> eigen = lanes::gt(det, T(0)) & lanes::ge(lmin, L(kLeftEigenRatio * lmax)) &
+                                    lanes::gt(lmin, T(4) * min_singular_value * min_singular_value);
+    L eps[3];
+    for (int i = 0; i < 3; ++i) eps[i] = T(0.5) * lam.c[i].log();
+    L state_new = state;
+    const LanesReturn<W> r = return_lanes<W>(eps, state_new, mu, lambda);
+    sandwich<W>(U, r.k, tau);
+    L y[3];
+    for (int i = 0; i < 3; ++i) y[i] = L(select(r.tip, L(-eps[i]), L(-r.scale * r.eps_hat[i]))).exp();
+    lanes::Mask<T, W> yielded = ~r.inside;
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j)
+        F_new.a[i][j] = select(yielded,
+                               L(U.a[i][0] * y[0] * M.a[0][j] + U.a[i][1] * y[1] * M.a[1][j] + U.a[i][2] * y[2] * M.a[2][j]),
+                               Fe.a[i][j]);
+    if (lanes::any(~eigen)) {
+      lanes::Mat3<T, W> tau_svd;
+      L state_svd = state;
+      const lanes::Mask<T, W> yielded_svd = project_with_stress_svd<W>(Fe, state_svd, mu, lambda, tau_svd);
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) {
+          F_new.a[i][j] = select(eigen, F_new.a[i][j], Fe.a[i][j]);
+          tau.a[i][j] = select(eigen, tau.a[i][j], tau_svd.a[i][j]);
+        }
+      state_new = select(eigen, state_new, state_svd);
+      yielded = (eigen & yielded) | (~eigen & yielded_svd);
+    }
+    Fe = F_new;
+    state = state_new;
+    return yielded;
+  }
+
+  /// The lanes form of project_with_stress() on the full SVD of svd_lanes.h for every lane (the
+  /// fallback of the function above; kept callable for tests and benchmarks).
+  template <int W>
+  lanes::Mask<T, W> project_with_stress_svd(lanes::Mat3<T, W>& Fe, lanes::Lane<T, W>& state, T mu, T lambda,
+                                            lanes::Mat3<T, W>& tau) const {
+    using L = lanes::Lane<T, W>;
+    using lanes::select;
     lanes::Mat3<T, W> U, V;
     lanes::Vec3<T, W> sigma;
     lanes::svd(Fe, U, sigma, V);
     L eps[3];
     for (int i = 0; i < 3; ++i) eps[i] = select(lanes::lt(sigma.c[i], min_singular_value), min_singular_value, sigma.c[i]).log();
-    const L tr = eps[0] + eps[1] + eps[2];
-    L eps_hat[3];
-    for (int i = 0; i < 3; ++i) eps_hat[i] = eps[i] - tr / T(3);
-    const L eps_hat_norm = lanes::sqrt(L(eps_hat[0] * eps_hat[0] + eps_hat[1] * eps_hat[1] + eps_hat[2] * eps_hat[2]));
-    const L delta_gamma = eps_hat_norm + (T(3) * lambda + T(2) * mu) / (T(2) * mu) * tr * alpha();
-    const lanes::Mask<T, W> inside = lanes::le(delta_gamma, T(0));
-    const lanes::Mask<T, W> tip = ~inside & (lanes::gt(tr, T(0)) | ~lanes::gt(eps_hat_norm, T(0)));
-    const lanes::Mask<T, W> cone = ~inside & ~tip;
-    const lanes::Mask<T, W> yielded = ~inside | lanes::lt(sigma.c[2], min_singular_value);
-    // Onto the cone (eps - 0 eps^ = eps bitwise in the other lanes); the tip's strain is 0.
-    const L scale = select(cone, L(delta_gamma / eps_hat_norm), T(0));
-    L e[3];
-    for (int i = 0; i < 3; ++i) e[i] = eps[i] - scale * eps_hat[i];
-    const L eps_norm = lanes::sqrt(L(eps[0] * eps[0] + eps[1] * eps[1] + eps[2] * eps[2]));
-    state += select(tip, eps_norm, select(cone, delta_gamma, T(0)));
-    // tau = U diag(2 mu e + lambda tr(e)) U^T, 0 at the tip; Fe = U diag(exp e) V^T, U V^T at
-    // the tip, where it yielded.
-    const L tr_e = e[0] + e[1] + e[2];
-    L k[3], x[3];
-    for (int i = 0; i < 3; ++i) {
-      k[i] = select(tip, T(0), L(T(2) * mu * e[i] + lambda * tr_e));
-      x[i] = select(tip, T(1), L(e[i].exp()));
-    }
-    for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j) {
-        if (j >= i)
-          tau.a[i][j] = U.a[i][0] * k[0] * U.a[j][0] + U.a[i][1] * k[1] * U.a[j][1] + U.a[i][2] * k[2] * U.a[j][2];
-        else
-          tau.a[i][j] = tau.a[j][i];
+    const LanesReturn<W> r = return_lanes<W>(eps, state, mu, lambda);
+    sandwich<W>(U, r.k, tau);
+    const lanes::Mask<T, W> yielded = ~r.inside | lanes::lt(sigma.c[2], min_singular_value);
+    // Fe = U diag(exp e) V^T, U V^T at the tip, where it yielded.
+    L x[3];
+    for (int i = 0; i < 3; ++i) x[i] = select(r.tip, T(1), L(r.e[i].exp()));
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j)
         Fe.a[i][j] = select(yielded,
                             L(U.a[i][0] * x[0] * V.a[j][0] + U.a[i][1] * x[1] * V.a[j][1] + U.a[i][2] * x[2] * V.a[j][2]),
                             Fe.a[i][j]);
-      }
-    }
     return yielded;
   }
 #if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC diagnostic pop
 #endif
+
+  /// The batched paths use left_eigen() where sigma_min^2 >= kLeftEigenRatio sigma_max^2: there
+  /// its eigenvalues' relative error, about eps sigma_max / sigma_min, stays below 32 eps.
+  static constexpr T kLeftEigenRatio = T(1e-3);
 
   /// y(tau) = ||dev tau||_F + alpha tr(tau) for principal Kirchhoff stresses tau; <= 0 inside.
   template <int Dim>
@@ -324,6 +362,46 @@ struct DruckerPrager {
   }
 
  private:
+  /// The return mapping of project() on W lanes of principal Hencky strains eps: the projected
+  /// strain e = eps - scale eps^ (scale 0 off the cone), the principal Kirchhoff stresses k of e
+  /// (0 at the tip), and state advanced; shared by both batched paths.
+  template <int W>
+  struct LanesReturn {
+    lanes::Lane<T, W> eps_hat[3], e[3], k[3], scale;
+    lanes::Mask<T, W> inside, tip;
+  };
+  template <int W>
+  LanesReturn<W> return_lanes(const lanes::Lane<T, W> (&eps)[3], lanes::Lane<T, W>& state, T mu, T lambda) const {
+    using L = lanes::Lane<T, W>;
+    using lanes::select;
+    LanesReturn<W> r;
+    const L tr = eps[0] + eps[1] + eps[2];
+    for (int i = 0; i < 3; ++i) r.eps_hat[i] = eps[i] - tr / T(3);
+    const L eps_hat_norm =
+        lanes::sqrt(L(r.eps_hat[0] * r.eps_hat[0] + r.eps_hat[1] * r.eps_hat[1] + r.eps_hat[2] * r.eps_hat[2]));
+    const L delta_gamma = eps_hat_norm + (T(3) * lambda + T(2) * mu) / (T(2) * mu) * tr * alpha();
+    r.inside = lanes::le(delta_gamma, T(0));
+    r.tip = ~r.inside & (lanes::gt(tr, T(0)) | ~lanes::gt(eps_hat_norm, T(0)));
+    const lanes::Mask<T, W> cone = ~r.inside & ~r.tip;
+    // Onto the cone (eps - 0 eps^ = eps bitwise in the other lanes); the tip's strain is 0.
+    r.scale = select(cone, L(delta_gamma / eps_hat_norm), T(0));
+    for (int i = 0; i < 3; ++i) r.e[i] = eps[i] - r.scale * r.eps_hat[i];
+    const L eps_norm = lanes::sqrt(L(eps[0] * eps[0] + eps[1] * eps[1] + eps[2] * eps[2]));
+    state += select(r.tip, eps_norm, select(cone, delta_gamma, T(0)));
+    const L tr_e = r.e[0] + r.e[1] + r.e[2];
+    for (int i = 0; i < 3; ++i) r.k[i] = select(r.tip, T(0), L(T(2) * mu * r.e[i] + lambda * tr_e));
+    return r;
+  }
+  /// tau = U diag(k) U^T per lane.
+  template <int W>
+  static void sandwich(const lanes::Mat3<T, W>& U, const lanes::Lane<T, W> (&k)[3], lanes::Mat3<T, W>& tau) {
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j)
+        tau.a[i][j] = j >= i ? lanes::Lane<T, W>(U.a[i][0] * k[0] * U.a[j][0] + U.a[i][1] * k[1] * U.a[j][1] +
+                                                 U.a[i][2] * k[2] * U.a[j][2])
+                             : tau.a[j][i];
+  }
+
   template <int Dim>
   bool project_impl(Eigen::Matrix<T, Dim, Dim>& Fe, T& state, T mu, T lambda, Eigen::Matrix<T, Dim, Dim>* tau) const {
     using Vec = Eigen::Matrix<T, Dim, 1>;

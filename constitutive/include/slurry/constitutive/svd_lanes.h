@@ -18,8 +18,11 @@
 /// then falls to 8e-6, 5e-11 and 2e-16 (f'' / 2f' < 1 on the interval), so 2 steps suffice
 /// for float and 3 for double. Results agree with svd() to round-off, not bitwise.
 ///
-/// Accuracy (tests/constitutive/svd_lanes_test.cpp): the same bounds as svd.h, on the same
-/// hard inputs (singular, rank 1, inverted, repeated singular values, zero).
+/// Accuracy (tests/constitutive/svd_test.cpp, the cases with lanes = true): the same bounds as
+/// svd.h, on the same hard inputs (singular, rank 1, inverted, repeated singular values, zero).
+///
+/// Also left_eigen(): U and the squared singular values alone, from the eigenvectors of F F^T,
+/// for the batched Drucker-Prager return mapping (plasticity.h), which needs no V.
 #include <Eigen/Core>
 
 #include <limits>
@@ -289,6 +292,30 @@ inline void svd(const Mat3<T, W>& F, Mat3<T, W>& U, Vec3<T, W>& sigma, Mat3<T, W
   for (int i = 0; i < 3; ++i) {
     sigma.c[i] = select(nonzero, sigma.c[i], T(0));
     for (int j = 0; j < 3; ++j) U.a[i][j] = select(nonzero, U.a[i][j], T(i == j));
+  }
+}
+
+/// The eigen-decomposition of the left Cauchy-Green tensor b = F F^T = U diag(lambda) U^T of W
+/// 3x3 matrices, for the return mappings that need U and the squared singular values but not V
+/// (plasticity.h's batched Drucker-Prager): U is svd()'s U up to the order and signs of its
+/// columns (a rotation, eigenvectors by decreasing eigenvalue as sym_eigen3 orders them),
+/// M = U^T F (so F = U M, and row i of M is sigma_i v_i^T), and lambda_i = |row i of M|^2 =
+/// sigma_i^2 >= 0 (a Rayleigh quotient: an error delta in u_i changes it by delta^2 only).
+///
+/// Cheaper than svd() (no F V, column swaps, QR or 2x2 clean-up), but b's eigenvalues are only
+/// accurate to about eps sigma_max / sigma_i relative (the rows of M are rounded at the scale of
+/// F), and F's sign (det F < 0) is lost: callers take this path where det F > 0 and
+/// sigma_min / sigma_max is not small, and svd() elsewhere.
+template <class T, int W>
+inline void left_eigen(const Mat3<T, W>& F, Mat3<T, W>& U, Vec3<T, W>& lambda, Mat3<T, W>& M) {
+  using V3 = Vec3<T, W>;
+  using detail::dot;
+  const V3 r0{{F.a[0][0], F.a[0][1], F.a[0][2]}}, r1{{F.a[1][0], F.a[1][1], F.a[1][2]}},
+      r2{{F.a[2][0], F.a[2][1], F.a[2][2]}};
+  U = detail::sym_eigen3<T, W>(dot(r0, r0), dot(r1, r1), dot(r2, r2), dot(r0, r1), dot(r0, r2), dot(r1, r2));
+  for (int k = 0; k < 3; ++k) {
+    for (int j = 0; j < 3; ++j) M.a[k][j] = U.a[0][k] * F.a[0][j] + U.a[1][k] * F.a[1][j] + U.a[2][k] * F.a[2][j];
+    lambda.c[k] = M.a[k][0] * M.a[k][0] + M.a[k][1] * M.a[k][1] + M.a[k][2] * M.a[k][2];
   }
 }
 
