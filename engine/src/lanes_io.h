@@ -4,6 +4,10 @@
 /// W matrices in a[i][j]) and back, for the batched stress of P2G (corotated_lanes.cpp,
 /// sand_lanes.cpp). In float, four matrices at a time: one 4x4 transpose per 4 entries
 /// (column-major, entry e is (e % Dim, e / Dim)), the ninth entry of a 3x3 gathered by itself.
+/// Also load8_3x3 and store8_3x3, eight 3x3 float matrices to and from registers by 8x8
+/// transposes, for G2P's queued deformation update (deformation_lanes.cpp). Used for the
+/// stress's lanes too (one 16-lane store per entry), they measured no faster: those loads wait
+/// on memory, not on forwarding.
 /// Copied one scalar at a time, a batch's lanes were read back as vectors before the scalar
 /// stores had landed (store-to-load forwarding stalls: a third of the 3D stress time). The values
 /// are the same either way.
@@ -31,6 +35,49 @@ template <int Dim, class MatL>
 inline auto* entry_lanes(MatL& L, int e) {
   return L.a[e % Dim][e / Dim].data();
 }
+
+#if defined(__AVX__)
+/// r[k] <- column k of the 8x8 matrix whose rows are r[0..7].
+inline void transpose8(__m256* r) {
+  const __m256 t0 = _mm256_unpacklo_ps(r[0], r[1]), t1 = _mm256_unpackhi_ps(r[0], r[1]);
+  const __m256 t2 = _mm256_unpacklo_ps(r[2], r[3]), t3 = _mm256_unpackhi_ps(r[2], r[3]);
+  const __m256 t4 = _mm256_unpacklo_ps(r[4], r[5]), t5 = _mm256_unpackhi_ps(r[4], r[5]);
+  const __m256 t6 = _mm256_unpacklo_ps(r[6], r[7]), t7 = _mm256_unpackhi_ps(r[6], r[7]);
+  const __m256 s0 = _mm256_shuffle_ps(t0, t2, _MM_SHUFFLE(1, 0, 1, 0));
+  const __m256 s1 = _mm256_shuffle_ps(t0, t2, _MM_SHUFFLE(3, 2, 3, 2));
+  const __m256 s2 = _mm256_shuffle_ps(t1, t3, _MM_SHUFFLE(1, 0, 1, 0));
+  const __m256 s3 = _mm256_shuffle_ps(t1, t3, _MM_SHUFFLE(3, 2, 3, 2));
+  const __m256 s4 = _mm256_shuffle_ps(t4, t6, _MM_SHUFFLE(1, 0, 1, 0));
+  const __m256 s5 = _mm256_shuffle_ps(t4, t6, _MM_SHUFFLE(3, 2, 3, 2));
+  const __m256 s6 = _mm256_shuffle_ps(t5, t7, _MM_SHUFFLE(1, 0, 1, 0));
+  const __m256 s7 = _mm256_shuffle_ps(t5, t7, _MM_SHUFFLE(3, 2, 3, 2));
+  r[0] = _mm256_permute2f128_ps(s0, s4, 0x20);
+  r[1] = _mm256_permute2f128_ps(s1, s5, 0x20);
+  r[2] = _mm256_permute2f128_ps(s2, s6, 0x20);
+  r[3] = _mm256_permute2f128_ps(s3, s7, 0x20);
+  r[4] = _mm256_permute2f128_ps(s0, s4, 0x31);
+  r[5] = _mm256_permute2f128_ps(s1, s5, 0x31);
+  r[6] = _mm256_permute2f128_ps(s2, s6, 0x31);
+  r[7] = _mm256_permute2f128_ps(s3, s7, 0x31);
+}
+/// e[k] <- entry k (column-major) of the 3x3 float matrices m[0..7], in registers: entries 0-7
+/// by one 8x8 transpose of 32-byte loads (within each 36-byte matrix), entry 8 gathered.
+inline void load8_3x3(const float* const* m, __m256* e) {
+  for (int k = 0; k < 8; ++k) e[k] = _mm256_loadu_ps(m[k]);
+  transpose8(e);
+  e[8] = _mm256_setr_ps(m[0][8], m[1][8], m[2][8], m[3][8], m[4][8], m[5][8], m[6][8], m[7][8]);
+}
+/// The inverse of load8_3x3 for the first count matrices (e is overwritten).
+inline void store8_3x3(__m256* e, float* const* m, int count) {
+  alignas(32) float last[8];
+  _mm256_store_ps(last, e[8]);
+  transpose8(e);
+  for (int k = 0; k < count; ++k) {
+    _mm256_storeu_ps(m[k], e[k]);
+    m[k][8] = last[k];
+  }
+}
+#endif
 
 /// Lane k of L <- *src(k), k < W (src(k) a pointer to a Dim x Dim matrix).
 template <int Dim, class MatL, class Src>

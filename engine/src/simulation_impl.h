@@ -14,6 +14,7 @@
 #include <unordered_map>
 
 #include "corotated_lanes.h"
+#include "deformation_lanes.h"
 #include "domain_split.h"
 #include "frame_builder.h"
 #include "geometry/scene_meshes.h"
@@ -940,10 +941,7 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
   const bool split = bool(split_);
   const int axis = split ? split_->axis : 0, own_lo = split ? split_->lo : 0, own_hi = split ? split_->hi : 0;
   // F <- (I + dt grad v) F for solids, J <- det(I + dt grad v) J for fluids.
-  auto solid_state = [=](std::int64_t p, const Mat& gv) {
-    const Mat A = Mat::Identity() + dt * gv;
-    F[p] = A * F[p];
-  };
+  const detail::SolidStateUpdate<T, Dim> solid_state{F, dt};
   auto fluid_state = [=](std::int64_t p, const Mat& gv) { J[p] *= (Mat::Identity() + dt * gv).determinant(); };
   auto gather = [&](auto scheme) {
     constexpr Scheme S = decltype(scheme)::value;

@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "deformation_lanes.h"
 #include "determinism_scene.h"
 #include "slurry/engine/ply.h"
 #include "slurry/engine/simulation.h"
@@ -23,6 +24,7 @@
 #include "slurry/transfer/grid.h"
 #include "slurry/transfer/parallel.h"
 #include "slurry/transfer/sparse_grid.h"
+#include "slurry/transfer/transfers.h"
 
 namespace {
 
@@ -471,6 +473,42 @@ void check_vector_bin_check() {
     std::swap(rank[other.begin + 2], rank[other.begin + 10]);
     EXPECT_FALSE(check("two ranks swapped"));
   }
+}
+
+// G2P's queued deformation update (deformation_lanes.h: 8 particles at a time in AVX2 lanes)
+// must give the bits of its one-particle form, called as the gather calls it (out of line), on
+// queues of 16 and a short last one, with exact zeros of both signs among the gradients and
+// identity-like F (zeros whose sign the roundings decide). Swapping the order of the fused
+// multiply-adds, or rounding dt g and the identity separately, changes bits here.
+TEST(SolidStateUpdate, QueuedLanesMatchTheOneParticleFormBitwise) {
+  using Update = slurry::detail::SolidStateUpdate<float, 3>;
+  if constexpr (!Update::kBatched) GTEST_SKIP() << "no AVX2/FMA lanes in this build";
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(-1, 1);
+  constexpr int n = 1000;
+  std::vector<Eigen::Matrix3f> F(n), G(n);
+  std::vector<std::int64_t> ids(n);
+  for (int i = 0; i < n; ++i) {
+    ids[std::size_t(i)] = i;
+    F[std::size_t(i)] = Eigen::Matrix3f::Identity();
+    if (i % 3 != 0)
+      for (int e = 0; e < 9; ++e) F[std::size_t(i)](e) += 0.3f * u(rng);
+    for (int e = 0; e < 9; ++e) G[std::size_t(i)](e) = 40 * u(rng);
+    if (i % 5 == 0) G[std::size_t(i)](1) = 0.0f;
+    if (i % 7 == 0) G[std::size_t(i)](3) = -0.0f;
+  }
+  std::shuffle(ids.begin(), ids.end(), rng);
+  std::vector<Eigen::Matrix3f> F_one = F;
+  const Update lanes{F.data(), 1e-3f}, one{F_one.data(), 1e-3f};
+  for (int j0 = 0; j0 < n; j0 += 16) {
+    const int q = std::min(16, n - j0);  // 62 queues of 16, then 8
+    lanes.batch(ids.data() + j0, G.data() + j0, q);
+    for (int j = j0; j < j0 + q; ++j) slurry::transfer::detail::call_out_of_line(one, ids[std::size_t(j)], G[std::size_t(j)]);
+  }
+  int differ = 0;
+  for (int i = 0; i < n; ++i) differ += std::memcmp(F[std::size_t(i)].data(), F_one[std::size_t(i)].data(), sizeof(Eigen::Matrix3f)) != 0;
+  EXPECT_EQ(differ, 0) << "of " << n << " particles";
+  EXPECT_NE(F[0], Eigen::Matrix3f::Identity());  // it did update
 }
 
 TEST(ParticleBins, VectorBinCheckMatchesThePerParticleOne) {

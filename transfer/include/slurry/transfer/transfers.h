@@ -113,6 +113,12 @@ inline Eigen::Matrix<T, 4, 1> fmadd(T a, const Eigen::Matrix<T, 4, 1>& b,
   r = a * b + c;
   return r;
 }
+/// Whether a gather's state functor Fn takes its queued updates at once: Fn::kBatched, with
+/// Fn::batch(const std::int64_t* ids, const Mat* grads, int n).
+template <class Fn, class = void>
+inline constexpr bool kBatchedState = false;
+template <class Fn>
+inline constexpr bool kBatchedState<Fn, std::void_t<decltype(Fn::kBatched)>> = Fn::kBatched;
 /// fn(p, m), called out of line (its code is then the same wherever it is called from).
 template <class Fn, class M>
 [[gnu::noinline]] void call_out_of_line(Fn& fn, std::int64_t p, const M& m) {
@@ -402,7 +408,8 @@ void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
 
 /// Gathers velocity (and C for APIC/MLS) back to particles ids[begin, end) (or [begin, end)
 /// when ids is null), advects them by dt * (PIC velocity), and calls `state(p, grad_v)` for the
-/// caller's deformation update. Reads the grid velocity from the node's first Dim entries and,
+/// caller's deformation update (where the updates are queued and the functor has
+/// `kBatched` true, `state.batch(ids, grads, n)` for a queue at once). Reads the grid velocity from the node's first Dim entries and,
 /// for FLIP, the pre-update velocity from `grid.old_velocity(k)`. Serial; each particle writes
 /// only itself, so callers run disjoint ranges in parallel. Returns the largest squared particle
 /// speed, or +infinity if any velocity is not finite or any particle left the box [x_lo, x_hi]
@@ -456,11 +463,15 @@ T gather_particles(const Grid& grid, Eigen::Matrix<T, Dim, 1>* x, Eigen::Matrix<
   Mat queued_grad[Q];
   int nq = 0;
   auto flush = [&] {
-    for (int j = 0; j < nq; ++j) {
-      if constexpr (Dim == 3)
-        detail::call_out_of_line(state, queued[j], queued_grad[j]);
-      else
-        state(queued[j], queued_grad[j]);
+    if constexpr (detail::kBatchedState<std::decay_t<StateFn>>) {
+      state.batch(queued, queued_grad, nq);
+    } else {
+      for (int j = 0; j < nq; ++j) {
+        if constexpr (Dim == 3)
+          detail::call_out_of_line(state, queued[j], queued_grad[j]);
+        else
+          state(queued[j], queued_grad[j]);
+      }
     }
     nq = 0;
   };
