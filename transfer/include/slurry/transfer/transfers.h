@@ -408,9 +408,10 @@ void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
 
 /// Gathers velocity (and C for APIC/MLS) back to particles ids[begin, end) (or [begin, end)
 /// when ids is null), advects them by dt * (PIC velocity), and calls `state(p, grad_v)` for the
-/// caller's deformation update (where the updates are queued and the functor has
-/// `kBatched` true, `state.batch(ids, grads, n)` for a queue at once). Reads the grid velocity from the node's first Dim entries and,
-/// for FLIP, the pre-update velocity from `grid.old_velocity(k)`. Serial; each particle writes
+/// caller's deformation update (where the updates are queued and the functor has `kBatched`
+/// true, `state.batch(ids, grads, n)` for a queue at once). Reads the grid velocity from the
+/// node's first Dim entries and, for FLIP, the pre-update velocity from `grid.old_velocity(k)`.
+/// Serial; each particle writes
 /// only itself, so callers run disjoint ranges in parallel. Returns the largest squared particle
 /// speed, or +infinity if any velocity is not finite or any particle left the box [x_lo, x_hi]
 /// (the caller then finds and names the particle).
