@@ -32,8 +32,8 @@ void deformation_update_lanes(float dt, Eigen::Matrix3f* F, const std::int64_t* 
     load8_3x3(gp, g);
     __m256 a[9], r[9];
     for (int e = 0; e < 9; ++e) a[e] = _mm256_fmadd_ps(vdt, g[e], e % 4 == 0 ? one : zero);  // diagonal: 0, 4, 8
-    // Entry (i, j) is e = i + 3 j. The inner pair's order as the one-particle form has it
-    // (deformation_lanes.h): entry (2, 2) multiplies k = 1 first, the others k = 2.
+    // Entry (i, j) is e = i + 3 j. The inner pair's order of deformation_lanes.h: entry (2, 2)
+    // multiplies k = 1 first, the others k = 2.
     for (int i = 0; i < 3; ++i)
       for (int j = 0; j < 3; ++j) {
         const int first = i == 2 && j == 2 ? 1 : 2, second = 3 - first;

@@ -6,25 +6,27 @@
 /// FMA), a queue of particles at once, 8 in AVX2 lanes, in a translation unit of its own
 /// (deformation_lanes.cpp, as sand_lanes.cpp).
 ///
-/// The queue form gives the one-particle form's bits. That one, Eigen's A = I + dt G and A F
-/// compiled by GCC with FMA contraction, rounds each entry of A once, fma(dt, g_ik, delta_ik),
-/// and each entry of A F as a_0 b_0 + (a_1 b_1 + a_2 b_2), the order in which Eigen sums a
-/// 3-term dot product, with each product fused into the add that takes it. Which product of the
-/// inner pair is rounded on its own differs by entry, as read from GCC 12's code for the
-/// one-particle form: its SLP vectoriser computes entries 0-7 (column-major) in one 8-wide
-/// vector as fma(A_i0, F_0j, fma(A_i1, F_1j, A_i2 F_2j)), and entry (2, 2) alone as
-/// fma(A_20, F_02, fma(A_22, F_22, A_21 F_12)). The lanes spell those operations out; tests/engine/parallel_test.cpp compares the two
-/// bitwise, and the example frames (`cmp`) are unchanged.
+/// Where it runs in lanes (float, 3D, FMA), both forms spell their roundings out, so that they
+/// agree bitwise whatever the compiler does (tests/engine/parallel_test.cpp compares them): each
+/// entry of A = I + dt G is one fused multiply-add, fma(dt, g_ik, delta_ik), and each entry of
+/// A F is a_0 b_0 + (a_1 b_1 + a_2 b_2) with each product fused into the add that takes it,
+///   entries (i, j) != (2, 2): fma(A_i0, F_0j, fma(A_i1, F_1j, A_i2 F_2j)),
+///   entry (2, 2):             fma(A_20, F_02, fma(A_22, F_22, A_21 F_12)).
+/// That is how GCC 12 compiled Eigen's A = I + dt G, A F before (read from its code: its SLP
+/// vectoriser took entries 0-7 in one 8-wide vector and the last alone, with the inner pair's
+/// operands in the other order), so frames are bitwise those of earlier builds. Elsewhere (2D,
+/// double, no FMA) the Eigen expression is used, as GCC compiles it.
 #include <Eigen/Core>
 
+#include <cmath>
 #include <cstdint>
 #include <type_traits>
 
 namespace slurry::detail {
 
-/// F[ids[j]] <- (I + dt G[j]) F[ids[j]] for j < n, with the roundings of SolidStateUpdate's
-/// one-particle form (file comment). Defined for AVX2 with FMA; elsewhere the one-particle form
-/// runs instead (SolidStateUpdate::kBatched is false).
+/// F[ids[j]] <- (I + dt G[j]) F[ids[j]] for j < n, with the roundings of the file comment.
+/// Defined for AVX2 with FMA; elsewhere the one-particle form runs instead
+/// (SolidStateUpdate::kBatched is false).
 void deformation_update_lanes(float dt, Eigen::Matrix3f* F, const std::int64_t* ids, const Eigen::Matrix3f* G, int n);
 
 /// The solid state update of G2P: F[p] <- (I + dt gv) F[p].
@@ -42,8 +44,21 @@ struct SolidStateUpdate {
 #endif
 
   void operator()(std::int64_t p, const Mat& gv) const {
-    const Mat A = Mat::Identity() + dt * gv;
-    F[p] = A * F[p];
+    if constexpr (kBatched) {
+      Mat A, R;
+      for (int i = 0; i < 3; ++i)
+        for (int k = 0; k < 3; ++k) A(i, k) = std::fma(dt, gv(i, k), T(i == k));
+      const Mat& f = F[p];
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) {
+          const int first = i == 2 && j == 2 ? 1 : 2, second = 3 - first;
+          R(i, j) = std::fma(A(i, 0), f(0, j), std::fma(A(i, second), f(second, j), A(i, first) * f(first, j)));
+        }
+      F[p] = R;
+    } else {
+      const Mat A = Mat::Identity() + dt * gv;
+      F[p] = A * F[p];
+    }
   }
   /// The update of particles ids[0, n) with gradients gv[0, n).
   void batch(const std::int64_t* ids, const Mat* gv, int n) const {
