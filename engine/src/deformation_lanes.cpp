@@ -11,9 +11,9 @@
 
 namespace slurry::detail {
 
+#if defined(__AVX2__) && defined(__FMA__)
 void deformation_update_lanes(float dt, Eigen::Matrix3f* F, const std::int64_t* ids, const Eigen::Matrix3f* G,
                               int n) {
-#if defined(__AVX2__) && defined(__FMA__)
   constexpr int W = 8;
   const __m256 vdt = _mm256_set1_ps(dt), one = _mm256_set1_ps(1.0f), zero = _mm256_setzero_ps();
   for (int j0 = 0; j0 < n; j0 += W) {
@@ -43,9 +43,7 @@ void deformation_update_lanes(float dt, Eigen::Matrix3f* F, const std::int64_t* 
       }
     store8_3x3(r, fp, count);
   }
-#else
-  for (int j = 0; j < n; ++j) F[ids[j]] = (Eigen::Matrix3f::Identity() + dt * G[j]) * F[ids[j]];
-#endif
 }
+#endif
 
 }  // namespace slurry::detail

@@ -15,7 +15,7 @@
 /// That is how GCC 12 compiled Eigen's A = I + dt G, A F before (read from its code: its SLP
 /// vectoriser took entries 0-7 in one 8-wide vector and the last alone, with the inner pair's
 /// operands in the other order), so frames are bitwise those of earlier builds. Elsewhere (2D,
-/// double, no FMA) the Eigen expression is used, as GCC compiles it.
+/// double, no FMA) Simulation keeps the Eigen expression in a lambda, as GCC compiles it.
 #include <Eigen/Core>
 
 #include <cmath>
@@ -25,8 +25,7 @@
 namespace slurry::detail {
 
 /// F[ids[j]] <- (I + dt G[j]) F[ids[j]] for j < n, with the roundings of the file comment.
-/// Defined for AVX2 with FMA; elsewhere the one-particle form runs instead
-/// (SolidStateUpdate::kBatched is false).
+/// Defined only for AVX2 with FMA (SolidStateUpdate::kBatched), the only builds that call it.
 void deformation_update_lanes(float dt, Eigen::Matrix3f* F, const std::int64_t* ids, const Eigen::Matrix3f* G, int n);
 
 /// The solid state update of G2P: F[p] <- (I + dt gv) F[p].
@@ -43,26 +42,25 @@ struct SolidStateUpdate {
       false;
 #endif
 
+  // Used only where kBatched (Simulation keeps its lambda elsewhere): the members below exist
+  // for float 3D with FMA.
   void operator()(std::int64_t p, const Mat& gv) const {
-    if constexpr (kBatched) {
-      Mat A, R;
-      for (int i = 0; i < 3; ++i)
-        for (int k = 0; k < 3; ++k) A(i, k) = std::fma(dt, gv(i, k), T(i == k));
-      const Mat& f = F[p];
-      for (int i = 0; i < 3; ++i)
-        for (int j = 0; j < 3; ++j) {
-          const int first = i == 2 && j == 2 ? 1 : 2, second = 3 - first;
-          R(i, j) = std::fma(A(i, 0), f(0, j), std::fma(A(i, second), f(second, j), A(i, first) * f(first, j)));
-        }
-      F[p] = R;
-    } else {
-      const Mat A = Mat::Identity() + dt * gv;
-      F[p] = A * F[p];
-    }
+    static_assert(kBatched, "SolidStateUpdate is the float 3D FMA update");
+    Mat A, R;
+    for (int i = 0; i < 3; ++i)
+      for (int k = 0; k < 3; ++k) A(i, k) = std::fma(dt, gv(i, k), T(i == k));
+    const Mat& f = F[p];
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) {
+        const int first = i == 2 && j == 2 ? 1 : 2, second = 3 - first;
+        R(i, j) = std::fma(A(i, 0), f(0, j), std::fma(A(i, second), f(second, j), A(i, first) * f(first, j)));
+      }
+    F[p] = R;
   }
   /// The update of particles ids[0, n) with gradients gv[0, n).
   void batch(const std::int64_t* ids, const Mat* gv, int n) const {
-    if constexpr (kBatched) deformation_update_lanes(dt, F, ids, gv, n);
+    static_assert(kBatched, "SolidStateUpdate is the float 3D FMA update");
+    deformation_update_lanes(dt, F, ids, gv, n);
   }
 };
 

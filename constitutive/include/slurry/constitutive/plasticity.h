@@ -276,9 +276,7 @@ struct DruckerPrager {
     lanes::Mat3<T, W> U, M, F_new;
     lanes::Vec3<T, W> lam;
     lanes::left_eigen(Fe, U, lam, M);
-    const L det = Fe.a[0][0] * (Fe.a[1][1] * Fe.a[2][2] - Fe.a[1][2] * Fe.a[2][1]) -
-                  Fe.a[0][1] * (Fe.a[1][0] * Fe.a[2][2] - Fe.a[1][2] * Fe.a[2][0]) +
-                  Fe.a[0][2] * (Fe.a[1][0] * Fe.a[2][1] - Fe.a[1][1] * Fe.a[2][0]);
+    const L det = lanes::detail::dot(Fe.col(0), lanes::detail::cross(Fe.col(1), Fe.col(2)));
     const L lmax = lam.c[0].max(lam.c[1]).max(lam.c[2]), lmin = lam.c[0].min(lam.c[1]).min(lam.c[2]);
     // NaN anywhere fails the tests and goes to the SVD as before.
     const lanes::Mask<T, W> eigen = lanes::gt(det, T(0)) & lanes::ge(lmin, L(kLeftEigenRatio * lmax)) &
