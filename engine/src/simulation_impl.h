@@ -979,7 +979,7 @@ void Simulation<T, Dim>::grid_to_particles_order(G& grid, T dt) {
             }
             return r2;
           },
-          1);
+          parallel::task_run(std::int64_t(bins.size())));
     }
   };
   T vmax2 = 0;
@@ -1020,7 +1020,7 @@ void Simulation<T, Dim>::return_mapping() {
   std::vector<T>& hmax = hardening_scratch_;
   hmax.assign(snow ? bins.size() : 0, T(1));
   projected_scratch_.assign(bins.size(), 0);
-  parallel::parallel_tasks(0, std::int64_t(bins.size()), [&](std::int64_t bi) {
+  parallel::parallel_task_runs(0, std::int64_t(bins.size()), [&](std::int64_t bi) {
     const auto& bin = bins[std::size_t(bi)];
     const auto& mat = materials_[bin.material];
     if (mat.plastic_kind == PlasticModel::None || project_in_p2g_[bin.material] || !owned_block(bin.block)) return;

@@ -111,6 +111,23 @@ void parallel_tasks(std::int64_t begin, std::int64_t end, Fn&& fn) {
   parallel_for_grain(begin, end, 1, fn);
 }
 
+/// How many neighbouring tasks (blocks of particles, stored one after the other) to hand to a
+/// thread at a time: contiguous runs of up to 32, at least 8 hand-outs per thread. Handed out one
+/// at a time, two threads alternated blocks, and each wrote the cache lines at the edges of
+/// the other's particle ranges (x, v, C, F) and broke its prefetcher's streams: 3D G2P on two
+/// threads, 1 M particles, 14.2 -> 12.9 ms per substep with runs of 16 or more (BM_MlsStep,
+/// benchmarks/RESULTS.md, 2026-11-27 session 21).
+inline std::int64_t task_run(std::int64_t tasks) {
+  return std::clamp<std::int64_t>(tasks / (8 * std::int64_t(std::max(1, max_threads()))), 1, 32);
+}
+
+/// fn(i) for i in [begin, end), sizeable independent tasks that write neighbouring memory
+/// (blocks of particles in storage order): handed out in runs of task_run(end - begin).
+template <class Fn>
+void parallel_task_runs(std::int64_t begin, std::int64_t end, Fn&& fn) {
+  parallel_for_grain(begin, end, task_run(end - begin), fn);
+}
+
 /// fn(lo, hi) over contiguous chunks of [begin, end) (for loops that keep per-chunk state).
 template <class Fn>
 void parallel_chunks(std::int64_t begin, std::int64_t end, Fn&& fn) {
