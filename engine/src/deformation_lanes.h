@@ -28,6 +28,14 @@ namespace slurry::detail {
 /// Defined only for AVX2 with FMA (SolidStateUpdate::kBatched), the only builds that call it.
 void deformation_update_lanes(float dt, Eigen::Matrix3f* F, const std::int64_t* ids, const Eigen::Matrix3f* G, int n);
 
+/// Whether the build has the lanes (AVX2 with FMA).
+inline constexpr bool kDeformationLanes =
+#if defined(__AVX2__) && defined(__FMA__)
+    true;
+#else
+    false;
+#endif
+
 /// The solid state update of G2P: F[p] <- (I + dt gv) F[p].
 template <class T, int Dim>
 struct SolidStateUpdate {
@@ -35,12 +43,9 @@ struct SolidStateUpdate {
   Mat* F;
   T dt;
   /// Whether batch() runs in lanes; gather_particles calls it for its queued updates when so.
-  static constexpr bool kBatched =
-#if defined(__AVX2__) && defined(__FMA__)
-      std::is_same_v<T, float> && Dim == 3;
-#else
-      false;
-#endif
+  /// (Written in terms of T and Dim in every build, so that the members' static_asserts are
+  /// checked only where a member is used: a plain `false` failed them in the portable build.)
+  static constexpr bool kBatched = std::is_same_v<T, float> && Dim == 3 && kDeformationLanes;
 
   // Used only where kBatched (Simulation keeps its lambda elsewhere): the members below exist
   // for float 3D with FMA.
