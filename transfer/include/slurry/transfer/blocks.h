@@ -316,7 +316,7 @@ class ParticleBins {
       auto last_rank = rank_of(order[bin.begin]);
       for (std::uint32_t i = bin.begin; i < bin.end; ++i) {
         const std::uint32_t p = order[i];
-        const bool m = (block_key(p) != k) | (std::uint32_t(material_of(p)) != bin.material);
+        const bool m = left_bin(p, k, bin.material, base_of, material_of);
         count += m;
         if (!m) {
           const auto r = rank_of(p);
@@ -345,7 +345,7 @@ class ParticleBins {
       const std::int32_t k = key_of(bin.block);
       for (std::uint32_t i = bin.begin; i < bin.end; ++i) {
         const std::uint32_t p = order[i];
-        moved[i] = block_key(p) != k || std::uint32_t(material_of(p)) != bin.material;
+        moved[i] = left_bin(p, k, bin.material, base_of, material_of);
         if (moved[i]) {
           const IVec base = base_of(p);
           for (int d = 0; d < Dim; ++d)
@@ -567,7 +567,7 @@ class ParticleBins {
     }
     if (!_mm256_testz_si256(differ, differ)) return false;
     for (; j < len; ++j)
-      if (key_of(block_of_base(bases(first + j))) != k || material_of(first + j) != bin.material) return false;
+      if (left_bin(first + j, k, bin.material, bases, material_of)) return false;
     // rank[i - 1] < rank[i] for every i, unsigned (compared as signed with the sign bits flipped).
     const std::uint32_t* rank = rank_of.values + first;
     const __m256i flip = _mm256_set1_epi32(std::numeric_limits<std::int32_t>::min());
@@ -589,6 +589,14 @@ class ParticleBins {
     return false;
   }
 #endif
+
+  /// Whether particle p is no longer in the bin of block key k and material `material` (it
+  /// changed block or material): update()'s test, in both of its passes and in still_in_place.
+  template <class BaseOf, class MaterialOf>
+  bool left_bin(std::int64_t p, std::int32_t k, std::uint32_t material, const BaseOf& base_of,
+                const MaterialOf& material_of) const {
+    return (key_of(block_of_base(base_of(p))) != k) | (std::uint32_t(material_of(p)) != material);
+  }
 
   /// The block holding stencil base node `base`.
   static IVec block_of_base(IVec base) {
