@@ -113,10 +113,11 @@ void parallel_tasks(std::int64_t begin, std::int64_t end, Fn&& fn) {
 
 /// How many neighbouring tasks (blocks of particles, stored one after the other) to hand to a
 /// thread at a time: contiguous runs of up to 32, at least 8 hand-outs per thread. Handed out one
-/// at a time, two threads alternated blocks, and each wrote the cache lines at the edges of
-/// the other's particle ranges (x, v, C, F) and broke its prefetcher's streams: 3D G2P on two
-/// threads, 1 M particles, 14.2 -> 12.9 ms per substep with runs of 16 or more (BM_MlsStep,
-/// benchmarks/RESULTS.md, 2026-11-27 session 21).
+/// at a time, two threads alternated blocks: they then write the same cache lines at the edges
+/// of each other's particle ranges (x, v, C, F), and each thread's prefetch streams restart at
+/// every block (which of the two cost more was not measured). 3D G2P on two threads, 1 M
+/// particles: 14.2 -> 12.9 ms per substep with runs of 16 or more; one thread unchanged
+/// (BM_MlsStep, benchmarks/RESULTS.md, 2026-11-27 session 21).
 inline std::int64_t task_run(std::int64_t tasks) {
   return std::clamp<std::int64_t>(tasks / (8 * std::int64_t(std::max(1, max_threads()))), 1, 32);
 }
