@@ -156,9 +156,13 @@ void FlipSimulation<T, Dim>::step(T dt) {
   lap(kExtrapolate);
   enforce_solids();
   lap(kEnforce);
-  transfer_to_particles();
+  // With the linear kernel, G2P advects each particle as soon as it has its velocity (advect()
+  // through transfer_to_particles): the grid velocity it gathered at x_p is the advection's
+  // first stage, and the particles are read and written once.
+  const bool fused = order_ == 1;
+  transfer_to_particles(fused ? dt : T(0));
   lap(kToParticles);
-  advect(dt);
+  if (!fused) advect(dt);
   lap(kAdvect);
   cfl_reached_ = std::max(cfl_reached_, max_speed_ * dt / grid_.dx);
   reseed();
@@ -332,11 +336,17 @@ void FlipSimulation<T, Dim>::enforce_solids() {
 }
 
 template <class T, int Dim>
-void FlipSimulation<T, Dim>::transfer_to_particles() {
+void FlipSimulation<T, Dim>::transfer_to_particles(T advect_dt) {
   const T ratio = T(scene_.solver.flip_ratio);
   const auto* old = scheme_ == FaceScheme::FLIP ? &old_u_ : nullptr;
-  max_speed_ = order_ == 1 ? faces_to_particles<1>(grid_, old, particles_, scheme_, ratio)
-                           : faces_to_particles<2>(grid_, old, particles_, scheme_, ratio);
+  if (advect_dt > T(0)) {  // the linear kernel: advect each particle once it has its velocity
+    Advection adv(*this, advect_dt);
+    max_speed_ = faces_to_particles<1>(grid_, old, particles_, scheme_, ratio,
+                                       [&adv](std::int64_t p, const Vec& u) { adv.particle(p, u); });
+  } else {
+    max_speed_ = order_ == 1 ? faces_to_particles<1>(grid_, old, particles_, scheme_, ratio)
+                             : faces_to_particles<2>(grid_, old, particles_, scheme_, ratio);
+  }
   if (!std::isfinite(double(max_speed_))) {
     std::ostringstream msg;
     msg << scene_.source << ": simulation unstable at step " << steps_ + 1 << ", t = " << slurry::detail::fmt(time_)
@@ -348,39 +358,63 @@ void FlipSimulation<T, Dim>::transfer_to_particles() {
 }
 
 template <class T, int Dim>
-void FlipSimulation<T, Dim>::advect(T dt) {
-  const auto scheme = scene_.solver.advection;
-  const T t_end = T(time_) + dt, margin = T(1e-3) * grid_.dx;
-  const Grid& g = grid_;
+FlipSimulation<T, Dim>::Advection::Advection(FlipSimulation& sim, T dt)
+    : sim_(sim),
+      dt_(dt),
+      t0_(T(sim.time_)),
+      t_end_(T(sim.time_) + dt),
+      margin_(T(1e-3) * sim.grid_.dx),
+      scheme_(sim.scene_.solver.advection),
+      solids_(!sim.solids_.empty()),
+      thin_(any_thin_collider(sim.solids_.colliders, sim.grid_.dx)),
+      poses0_(collider_poses(sim.solids_.colliders, t0_)),
+      poses1_(collider_poses(sim.solids_.colliders, t_end_)) {}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::Advection::particle(std::int64_t p, const Vec& k1) const {
+  const Grid& g = sim_.grid_;
   auto velocity = [&g](const Vec& x) {
     Vec u;
     gather_faces_linear(g, x, nullptr, u, nullptr, nullptr);  // trilinear, flat indices
     return u;
   };
-  auto& P = particles_;
-  // PIC and APIC with the linear kernel have just set v_p = u(x_p), gathered trilinearly from
-  // this same grid (faces_to_particles), which is advection's first stage: reuse it.
-  const bool v_is_u = order_ == 1 && (scheme_ == FaceScheme::PIC || scheme_ == FaceScheme::APIC);
-  const bool solids = !solids_.empty();
+  auto& P = sim_.particles_;
+  Vec x = advect_point(scheme_, P.x[p], k1, dt_, velocity);
   // A collider thinner than the stencil (or any mesh) can be stepped over in one substep, or
   // its faces left open between grid nodes: a path that enters one stops at its surface.
-  const auto& colliders = solids_.colliders;
-  const bool thin = any_thin_collider(colliders, grid_.dx);
-  const T t0 = T(time_);
-  const auto poses0 = collider_poses(colliders, t0), poses1 = collider_poses(colliders, t_end);
+  if (thin_) {
+    const auto& colliders = sim_.solids_.colliders;
+    for (std::size_t k = 0; k < colliders.size(); ++k) {
+      const auto& c = colliders[k];
+      Vec n;
+      if (!thin_collider(c, g.dx) || !stop_at_collider(c, P.x[p], t0_, poses0_[k], x, t_end_, poses1_[k], margin_, n))
+        continue;
+      const T vn = (P.v[p] - c.velocity_at(x, t_end_)).dot(n);
+      if (vn < T(0)) P.v[p] -= vn * n;
+    }
+  }
+  P.x[p] = solids_ ? sim_.solids_.push_out(x, t_end_, sim_.x_lo_, sim_.x_hi_, margin_)
+                   : Vec(x.cwiseMax(sim_.x_lo_).cwiseMin(sim_.x_hi_));
+}
+
+template <class T, int Dim>
+void FlipSimulation<T, Dim>::advect(T dt) {
+  const Grid& g = grid_;
+  auto& P = particles_;
+  const Advection adv(*this, dt);
+  // PIC and APIC with the linear kernel have just set v_p = u(x_p), gathered trilinearly from
+  // this same grid (faces_to_particles), which is advection's first stage: reuse it. (The
+  // linear kernel now advects in G2P's pass, transfer_to_particles; this pass serves the
+  // quadratic one.)
+  const bool v_is_u = order_ == 1 && (scheme_ == FaceScheme::PIC || scheme_ == FaceScheme::APIC);
   parallel::parallel_chunks(0, std::int64_t(P.size()), [&](std::int64_t lo, std::int64_t hi) {
     for (std::int64_t p = lo; p < hi; ++p) {
-      Vec x = v_is_u ? advect_point(scheme, P.x[p], P.v[p], dt, velocity) : advect_point(scheme, P.x[p], dt, velocity);
-      if (thin) {
-        for (std::size_t k = 0; k < colliders.size(); ++k) {
-          const auto& c = colliders[k];
-          Vec n;
-          if (!thin_collider(c, grid_.dx) || !stop_at_collider(c, P.x[p], t0, poses0[k], x, t_end, poses1[k], margin, n)) continue;
-          const T vn = (P.v[p] - c.velocity_at(x, t_end)).dot(n);
-          if (vn < T(0)) P.v[p] -= vn * n;
-        }
-      }
-      P.x[p] = solids ? solids_.push_out(x, t_end, x_lo_, x_hi_, margin) : Vec(x.cwiseMax(x_lo_).cwiseMin(x_hi_));
+      Vec k1;
+      if (v_is_u)
+        k1 = P.v[p];
+      else
+        gather_faces_linear(g, P.x[p], nullptr, k1, nullptr, nullptr);
+      adv.particle(p, k1);
     }
   });
 }

@@ -366,12 +366,21 @@ inline void gather_faces_fast(const MacGrid<T, Dim>& g, const Eigen::Matrix<T, D
     gather_faces<Order>(g, x, old, u, delta, c);
 }
 
+/// faces_to_particles' default: nothing after a particle's update.
+struct NoParticleStep {
+  template <class Vec>
+  void operator()(std::int64_t, const Vec&) const {}
+};
+
 /// Faces -> particles with the given scheme; `old` holds the face velocities before the grid
 /// update (FLIP only). Returns the largest particle speed (infinity if any is non-finite).
-template <int Order, class T, int Dim>
+/// `after(p, u)` runs once particle p has its new velocity (and a finite speed), with u the
+/// grid velocity gathered at x_p (the PIC velocity): the caller's next step for p in the same
+/// pass, e.g. advection, whose first stage u(x_p) it is for the linear kernel.
+template <int Order, class T, int Dim, class After = NoParticleStep>
 T faces_to_particles(const MacGrid<T, Dim>& g, const typename NoDeduce<FaceArrays<T, Dim>>::type* old,
                      FlipParticles<T, Dim>& P,
-                     FaceScheme scheme, T flip_ratio) {
+                     FaceScheme scheme, T flip_ratio, const After& after = After()) {
   using Vec = Eigen::Matrix<T, Dim, 1>;
   const std::int64_t n = std::int64_t(P.size());
   return parallel::parallel_max<T>(0, n, T(0), [&](std::int64_t lo, std::int64_t hi) {
@@ -393,6 +402,7 @@ T faces_to_particles(const MacGrid<T, Dim>& g, const typename NoDeduce<FaceArray
       const T s2 = P.v[p].squaredNorm();
       if (!(s2 <= std::numeric_limits<T>::max())) return std::numeric_limits<T>::infinity();
       vmax2 = std::max(vmax2, s2);
+      after(p, u);
     }
     return std::sqrt(vmax2);
   });

@@ -118,9 +118,27 @@ class FlipSimulation final : public SimulationBase {
   void project(T dt);
   void extrapolate_velocities();
   void enforce_solids();
-  void transfer_to_particles();
+  /// G2P; with advect_dt > 0 (the linear kernel) it also advects each particle by that step.
+  void transfer_to_particles(T advect_dt);
   void advect(T dt);
   void reseed();
+
+  /// advect()'s step for one particle, shared with G2P's pass for the linear kernel: the
+  /// substep's constants and collider poses, computed once per substep.
+  class Advection {
+   public:
+    Advection(FlipSimulation& sim, T dt);
+    /// Moves particle p one step of the scene's advection scheme (advection.h), from its first
+    /// stage k1 = u(x_p), then stops it at thin colliders and keeps it out of solids.
+    void particle(std::int64_t p, const Vec& k1) const;
+
+   private:
+    FlipSimulation& sim_;
+    T dt_, t0_, t_end_, margin_;
+    AdvectionScheme scheme_;
+    bool solids_, thin_;
+    std::vector<geometry::Pose> poses0_, poses1_;
+  };
 
   Scene scene_;
   FlipSimulation(const FlipSimulation&) = delete;
