@@ -17,7 +17,8 @@
 ///   enforce_solids   closed faces take the solid's velocity
 ///   transfer_to_particles  G2P: PIC, FLIP (blend ratio) or APIC (affine vectors)
 ///   advect           x through the grid velocity (Euler, midpoint, Heun or RK3), pushed out
-///                    of colliders and kept inside the domain
+///                    of colliders and kept inside the domain; with the linear kernel in
+///                    transfer_to_particles' pass (its timer then holds both)
 ///   reseed           particles per cell between solver.reseed bounds
 ///
 /// The substep is min(solver.max_dt, cfl dx / max |v_p|) with cfl up to 5, clipped so frames
