@@ -402,18 +402,13 @@ void FlipSimulation<T, Dim>::advect(T dt) {
   const Grid& g = grid_;
   auto& P = particles_;
   const Advection adv(*this, dt);
-  // PIC and APIC with the linear kernel have just set v_p = u(x_p), gathered trilinearly from
-  // this same grid (faces_to_particles), which is advection's first stage: reuse it. (The
-  // linear kernel now advects in G2P's pass, transfer_to_particles; this pass serves the
-  // quadratic one.)
-  const bool v_is_u = order_ == 1 && (scheme_ == FaceScheme::PIC || scheme_ == FaceScheme::APIC);
+  // The pass of the quadratic kernel (the linear one advects in G2P's pass, from the velocity
+  // it gathers there): its G2P velocity is not the trilinear u(x_p) that advection integrates,
+  // so the first stage is gathered here.
   parallel::parallel_chunks(0, std::int64_t(P.size()), [&](std::int64_t lo, std::int64_t hi) {
     for (std::int64_t p = lo; p < hi; ++p) {
       Vec k1;
-      if (v_is_u)
-        k1 = P.v[p];
-      else
-        gather_faces_linear(g, P.x[p], nullptr, k1, nullptr, nullptr);
+      gather_faces_linear(g, P.x[p], nullptr, k1, nullptr, nullptr);
       adv.particle(p, k1);
     }
   });
