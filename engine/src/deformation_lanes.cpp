@@ -36,7 +36,7 @@ void deformation_update_lanes(float dt, Eigen::Matrix3f* F, const std::int64_t* 
     // multiplies k = 1 first, the others k = 2.
     for (int i = 0; i < 3; ++i)
       for (int j = 0; j < 3; ++j) {
-        const int first = i == 2 && j == 2 ? 1 : 2, second = 3 - first;
+        const int first = inner_first(i, j), second = 3 - first;
         r[i + 3 * j] = _mm256_fmadd_ps(a[i], f[3 * j],
                                        _mm256_fmadd_ps(a[i + 3 * second], f[second + 3 * j],
                                                        _mm256_mul_ps(a[i + 3 * first], f[first + 3 * j])));

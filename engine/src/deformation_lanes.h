@@ -28,6 +28,10 @@ namespace slurry::detail {
 /// Defined only for AVX2 with FMA (SolidStateUpdate::kBatched), the only builds that call it.
 void deformation_update_lanes(float dt, Eigen::Matrix3f* F, const std::int64_t* ids, const Eigen::Matrix3f* G, int n);
 
+/// Which product of entry (i, j)'s inner pair is rounded on its own (the file comment): k = 1
+/// for entry (2, 2), k = 2 for the others. Both forms take it from here.
+constexpr int inner_first(int i, int j) { return i == 2 && j == 2 ? 1 : 2; }
+
 /// Whether the build has the lanes (AVX2 with FMA).
 inline constexpr bool kDeformationLanes =
 #if defined(__AVX2__) && defined(__FMA__)
@@ -57,7 +61,7 @@ struct SolidStateUpdate {
     const Mat& f = F[p];
     for (int i = 0; i < 3; ++i)
       for (int j = 0; j < 3; ++j) {
-        const int first = i == 2 && j == 2 ? 1 : 2, second = 3 - first;
+        const int first = inner_first(i, j), second = 3 - first;
         R(i, j) = std::fma(A(i, 0), f(0, j), std::fma(A(i, second), f(second, j), A(i, first) * f(first, j)));
       }
     F[p] = R;

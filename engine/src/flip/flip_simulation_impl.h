@@ -156,13 +156,9 @@ void FlipSimulation<T, Dim>::step(T dt) {
   lap(kExtrapolate);
   enforce_solids();
   lap(kEnforce);
-  // With the linear kernel, G2P advects each particle as soon as it has its velocity (advect()
-  // through transfer_to_particles): the grid velocity it gathered at x_p is the advection's
-  // first stage, and the particles are read and written once.
-  const bool fused = order_ == 1;
-  transfer_to_particles(fused ? dt : T(0));
+  transfer_to_particles(dt);  // with the linear kernel, advection too (advects_in_g2p)
   lap(kToParticles);
-  if (!fused) advect(dt);
+  if (!advects_in_g2p()) advect(dt);
   lap(kAdvect);
   cfl_reached_ = std::max(cfl_reached_, max_speed_ * dt / grid_.dx);
   reseed();
@@ -336,16 +332,15 @@ void FlipSimulation<T, Dim>::enforce_solids() {
 }
 
 template <class T, int Dim>
-void FlipSimulation<T, Dim>::transfer_to_particles(T advect_dt) {
+void FlipSimulation<T, Dim>::transfer_to_particles(T dt) {
   const T ratio = T(scene_.solver.flip_ratio);
   const auto* old = scheme_ == FaceScheme::FLIP ? &old_u_ : nullptr;
-  if (advect_dt > T(0)) {  // the linear kernel: advect each particle once it has its velocity
-    Advection adv(*this, advect_dt);
+  if (advects_in_g2p()) {
+    const Advection adv(*this, dt);
     max_speed_ = faces_to_particles<1>(grid_, old, particles_, scheme_, ratio,
                                        [&adv](std::int64_t p, const Vec& u) { adv.particle(p, u); });
   } else {
-    max_speed_ = order_ == 1 ? faces_to_particles<1>(grid_, old, particles_, scheme_, ratio)
-                             : faces_to_particles<2>(grid_, old, particles_, scheme_, ratio);
+    max_speed_ = faces_to_particles<2>(grid_, old, particles_, scheme_, ratio);
   }
   if (!std::isfinite(double(max_speed_))) {
     std::ostringstream msg;
@@ -371,15 +366,17 @@ FlipSimulation<T, Dim>::Advection::Advection(FlipSimulation& sim, T dt)
       poses1_(collider_poses(sim.solids_.colliders, t_end_)) {}
 
 template <class T, int Dim>
+typename FlipSimulation<T, Dim>::Vec FlipSimulation<T, Dim>::Advection::velocity(const Vec& x) const {
+  Vec u;
+  gather_faces_linear(sim_.grid_, x, nullptr, u, nullptr, nullptr);  // trilinear, flat indices
+  return u;
+}
+
+template <class T, int Dim>
 void FlipSimulation<T, Dim>::Advection::particle(std::int64_t p, const Vec& k1) const {
   const Grid& g = sim_.grid_;
-  auto velocity = [&g](const Vec& x) {
-    Vec u;
-    gather_faces_linear(g, x, nullptr, u, nullptr, nullptr);  // trilinear, flat indices
-    return u;
-  };
   auto& P = sim_.particles_;
-  Vec x = advect_point(scheme_, P.x[p], k1, dt_, velocity);
+  Vec x = advect_point(scheme_, P.x[p], k1, dt_, [this](const Vec& y) { return velocity(y); });
   // A collider thinner than the stencil (or any mesh) can be stepped over in one substep, or
   // its faces left open between grid nodes: a path that enters one stops at its surface.
   if (thin_) {
@@ -399,18 +396,13 @@ void FlipSimulation<T, Dim>::Advection::particle(std::int64_t p, const Vec& k1) 
 
 template <class T, int Dim>
 void FlipSimulation<T, Dim>::advect(T dt) {
-  const Grid& g = grid_;
   auto& P = particles_;
   const Advection adv(*this, dt);
-  // The pass of the quadratic kernel (the linear one advects in G2P's pass, from the velocity
-  // it gathers there): its G2P velocity is not the trilinear u(x_p) that advection integrates,
-  // so the first stage is gathered here.
+  // The pass of the quadratic kernel (the linear one advects in G2P's pass, advects_in_g2p):
+  // its G2P velocity is not the trilinear u(x_p) that advection integrates, so the first stage
+  // is gathered here.
   parallel::parallel_chunks(0, std::int64_t(P.size()), [&](std::int64_t lo, std::int64_t hi) {
-    for (std::int64_t p = lo; p < hi; ++p) {
-      Vec k1;
-      gather_faces_linear(g, P.x[p], nullptr, k1, nullptr, nullptr);
-      adv.particle(p, k1);
-    }
+    for (std::int64_t p = lo; p < hi; ++p) adv.particle(p, adv.velocity(P.x[p]));
   });
 }
 

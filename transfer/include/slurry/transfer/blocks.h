@@ -290,7 +290,6 @@ class ParticleBins {
   template <class BaseOf, class MaterialOf, class RankOf>
   bool update(std::int64_t n, BaseOf&& base_of, MaterialOf&& material_of, RankOf&& rank_of) {
     if (!ranked_ || n != std::int64_t(order_.size()) || n == 0) return false;
-    auto block_key = [&](std::int64_t p) { return key_of(block_of_base(base_of(p))); };
     // 1. Per bin: which of its particles moved (another block or material), and whether the
     //    ones that stay are still in rank order.
     //    Nothing is stored per particle in this pass (a byte store may alias anything, and made
@@ -351,7 +350,7 @@ class ParticleBins {
           for (int d = 0; d < Dim; ++d)
             if (base[d] < 0 || (base[d] >> Shape::log2) >= block_res_[d])
               return false;  // build() throws on it
-          movers_.push_back({block_key(p), std::uint32_t(material_of(p)), p});
+          movers_.push_back({key_of(block_of_base(base)), std::uint32_t(material_of(p)), p});
         }
       }
     }

@@ -411,8 +411,7 @@ void particles_to_grid(Grid& grid, const Eigen::Matrix<T, Dim, 1>* x,
 /// caller's deformation update (where the updates are queued and the functor has `kBatched`
 /// true, `state.batch(ids, grads, n)` for a queue at once). Reads the grid velocity from the
 /// node's first Dim entries and, for FLIP, the pre-update velocity from `grid.old_velocity(k)`.
-/// Serial; each particle writes
-/// only itself, so callers run disjoint ranges in parallel. Returns the largest squared particle
+/// Serial; each particle writes only itself, so callers run disjoint ranges in parallel. Returns the largest squared particle
 /// speed, or +infinity if any velocity is not finite or any particle left the box [x_lo, x_hi]
 /// (the caller then finds and names the particle).
 template <int Order, Scheme S, class Grid, class T, int Dim, class StateFn>

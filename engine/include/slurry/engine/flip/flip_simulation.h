@@ -119,8 +119,12 @@ class FlipSimulation final : public SimulationBase {
   void project(T dt);
   void extrapolate_velocities();
   void enforce_solids();
-  /// G2P; with advect_dt > 0 (the linear kernel) it also advects each particle by that step.
-  void transfer_to_particles(T advect_dt);
+  /// With the linear kernel G2P advects each particle as soon as it has its velocity: the grid
+  /// velocity it gathered at x_p is the advection's first stage, and the particles are read and
+  /// written once. advect() is the separate pass of the quadratic kernel.
+  bool advects_in_g2p() const { return order_ == 1; }
+  /// G2P; where advects_in_g2p(), also the advection over dt.
+  void transfer_to_particles(T dt);
   void advect(T dt);
   void reseed();
 
@@ -132,6 +136,8 @@ class FlipSimulation final : public SimulationBase {
     /// Moves particle p one step of the scene's advection scheme (advection.h), from its first
     /// stage k1 = u(x_p), then stops it at thin colliders and keeps it out of solids.
     void particle(std::int64_t p, const Vec& k1) const;
+    /// The grid velocity u(x) that advection integrates (trilinear on the faces).
+    Vec velocity(const Vec& x) const;
 
    private:
     FlipSimulation& sim_;
