@@ -1073,8 +1073,52 @@ void Simulation<T, Dim>::return_mapping() {
       for (std::size_t k = 0; k < c.size(); ++k) materials_[k].wave_speed = T(c[k]);
     }
   }
+  fluid_wave_speeds();
   max_wave_speed_ = 0;
   for (const auto& m : materials_) max_wave_speed_ = std::max(max_wave_speed_, m.wave_speed);
+}
+
+template <class T, int Dim>
+void Simulation<T, Dim>::fluid_wave_speeds() {
+  // A Tait liquid stiffens as it is compressed: c(J) = c(1) J^((1-gamma)/2) (fluid.h). Where a
+  // liquid hits a wall it reaches J = 0.8 and below, c(J) is nearly twice c(1), and a step set by
+  // c(1) alone would run at an elastic Courant number near 1 there and blow up. So each fluid's
+  // wave speed is taken at the extremes of J that its particles reached in this substep; since
+  // c(J) is monotonic in J, the smallest and the largest J bound it.
+  bool any = false;
+  for (const auto& m : materials_) any = any || m.fluid;
+  if (!any) return;
+  const auto& P = particles_;
+  const auto& bins = bins_.bins();
+  const std::uint32_t* order = bins_.order();
+  auto& range = fluid_J_scratch_;
+  range.assign(bins.size(), {std::numeric_limits<T>::max(), std::numeric_limits<T>::lowest()});
+  parallel::parallel_task_runs(0, std::int64_t(bins.size()), [&](std::int64_t bi) {
+    const auto& bin = bins[std::size_t(bi)];
+    if (!fluid_[bin.material] || !owned_block(bin.block)) return;
+    T lo = std::numeric_limits<T>::max(), hi = std::numeric_limits<T>::lowest();
+    for (auto i = bin.begin; i < bin.end; ++i) {
+      const T J = P.J[order[i]];
+      lo = std::min(lo, J);
+      hi = std::max(hi, J);
+    }
+    range[std::size_t(bi)] = {lo, hi};
+  });
+  for (auto& m : materials_)
+    if (m.fluid) m.wave_speed = m.base_wave_speed;
+  for (std::size_t bi = 0; bi < bins.size(); ++bi) {
+    auto& m = materials_[bins[bi].material];
+    if (!m.fluid || range[bi].first > range[bi].second) continue;
+    const auto& eos = m.fluid_model();
+    const T ratio = std::max(eos.sound_speed_ratio(range[bi].first), eos.sound_speed_ratio(range[bi].second));
+    m.wave_speed = std::max(m.wave_speed, m.base_wave_speed * ratio);
+  }
+  if (split_) {  // the time step is global: the stiffest liquid of any rank
+    std::vector<double> c;
+    for (const auto& m : materials_) c.push_back(double(m.wave_speed));
+    split_->comm->max(c.data(), int(c.size()));
+    for (std::size_t k = 0; k < c.size(); ++k) materials_[k].wave_speed = T(c[k]);
+  }
 }
 
 template <class T, int Dim>

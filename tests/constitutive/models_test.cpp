@@ -356,6 +356,15 @@ TEST(WeaklyCompressibleFluid, EquationOfState) {
   const sc::WeaklyCompressibleFluid<double, 3> near_log{kBulk, 1.0 + 1e-9};
   EXPECT_NEAR(log_fluid.energy_J(0.6), kBulk * ((0.6 - 1) - std::log(0.6)), 1e-14);
   EXPECT_NEAR(near_log.energy_J(0.6), log_fluid.energy_J(0.6), 1e-8);
+  // Speed of sound: c^2 = dp/drho with rho = rho0 / J, so c(J)^2 / c(1)^2 = (dp/drho)(J) / (K / rho0),
+  // by central differences of p in rho (error ~h^2 p''' ~ 1e-8 relative).
+  for (double J : {0.5, 0.8, 0.83, 1.0, 1.3, 2.0}) {
+    const double rho0 = 1000, rho = rho0 / J, h = 1e-3;
+    const double dp_drho = (fluid.pressure(rho0 / (rho + h)) - fluid.pressure(rho0 / (rho - h))) / (2 * h);
+    EXPECT_NEAR(fluid.sound_speed_ratio(J), std::sqrt(dp_drho / (kBulk / rho0)), 1e-6) << "J = " << J;
+  }
+  EXPECT_NEAR(fluid.sound_speed_ratio(0.83), 1.75, 0.005);  // the file comment's figure
+  EXPECT_EQ(log_fluid.sound_speed_ratio(0.5), 1.0);          // gamma = 1: c does not depend on J
   // The matrix versions use J = det F: tau = -J p I.
   const Eigen::Matrix3d F = Eigen::Vector3d(0.9, 1.0, 0.95).asDiagonal();
   const double J = 0.9 * 0.95;

@@ -239,6 +239,30 @@ TEST(Physics, CollidingDisksAPICEnergyLossConvergesWithRefinement) {
 }
 
 // An unstable step is diagnosed: step, time, particle index and material are named.
+// A Tait liquid's speed of sound grows as it is compressed (c(J) = c(1) J^((1-gamma)/2)), so
+// the elastic step limit must follow its most compressed particle: a block of liquid at rest
+// with one particle at J = 0.8 takes steps 0.8^3 = 0.512 times those of the uncompressed block.
+TEST(Physics, LiquidStepFollowsTheMostCompressedParticle) {
+  Scene s = block_scene(2, slurry::TransferKind::APIC, slurry::KernelKind::Quadratic);
+  s.materials[0].model = slurry::ElasticModel::Fluid;
+  s.materials[0].bulk_modulus = 2e5;
+  s.materials[0].gamma = 7;
+  s.solver.gravity = {0, 0, 0};
+  s.solver.max_dt = 1;
+  slurry::Simulation<double, 2> sim(s);
+  const double rest = sim.stable_dt();
+  EXPECT_NEAR(rest, s.solver.elastic_cfl * s.domain.dx / std::sqrt(2e5 / 1000), 1e-15);
+  sim.step(rest * 1e-6);  // at rest: J stays 1 (to round-off)
+  EXPECT_NEAR(sim.stable_dt(), rest, 1e-9 * rest);
+  auto& P = sim.particles();
+  P.J[P.size() / 2] = 0.8;
+  sim.step(rest * 1e-6);  // a step this short leaves J = 0.8 to within 1e-6
+  EXPECT_NEAR(sim.stable_dt() / rest, std::pow(0.8, 3.0), 1e-5);
+  P.J[P.size() / 2] = 1.0;
+  sim.step(rest * 1e-6);  // relaxed again: the limit returns to the rest state's
+  EXPECT_NEAR(sim.stable_dt() / rest, 1.0, 1e-5);
+}
+
 TEST(Physics, InstabilityStopsWithDiagnosis) {
   Scene s = block_scene(2, slurry::TransferKind::MLS, slurry::KernelKind::Quadratic);
   s.bodies[0].velocity = {3, 0, 0};

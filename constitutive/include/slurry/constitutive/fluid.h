@@ -12,6 +12,13 @@
 /// so that d psi / dJ = -p and psi(1) = p(1) = 0. K is the bulk modulus (dp/dJ = -K at J = 1)
 /// and gamma the stiffness exponent (7 for water in Becker and Teschner).
 ///
+/// The speed of sound follows from c^2 = dp/drho with rho = rho0 / J:
+///
+///   c(J)^2 = K J^(1-gamma) / rho0,   so   c(J) / c(1) = J^((1-gamma)/2),
+///
+/// which for gamma > 1 grows as the liquid is compressed (1.75 c(1) at J = 0.83 for gamma = 7);
+/// an explicit step must respect the fastest of these, not c(1) alone.
+///
 /// A fluid particle stores only J, so the scalar functions pressure(J), energy_J(J) and
 /// kirchhoff_pressure(J) are the hot path; the matrix versions take J = det F and exist for
 /// uniformity with the solid models (and the tests). J <= 0 is outside the model; J is floored
@@ -71,6 +78,10 @@ struct WeaklyCompressibleFluid {
     return -pressure_derivative(J) * C.cwiseProduct(dF).sum() * C -
            pressure(J) * cofactor_differential(F, dF);
   }
+
+  /// c(J) / c(1) = J^((1-gamma)/2): the speed of sound at volume ratio J relative to the rest
+  /// state's sqrt(K / rho0).
+  T sound_speed_ratio(T J) const { return std::pow(floor_J(J), (T(1) - gamma) / T(2)); }
 
   /// Copy with the bulk modulus multiplied by factor.
   WeaklyCompressibleFluid scaled(T factor) const { return {bulk_modulus * factor, gamma}; }

@@ -233,6 +233,7 @@ class Simulation final : public SimulationBase {
   /// Walls (node index ranges) and colliders at time t, for both grid updates.
   GridBoundaries<T, Dim> grid_boundaries(T t) const;
   void return_mapping();
+  void fluid_wave_speeds();  // return_mapping's end: the liquids' wave speeds at their current J
   [[noreturn]] void diagnose(T dt) const;
   // Sleeping material (solver.sleep, scene.h): which blocks sleep this substep and their cached
   // grid contributions (sleep_prepare, after binning); blocks whose nodes moved wake
@@ -258,6 +259,7 @@ class Simulation final : public SimulationBase {
   std::vector<Vec> x_before_;  // positions before the move, kept for thin colliders only
   std::vector<std::uint8_t> fluid_;  // per material: advances J instead of F
   std::vector<T> hardening_scratch_;  // per bin, snow only
+  std::vector<std::pair<T, T>> fluid_J_scratch_;  // per bin, liquids only: smallest and largest J
   std::vector<std::int64_t> projected_scratch_;  // per bin: return mappings that yielded (P2G's, then return_mapping's)
   // Per material: its return mapping runs in P2G, just before its stress, instead of after G2P
   // (Drucker-Prager on Hencky StVK, explicit integrator): the projection's SVD gives the stress,
