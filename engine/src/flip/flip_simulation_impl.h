@@ -437,21 +437,36 @@ RunStats FlipSimulation<T, Dim>::take_stats() {
   s.particles = particles_.size();
   const double m = double(density()) * double(particle_volume_);
   add_particle_sums(s, particles_.x, particles_.v, static_cast<const T*>(nullptr), m, scene_.solver.gravity);
-  // Liquid volume: the cells that hold a particle (the solver's fluid cells, counted from the
-  // particles so that frame 0 has a figure too). Particle count x particle volume cannot drift
-  // while no particle is added or removed, but particles that bunch up leave the liquid
-  // smaller, which this measure shows.
-  std::vector<std::uint8_t> filled(std::size_t(grid_.num_cells()), 0);
-  std::int64_t n = 0;
+  // Liquid volume: the particles times the volume each one fills in the bulk, dx^Dim over the mean
+  // count of the interior cells (a cell whose 3^Dim block of cells all hold particles). Liquid
+  // that bunches up raises that count and shows as lost volume; liquid that spreads lowers it.
+  // Counting every cell that holds a particle as full would not do: a splash of one or two
+  // particles per cell would count as whole cells of liquid (+13% in the 3D dam break while its
+  // bulk was 2% denser than at rest). With no interior cell (a spray, a thin sheet) each particle
+  // counts its seeding volume.
+  std::vector<std::uint16_t> count(std::size_t(grid_.num_cells()), 0);
   for (const auto& x : particles_.x) {
     typename Grid::IVec c;
     for (int d = 0; d < Dim; ++d)
       c[d] = std::clamp(int(std::floor((x[d] - grid_.origin[d]) / grid_.dx)), 0, grid_.res[d] - 1);
-    auto& cell = filled[std::size_t(grid_.cell(c))];
-    n += cell == 0;
-    cell = 1;
+    auto& n = count[std::size_t(grid_.cell(c))];
+    n += n < std::numeric_limits<std::uint16_t>::max();
   }
-  s.volume = double(n) * std::pow(double(grid_.dx), Dim);
+  std::int64_t interior = 0, held = 0;
+  for (std::int64_t k = 0; k < std::int64_t(count.size()); ++k) {
+    if (count[std::size_t(k)] == 0) continue;
+    const typename Grid::IVec c = grid_.cell_coord(k);
+    bool inside = true;
+    for (int d = 0; d < Dim; ++d) inside = inside && c[d] > 0 && c[d] + 1 < grid_.res[d];
+    for (int o = 0; inside && o < (Dim == 3 ? 27 : 9); ++o) {
+      typename Grid::IVec q = c;
+      for (int d = 0, m = o; d < Dim; ++d, m /= 3) q[d] += m % 3 - 1;
+      inside = count[std::size_t(grid_.cell(q))] > 0;
+    }
+    if (inside) ++interior, held += count[std::size_t(k)];
+  }
+  const double cell = std::pow(double(grid_.dx), Dim);
+  s.volume = double(particles_.size()) * (interior > 0 ? cell * double(interior) / double(held) : double(particle_volume_));
   s.cfl = double(cfl_reached_);
   cfl_reached_ = 0;
   return s;

@@ -12,8 +12,10 @@
 ///   kinetic            sum m_p |v_p|^2 / 2
 ///   potential          -sum m_p g . x_p (zero where x . g = 0)
 ///   elastic            sum V_p^0 psi(F_p) (MPM solids, FEM elements; 0 for liquids)
-///   volume             MPM: sum V_p^0 J_p; FLIP: dx^Dim x the cells holding a particle; FEM:
-///                      deformed element volume
+///   volume             MPM: sum V_p^0 J_p; FLIP: the particle count x dx^Dim / the mean
+///                      particle count of the interior cells (those whose 3^Dim neighbourhood all
+///                      holds particles), or x the seeding volume where there is no such cell;
+///                      FEM: deformed element volume
 ///   max_fluid_J_error  largest |J_p - 1| of weakly compressible MPM fluid particles
 ///   projected          plastic return mappings that changed F during the frame (MPM)
 ///   cfl                largest particle displacement in one substep during the frame, in cells
