@@ -10,6 +10,7 @@
 #include <regex>
 
 #include "fnv1a.h"
+#include "input_file.h"
 #include "slurry/engine/errors.h"
 
 namespace slurry::detail {
@@ -140,6 +141,7 @@ void write_checkpoint(const fs::path& file, std::uint64_t scene_hash, int frame,
 }
 
 Checkpoint read_checkpoint(const fs::path& file) {
+  detail::require_memory_for(file, detail::regular_file_size(file, "a slurry checkpoint"));
   std::ifstream in(file, std::ios::binary);
   if (!in) io_fail(file, "cannot open the checkpoint");
   std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());

@@ -3,6 +3,8 @@
 // Repository; see ply.h for a summary.
 #include "slurry/engine/ply.h"
 
+#include "input_file.h"
+
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -517,11 +519,7 @@ void write_ascii_element(AtomicFile& file, const PlyElement& el) {
 // ---- reading --------------------------------------------------------------------------------
 
 std::string read_whole_file(const fs::path& path) {
-  std::error_code ec;
-  const fs::file_status st = fs::status(path, ec);
-  if (!fs::exists(st))
-    fail(path, "cannot open the file for reading: it does not exist (expected a PLY file)");
-  if (fs::is_directory(st)) fail(path, "cannot read: it is a directory (expected a PLY file)");
+  slurry::detail::require_memory_for(path, slurry::detail::regular_file_size(path, "a PLY file"));
   std::ifstream in(path, std::ios::binary);
   if (!in) fail(path, "cannot open the file for reading (permission denied?)");
   in.seekg(0, std::ios::end);

@@ -95,6 +95,7 @@ struct RunSection {
   std::int64_t substeps = 0;
   int drift_warnings = 0;
   double largest_cfl = 0;
+  int last_frame = -1;  // the run's last frame when the checkpoint was written (-1: not recorded)
 };
 
 void put_stats(detail::StateWriter& w, const RunStats& s) {
@@ -145,6 +146,7 @@ void checkpoint_payload(const RunSection& run, const SimulationBase& sim, const 
   w.pod(run.substeps);
   w.pod(std::int32_t(run.drift_warnings));
   w.pod(run.largest_cfl);
+  w.pod(std::int32_t(run.last_frame));
   detail::StateWriter(sink).text(section);
   sim.save_state(sink);
 }
@@ -163,6 +165,7 @@ RunSection parse_payload(const detail::Checkpoint& c, std::string_view& state) {
   r.pod(run.substeps);
   run.drift_warnings = r.get<std::int32_t>();
   r.pod(run.largest_cfl);
+  if (!r.done()) run.last_frame = r.get<std::int32_t>();  // absent from checkpoints of older versions
   r.finish();
   if (run.frame != c.frame) r.fail("the run section names frame " + std::to_string(run.frame));
   return run;
@@ -281,7 +284,9 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   // output.per_rank: every process writes its own particles (frame_NNNN.rankR.ply), nothing is gathered.
   const bool per_rank = files && comm && comm->size() > 1 && scene.output.per_rank;
   if (files && dir.empty()) throw SceneError(scene.source + ": output directory: expected a non-empty path");
-  const int frames = options.frames.value_or(scene.output.frames);
+  // The run's last frame: --frames, else (resuming) the one the run was started with, which the
+  // checkpoint records, else the scene's.
+  int frames = options.frames.value_or(scene.output.frames);
   if (frames < 0) throw SceneError(scene.source + ": frames: expected an integer >= 0, got " + std::to_string(frames));
   const int hardware = int(std::max(1u, std::thread::hardware_concurrency()));
   if (options.threads < 0 || options.threads > 4 * hardware)
@@ -349,26 +354,34 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
       const fs::path& file = it->second;
       try {
         const detail::Checkpoint c = detail::read_checkpoint(file);
-        if (c.frame > frames) {
-          refused.push_back(file.string() + ": frame " + std::to_string(c.frame) + " lies beyond the run's last frame " +
-                            std::to_string(frames));
-          continue;
-        }
         if (c.scene_hash != scene.source_hash && !options.force) {
           other_scene = true;
           refused.push_back(file.string() + ": written for another version of the scene file " + scene.source +
                             " (its hash differs; pass --force to resume anyway)");
           continue;
         }
+        std::string_view state;
+        const RunSection run = parse_payload(c, state);
+        const int last = options.frames.value_or(run.last_frame >= 0 ? run.last_frame : scene.output.frames);
+        if (c.frame > last)  // resuming from an earlier checkpoint would remove frames it never writes again
+          throw SceneError(file.string() + ": frame " + std::to_string(c.frame) + " lies beyond the run's last frame " +
+                           std::to_string(last) + (options.frames ? " (--frames)" : "") +
+                           "; nothing was removed; expected --frames " + std::to_string(c.frame) + " or more");
         std::vector<bool> present(std::size_t(c.frame) + 1, false);  // whole, or in parts (output.per_rank)
         for (const auto& g : before.frames)
           if (const int i = frame_index(g); i >= 0 && i <= c.frame) present[std::size_t(i)] = true;
         for (int f = 0; f <= c.frame; ++f)
           if (!present[std::size_t(f)])
             throw IoError(file.string() + ": frame " + frame_file(dir, f).filename().string() + " before it is missing");
-        std::string_view state;
-        const RunSection run = parse_payload(c, state);
         sim->load_state(state, file.string());
+        // The frame's time at the scene's frame rate must be the state's (a changed output.fps
+        // with --force would write every later frame at once, with no substep between them).
+        const double t_frame = c.frame * scene.frame_dt();
+        if (!(std::abs(sim->time() - t_frame) <= 1e-9 * std::max(1.0, t_frame)))
+          throw SceneError(file.string() + ": its state is at t = " + fmt(sim->time()) + " s but frame " +
+                           std::to_string(c.frame) + " lies at t = " + fmt(t_frame) + " s at output.fps " +
+                           fmt(scene.output.fps) + "; expected the output.fps the run was started with");
+        frames = last;
         summary.resumed_from = c.frame;
         summary.first = run.first;
         summary.substeps = run.substeps;
@@ -395,7 +408,13 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
            std::to_string(summary.resumed_from) + ", t = " + fmt(sim->time()) + " s, step " +
            std::to_string(sim->steps()) + ")");
     summary.particles = sim->particle_count();
-    // Frames after the checkpoint are written again.
+    // Frames after the checkpoint are written again; none may lie beyond the run's last frame.
+    int beyond = -1;
+    for (const auto& f : before.frames) beyond = std::max(beyond, frame_index(f));
+    if (beyond > frames)
+      throw SceneError(dir.string() + ": holds frame " + std::to_string(beyond) + ", beyond the run's last frame " +
+                       std::to_string(frames) + (options.frames ? " (--frames)" : "") +
+                       "; nothing was removed; expected --frames " + std::to_string(beyond) + " or more");
     removed_frames.erase(std::remove_if(removed_frames.begin(), removed_frames.end(),
                                         [&](const fs::path& f) { return frame_index(f) <= summary.resumed_from; }),
                          removed_frames.end());
@@ -446,6 +465,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     run.substeps = summary.substeps;
     run.drift_warnings = summary.drift_warnings;
     run.largest_cfl = summary.largest_cfl;
+    run.last_frame = frames;
     ++summary.checkpoints_written;
     // Streamed to the file: the state is never copied whole into memory (it was the run's
     // memory peak: the 3D FLIP dam break's 80 MB state on top of the solver's 300 MB).
@@ -552,6 +572,12 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
       summary.interrupted = int(signal);
       break;
     }
+  }
+  if (summary.resumed_from >= 0 && summary.resumed_from == frames) {  // nothing was left to do
+    notice("the run is already complete: its checkpoint is of its last frame, " + std::to_string(frames) +
+           "; nothing to simulate (pass --frames to run it further)");
+    summary.last = sim->take_stats();
+    summary.last.frame = frames;
   }
   summary.wall_seconds = seconds_since(start);
   summary.bytes = sim->bytes();

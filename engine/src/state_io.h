@@ -127,6 +127,8 @@ class StateReader {
   void tag(std::uint32_t t, const char* name) {
     if (get<std::uint32_t>() != t) fail(std::string("expected the ") + name + " section");
   }
+  /// Whether every byte was read.
+  bool done() const { return at_ == in_.size(); }
   /// Throws unless every byte was read.
   void finish() {
     if (at_ != in_.size())

@@ -215,7 +215,7 @@ std::vector<Case> cases() {
       {"validate_missing_mesh", R"({
          "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "dx": 0.1}, "solver": {"type": "fem", "dimension": 3},
          "materials": [{"name": "jelly", "model": "corotated_linear"}], "bodies": [{"mesh": "nowhere", "material": "jelly"}]})",
-       "validate scene.json", 3, "nowhere.node: cannot open the mesh file"},
+       "validate scene.json", 3, "nowhere.node: no such file (expected a TetGen mesh file)"},
       {"run_bad_mesh", ball_scene, "run scene.json", 3, "m.node:2: the file ends early"},
   };
 }

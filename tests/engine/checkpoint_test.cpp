@@ -8,6 +8,7 @@
 // finishes with "retry", with the frames before the first retry identical to "stop"'s.
 #include <gtest/gtest.h>
 
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 #include <chrono>
@@ -322,6 +323,30 @@ TEST(Checkpoint, StreamedFileEqualsTheWholePayloadsAndAFailedOneLeavesNothing) {
   fs::remove_all(dir);
 }
 
+// A FIFO where a checkpoint is expected is refused at once (reading it would block forever), and
+// the resume falls back to the checkpoint before it.
+TEST(Checkpoint, FifoIsRefusedAndThePreviousOneUsed) {
+  const fs::path dir = scratch("fifo");
+  const auto scene = write_scene(dir / "a.json", mpm_scene());
+  run(scene, dir / "frames", 6, 1);
+  const fs::path newest = checkpoint(dir / "frames", 6);
+  ASSERT_TRUE(fs::exists(newest));
+  fs::remove(newest);
+  ASSERT_EQ(::mkfifo(newest.c_str(), 0600), 0);
+  try {
+    slurry::detail::read_checkpoint(newest);
+    ADD_FAILURE() << "a FIFO was read as a checkpoint";
+  } catch (const slurry::IoError& e) {
+    EXPECT_NE(std::string(e.what()).find(newest.string() + ": a FIFO (named pipe), not a regular file (expected a "
+                                                           "slurry checkpoint)"),
+              std::string::npos)
+        << e.what();
+  }
+  const Outcome r = run(scene, dir / "frames", 6, 1, /*resume=*/true);
+  EXPECT_EQ(r.summary.resumed_from, 3);
+  EXPECT_NE(joined(r.notices).find("a FIFO (named pipe)"), std::string::npos) << joined(r.notices);
+}
+
 TEST(Checkpoint, OtherSolverLayoutIsRefused) {
   // A checkpoint of the MPM scene offered to the FEM scene (same file name, forced past the
   // hash): the layout check names the mismatch, and nothing else fits.
@@ -511,6 +536,77 @@ TEST(CheckpointCli, KilledRunResumesByteIdentical) {
     EXPECT_EQ(e.path().string().find(".tmp-"), std::string::npos) << "left behind: " << e.path();
 }
 
+// A resume runs to the last frame the run was started with (the checkpoint records it) unless
+// --frames says otherwise, and never removes a frame it will not write again: a --frames below
+// the frames on disk is an error that leaves every file in place.
+TEST(CheckpointCli, ResumeKeepsTheRunsFrameCountAndNeverRemovesFrames) {
+  const fs::path dir = scratch("cli_frames");
+  auto j = mpm_scene();
+  j["output"]["frames"] = 4;  // checkpoint_every 3
+  std::ofstream(dir / "a.json") << j.dump(2);
+  ASSERT_EQ(cli(dir, "run -q a.json --frames 7 --threads 1").code, 0);
+  const fs::path frames = dir / "frames";
+  std::vector<std::string> before;
+  for (int f = 0; f <= 7; ++f) before.push_back(slurp(slurry::frame_file(frames, f)));
+  ASSERT_TRUE(fs::exists(checkpoint(frames, 6)));
+  // Asked for fewer frames than the directory holds: refused, nothing removed.
+  Result r = cli(dir, "resume -q frames --frames 4 --threads 1");
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("checkpoint_0006.slc: frame 6 lies beyond the run's last frame 4 (--frames); nothing was "
+                       "removed; expected --frames 6 or more"),
+            std::string::npos)
+      << r.err;
+  for (int f = 0; f <= 7; ++f) EXPECT_EQ(slurp(slurry::frame_file(frames, f)), before[std::size_t(f)]) << f;
+  EXPECT_TRUE(fs::exists(checkpoint(frames, 6)));
+  // Frame 7 is beyond --frames 6 although checkpoint 6 is not: refused too.
+  r = cli(dir, "resume -q frames --frames 6 --threads 1");
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("holds frame 7, beyond the run's last frame 6 (--frames); nothing was removed"),
+            std::string::npos)
+      << r.err;
+  EXPECT_EQ(slurp(slurry::frame_file(frames, 7)), before[7]);
+  // Without --frames: the run's own last frame, 7, not the scene's 4. Frame 7 is written again
+  // from checkpoint 6, the same bytes.
+  r = cli(dir, "resume -q frames --threads 1");
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("resuming from frames/checkpoint_0006.slc"), std::string::npos) << r.err;
+  for (int f = 0; f <= 7; ++f) EXPECT_EQ(slurp(slurry::frame_file(frames, f)), before[std::size_t(f)]) << f;
+  EXPECT_FALSE(fs::exists(slurry::frame_file(frames, 8)));
+}
+
+// Resuming a finished run does nothing and says so; its summary compares the last frame with
+// the first (not an empty state: "mass -100%").
+TEST(CheckpointCli, ResumingAFinishedRunSaysItIsComplete) {
+  const fs::path dir = scratch("cli_finished");
+  std::ofstream(dir / "a.json") << mpm_scene().dump(2);
+  ASSERT_EQ(cli(dir, "run -q a.json --frames 6 --threads 1").code, 0);
+  const std::string run_out = slurp(dir / "out.txt");
+  const Result r = cli(dir, "resume -q frames --threads 1");
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("the run is already complete"), std::string::npos) << r.err;
+  const std::string out = slurp(dir / "out.txt");
+  EXPECT_NE(out.find("stats: mass +0%"), std::string::npos) << out;
+  EXPECT_EQ(out.find("-100%"), std::string::npos) << out;
+  EXPECT_TRUE(fs::exists(slurry::frame_file(dir / "frames", 6)));
+  EXPECT_NE(run_out.find("done: 7 frames"), std::string::npos) << run_out;
+  EXPECT_NE(out.find("done: 7 frames"), std::string::npos) << out;
+}
+
+// A changed output.fps, even with --force, would put the resumed frames at the wrong times
+// (every later frame written at once, with no substep): refused.
+TEST(CheckpointCli, ChangedFrameRateIsRefusedEvenWithForce) {
+  const fs::path dir = scratch("cli_fps");
+  auto j = mpm_scene();
+  std::ofstream(dir / "a.json") << j.dump(2);
+  ASSERT_EQ(cli(dir, "run -q a.json --frames 4 --threads 1").code, 0);
+  j["output"]["fps"] = 48;
+  std::ofstream(dir / "a.json") << j.dump(2);
+  const Result r = cli(dir, "run -q a.json --resume --force --frames 8 --threads 1");
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("expected the output.fps the run was started with"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(slurry::frame_file(dir / "frames", 5)));
+}
+
 TEST(CheckpointCli, ChangedSceneNeedsForceAndUsageErrors) {
   const fs::path dir = scratch("cli_changed");
   auto j = mpm_scene();
@@ -523,7 +619,7 @@ TEST(CheckpointCli, ChangedSceneNeedsForceAndUsageErrors) {
   EXPECT_NE(r.err.find("a.json: the scene file changed since its checkpoints"), std::string::npos)
       << r.err;
   EXPECT_NE(r.err.find("pass --force"), std::string::npos) << r.err;
-  r = cli(dir, "run -q a.json --resume --force --threads 1");
+  r = cli(dir, "run -q a.json --resume --force --threads 1 --frames 7");
   EXPECT_EQ(r.code, 0) << r.err;
   EXPECT_TRUE(fs::exists(dir / "frames" / "frame_0007.ply"));
   r = cli(dir, "run -q a.json --force");

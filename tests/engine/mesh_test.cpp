@@ -103,6 +103,15 @@ TEST(TriangleMesh, PlyFacesAndErrorsNameTheFileAndLine) {
   EXPECT_NE(
       slurry::test::message_of([&] { read_triangle_mesh(d / "none.obj"); }).find("no such file"),
       std::string::npos);
+  // Named for what they are, not "no such file".
+  fs::create_directory(d / "dir.obj");
+  EXPECT_NE(slurry::test::message_of([&] { read_triangle_mesh(d / "dir.obj"); })
+                .find("dir.obj: a directory, not a file (expected a triangle mesh, .obj or .ply)"),
+            std::string::npos);
+  fs::create_symlink(d / "loop2.obj", d / "loop1.obj");
+  fs::create_symlink(d / "loop1.obj", d / "loop2.obj");
+  EXPECT_NE(slurry::test::message_of([&] { read_triangle_mesh(d / "loop1.obj"); }).find("a loop of symbolic links"),
+            std::string::npos);
 }
 
 TEST(TriangleMesh, OpenOrInconsistentMeshesAreRefusedAndInsideOutIsReversed) {

@@ -4,6 +4,7 @@
 #include "slurry/engine/ply.h"
 
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
 #include <algorithm>
 #include <cmath>
@@ -500,11 +501,33 @@ constexpr const char* kAsciiHeader =
     "property float x\n"
     "end_header\n";
 
+// A reader opens only regular files: a FIFO would block it forever (nothing writes to it), so it
+// is refused at once, as are directories and loops of symbolic links, each named for what it is.
+TEST_F(PlyTest, FifoDirectoryAndLinkLoopAreRefusedForWhatTheyAre) {
+  const fs::path fifo = dir_ / "frame_0001.ply";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  std::string msg = io_error_of([&] { read_ply(fifo); });
+  EXPECT_CONTAINS(msg, fifo.string() + ": a FIFO (named pipe), not a regular file (expected a PLY file)");
+  const fs::path dir = dir_ / "frame_0002.ply";
+  fs::create_directory(dir);
+  msg = io_error_of([&] { read_ply(dir); });
+  EXPECT_CONTAINS(msg, dir.string() + ": a directory, not a file (expected a PLY file)");
+  const fs::path a = dir_ / "a.ply", b = dir_ / "b.ply";
+  fs::create_symlink(b, a);
+  fs::create_symlink(a, b);
+  msg = io_error_of([&] { read_ply(a); });
+  EXPECT_CONTAINS(msg, a.string() + ": a loop of symbolic links (expected a PLY file)");
+  const fs::path dangling = dir_ / "c.ply";
+  fs::create_symlink(dir_ / "gone.ply", dangling);
+  msg = io_error_of([&] { read_ply(dangling); });
+  EXPECT_CONTAINS(msg, dangling.string() + ": a symbolic link to a file that does not exist");
+}
+
 TEST_F(PlyTest, MissingFileIsAnError) {
   const fs::path path = dir_ / "nope.ply";
   const std::string msg = io_error_of([&] { read_ply(path); });
   EXPECT_CONTAINS(msg, path.string());
-  EXPECT_CONTAINS(msg, "does not exist");
+  EXPECT_CONTAINS(msg, "no such file");
 }
 
 TEST_F(PlyTest, BadMagicIsAnError) {

@@ -1,6 +1,8 @@
 // TetGen .node/.ele reader and writer; see tetgen.h for the format and the error messages.
 #include "slurry/engine/fem/tetgen.h"
 
+#include "../input_file.h"
+
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
@@ -17,7 +19,8 @@ namespace {
 /// A whitespace-separated token stream over the non-comment part of a file's lines.
 class TokenFile {
  public:
-  explicit TokenFile(const std::filesystem::path& path) : path_(path), in_(path) {
+  explicit TokenFile(const std::filesystem::path& path)
+      : path_(path), in_((slurry::detail::regular_file_size(path, "a TetGen mesh file"), path)) {
     if (!in_) throw IoError(path.string() + ": cannot open the mesh file (does it exist and is it readable?)");
   }
 

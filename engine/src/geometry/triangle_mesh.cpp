@@ -9,6 +9,7 @@
 #include <sstream>
 #include <unordered_map>
 
+#include "../input_file.h"
 #include "slurry/engine/errors.h"
 #include "slurry/engine/ply.h"
 
@@ -161,10 +162,7 @@ TriangleMesh read_triangle_mesh(const fs::path& path) {
   std::string ext = path.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(),
                  [](unsigned char ch) { return char(std::tolower(ch)); });
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec))
-    fail(path, "no such file (expected a triangle mesh, .obj or .ply)");
-  if (fs::file_size(path, ec) > (std::uintmax_t(1) << 30))
+  if (slurry::detail::regular_file_size(path, "a triangle mesh, .obj or .ply") > (std::uintmax_t(1) << 30))
     fail(path, "larger than 1 GiB (expected a triangle mesh)");
   TriangleMesh m;
   if (ext == ".obj")
