@@ -805,6 +805,11 @@ void Scene::validate_pipeline_outputs() const {
   if (output.surface_voxel_size > 0 && (output.surface_voxel_size > 100 * domain.dx || output.surface_voxel_size < 0.01 * domain.dx))
     fail(source, "output.surface_voxel_size", "expected a length within [0.01, 100] x domain.dx (" + fmt_num(domain.dx) + "), got " +
                                                   fmt_num(output.surface_voxel_size));
+  const double vdb_voxel = output.surface_voxel_size > 0 ? output.surface_voxel_size : domain.dx;
+  if ((!output.surface.empty() || output.vdb_points) && !(vdb_voxel >= kMinVoxelSize))
+    fail(source, output.surface_voxel_size > 0 ? "output.surface_voxel_size" : "domain.dx",
+         "the voxel of the OpenVDB outputs is " + fmt_num(vdb_voxel) +
+             " m, below the " + fmt_num(kMinVoxelSize) + " m OpenVDB can represent; expected a larger output.surface_voxel_size, or the scene in larger units");
   if (output.surface_smoothing < 0 || output.surface_smoothing > 100)
     fail(source, "output.surface_smoothing", "expected an integer in [0, 100], got " + std::to_string(output.surface_smoothing));
   // An MPM surface of some of the materials selects particles by the frame's material column.

@@ -16,6 +16,7 @@
 #include <system_error>
 
 #include "slurry/engine/errors.h"
+#include "slurry/engine/scene.h"
 #include "slurry/io/surface.h"
 #include "slurry/transfer/parallel.h"
 #include "vdb_common.h"
@@ -53,6 +54,9 @@ std::string fmt(double x) {
 void SurfaceParams::validate() const {
   if (!(voxel_size > 0) || !std::isfinite(voxel_size))
     throw std::invalid_argument("voxel_size: expected a length > 0, got " + fmt(voxel_size));
+  if (voxel_size < kMinVoxelSize)
+    throw std::invalid_argument("voxel_size: " + fmt(voxel_size) + " m is below the " + fmt(kMinVoxelSize) +
+                                " m OpenVDB can represent; expected a larger voxel");
   if (!(spacing > 0) || !std::isfinite(spacing))
     throw std::invalid_argument("spacing: expected a length > 0, got " + fmt(spacing));
   if (spacing > 1000 * voxel_size || voxel_size > 1000 * spacing)
@@ -250,6 +254,11 @@ openvdb::FloatGrid::Ptr union_grid(const PointCloud& points, double voxel_size, 
     throw std::invalid_argument(
         "union_of_spheres: expected a voxel size > 0 and a radius >= 1.5 voxels, got " +
         fmt(voxel_size) + " and " + fmt(radius));
+  // A non-finite position would size the dense block or a column index from NaN or infinity.
+  for (std::size_t i = 0; i < points.size(); ++i)
+    for (int d = 0; d < 3; ++d)
+      if (!std::isfinite(points.position[i][d]))
+        throw std::invalid_argument("points: position " + std::to_string(i) + " is not finite (expected finite positions)");
   if (points.size() == 0) throw std::invalid_argument("union_of_spheres: no particles to surface");
   detail::initialize_openvdb();
   openvdb::FloatGrid::Ptr grid;

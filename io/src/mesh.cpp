@@ -34,6 +34,13 @@ PointCloud point_cloud(const PlyData& frame, int material) {
   PointCloud c;
   for (std::size_t i = 0; i < v.count; ++i) {
     if (!mat.empty() && mat[i] != double(material)) continue;
+    if (!std::isfinite(x[i]) || !std::isfinite(y[i]) || !std::isfinite(z[i]))
+      throw IoError(frame.source.string() + ": vertex " + std::to_string(i) + " has a non-finite position (" +
+                    std::to_string(x[i]) + ", " + std::to_string(y[i]) + ", " + std::to_string(z[i]) +
+                    "); expected finite positions (a frame of a run that became unstable?)");
+    if (has_v && (!std::isfinite(vx[i]) || !std::isfinite(vy[i]) || !std::isfinite(vz[i])))
+      throw IoError(frame.source.string() + ": vertex " + std::to_string(i) +
+                    " has a non-finite velocity; expected finite velocities");
     c.position.push_back({x[i], y[i], z[i]});
     if (has_v) c.velocity.push_back({vx[i], vy[i], vz[i]});
     if (!id.empty()) {

@@ -6,7 +6,11 @@
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
+#include <iterator>
+#include <limits>
 #include <string>
+#include <variant>
+#include <vector>
 
 #include "slurry/engine/errors.h"
 #include "slurry/engine/scene.h"
@@ -71,6 +75,29 @@ TEST(Pipeline, SceneKeysAreValidated) {
           R"("attributes": ["position", "material"], "surface": ["vdb"], "surface_voxel_size": 10)")
           .find("output.surface_voxel_size"),
       std::string::npos);
+  // OpenVDB cannot represent a voxel below kMinVoxelSize: refused by validation, not an uncaught
+  // openvdb::ArithmeticError in the middle of the run.
+  const auto tiny = [](double dx) {
+    const std::string d = std::to_string(dx);
+    try {
+      (void)slurry::parse_scene(R"({"domain": {"min": [0, 0, 0], "max": [)" + std::to_string(40 * dx) + ", " +
+                                    std::to_string(40 * dx) + ", " + std::to_string(40 * dx) + R"(], "dx": )" + d + R"(},
+        "solver": {"type": "flip", "dimension": 3, "transfer": "apic", "kernel": "linear"},
+        "materials": [{"name": "water", "model": "fluid"}],
+        "bodies": [{"shape": "box", "min": [0, 0, 0], "max": [)" + std::to_string(10 * dx) + ", " +
+                                    std::to_string(10 * dx) + ", " + std::to_string(10 * dx) + R"(], "material": "water"}],
+        "output": {"frames": 1, "surface": ["ply"]}})",
+                                "tiny.json");
+    } catch (const slurry::SceneError& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  EXPECT_NE(tiny(1e-5).find("domain.dx: the voxel of the OpenVDB outputs is 1e-05 m, below the 1.45e-05 m OpenVDB "
+                            "can represent"),
+            std::string::npos)
+      << tiny(1e-5);
+  EXPECT_EQ(tiny(2e-5), "");
   // A fluid and a solid: the liquid is some of the materials, chosen by the material column.
   EXPECT_NE(error_of(R"("surface": ["vdb"])").find("expected \"material\" in output.attributes"),
             std::string::npos);
@@ -140,6 +167,35 @@ TEST(Pipeline, CliWritesSurfacesPointsAndIdsAndResurfaces) {
   EXPECT_EQ(
       run(std::string(SLURRY_CLI) + " surface -q " + (dir / "missing").string() + " 2>/dev/null"),
       3);
+  // A voxel OpenVDB cannot represent: a usage error, not an abort.
+  EXPECT_EQ(run(std::string(SLURRY_CLI) + " surface -q " + f.string() + " --voxel-size 1e-5 --spacing 1e-5 2>/dev/null"), 2);
+  // A frame with a non-finite position (one particle at NaN, one at infinity, or all at NaN):
+  // an error naming the file and the vertex (it crashed with SIGSEGV, dropped the particle at
+  // infinity, or wrote an empty surface).
+  auto data = slurry::io::read_ply(f / "frame_0001.ply");
+  std::vector<float>* column = nullptr;
+  for (auto& p : data.find("vertex")->properties)
+    if (p.name == "x") column = &std::get<std::vector<float>>(p.data);
+  ASSERT_NE(column, nullptr);
+  auto& x = *column;
+  for (const float bad : {std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity()}) {
+    const float kept = x[3];
+    x[3] = bad;
+    slurry::io::write_ply(f / "frame_0001.ply", data);
+    x[3] = kept;
+    const std::string cmd = std::string(SLURRY_CLI) + " surface -q " + f.string() + " 2> " + (dir / "err.txt").string();
+    EXPECT_EQ(run(cmd), 3) << bad;
+    std::ifstream in(dir / "err.txt");
+    const std::string err((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    EXPECT_NE(err.find("frame_0001.ply: vertex 3 has a non-finite position"), std::string::npos) << err;
+  }
+  // The library's entry point refuses them too (std::invalid_argument, not a crash).
+  auto nan_cloud = slurry::io::point_cloud(slurry::io::read_ply(f / "frame_0000.ply"));
+  nan_cloud.position[0][1] = std::numeric_limits<float>::quiet_NaN();
+  slurry::io::SurfaceParams params;
+  params.voxel_size = 0.05;
+  params.spacing = 0.05 / 2;
+  EXPECT_THROW(slurry::io::particles_to_level_set(nan_cloud, params), std::invalid_argument);
   fs::remove_all(dir);
 }
 #endif

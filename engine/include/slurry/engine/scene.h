@@ -214,6 +214,10 @@ struct EmitterParams {
   std::uint64_t seed = 1;                      ///< of the emission positions
 };
 
+/// The smallest voxel edge (m) of the OpenVDB outputs (surfaces and points): OpenVDB's scale
+/// transforms refuse a voxel whose volume is below 3e-15 m^3 (3 x its double tolerance).
+constexpr double kMinVoxelSize = 1.45e-5;
+
 struct OutputParams {
   std::string directory = "frames";  ///< relative paths are relative to the working directory
   double fps = 24;
@@ -225,7 +229,7 @@ struct OutputParams {
   /// "surface"), "ply" and "obj" (its triangle mesh); OpenVDB points with v, id and pscale.
   std::vector<std::string> surface;
   bool vdb_points = false;
-  double surface_voxel_size = 0;      ///< m; 0 = domain.dx
+  double surface_voxel_size = 0;      ///< m; 0 = domain.dx; at least kMinVoxelSize
   int surface_smoothing = 1;          ///< Gaussian filter passes of the level set, [0, 100]
   bool surface_per_material = false;  ///< one surface per liquid material instead of one for all
   /// Drift warnings (stats.h): relative change of the total mass, of the volume, and growth of
