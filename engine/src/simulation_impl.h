@@ -1403,7 +1403,19 @@ void Simulation<T, Dim>::load_state(std::string_view in, const std::string& what
   r.vec(P.id, n, "id");
   for (const auto k : P.material)
     if (k >= materials_.size()) r.fail("a particle's material " + std::to_string(k) + " is not one of this scene's");
+  detail::require_inside(r, P.x, x_lo_, x_hi_);
+  detail::require_finite(r, P.v, "the velocity");
+  for (std::int64_t p = 0; p < n; ++p)
+    if (!(P.m[std::size_t(p)] > T(0) && std::isfinite(P.m[std::size_t(p)]) && P.vol0[std::size_t(p)] > T(0) &&
+          std::isfinite(P.vol0[std::size_t(p)])))
+      r.fail("the mass or rest volume of particle " + std::to_string(p) + " is not a finite value > 0");
+  detail::require_finite(r, P.F, "F");
+  detail::require_positive(r, P.J, "J");
+  detail::require_finite(r, P.C, "C");
+  detail::require_finite(r, P.plastic, "the plastic state");
+  detail::require_unique_ids(r, P.id, std::uint64_t(n));  // an MPM frame's row is its particle's id
   r.pod(time_);
+  if (!(time_ >= 0 && std::isfinite(time_))) r.fail("its time is not a finite value >= 0");
   r.pod(steps_);
   r.pod(max_speed_);
   r.pod(max_wave_speed_);

@@ -6,6 +6,7 @@
 #pragma once
 #include <Eigen/Core>
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <functional>
@@ -147,6 +148,58 @@ class StateReader {
   std::size_t at_ = 0;
   std::string what_;
 };
+
+// A checkpoint is untrusted input however valid its checksum: a position outside the grid, a
+// repeated id or a non-finite value would index outside an array or poison the run. These
+// checks name the channel and the particle.
+
+/// Every entry finite (Eigen vectors and matrices, or scalars).
+template <class V>
+void require_finite(const StateReader& r, const std::vector<V>& values, const char* name) {
+  for (std::size_t i = 0; i < values.size(); ++i) {
+    bool ok;
+    if constexpr (std::is_arithmetic_v<V>)
+      ok = std::isfinite(values[i]);
+    else
+      ok = values[i].allFinite();
+    if (!ok) r.fail(std::string(name) + " of particle " + std::to_string(i) + " is not finite");
+  }
+}
+
+/// Every position finite and inside the box [lo, hi].
+template <class Vec>
+void require_inside(const StateReader& r, const std::vector<Vec>& x, const Vec& lo, const Vec& hi) {
+  for (std::size_t i = 0; i < x.size(); ++i)
+    if (!(x[i].allFinite() && (x[i].array() >= lo.array()).all() && (x[i].array() <= hi.array()).all()))
+      r.fail("the position of particle " + std::to_string(i) + " is not finite or lies outside the grid");
+}
+
+/// Every value finite and > 0 (masses, volumes, J).
+template <class S>
+void require_positive(const StateReader& r, const std::vector<S>& values, const char* name) {
+  for (std::size_t i = 0; i < values.size(); ++i)
+    if (!(values[i] > S(0) && std::isfinite(values[i])))
+      r.fail(std::string(name) + " of particle " + std::to_string(i) + " is not a finite value > 0");
+}
+
+/// Ids distinct and below `bound`.
+inline void require_unique_ids(const StateReader& r, const std::vector<std::uint32_t>& id, std::uint64_t bound) {
+  std::vector<bool> seen(std::size_t(std::min<std::uint64_t>(bound, id.size() * 4 + 64)), false);
+  std::vector<std::uint32_t> big;  // ids beyond the bitmap (emitters and reseeding leave gaps)
+  for (std::size_t i = 0; i < id.size(); ++i) {
+    if (id[i] >= bound) r.fail("the id " + std::to_string(id[i]) + " of particle " + std::to_string(i) + " is not below " + std::to_string(bound));
+    if (id[i] < seen.size()) {
+      if (seen[id[i]]) r.fail("the id " + std::to_string(id[i]) + " is held by more than one particle");
+      seen[id[i]] = true;
+    } else {
+      big.push_back(id[i]);
+    }
+  }
+  std::sort(big.begin(), big.end());
+  if (std::adjacent_find(big.begin(), big.end()) != big.end())
+    r.fail("the id " + std::to_string(*std::adjacent_find(big.begin(), big.end())) + " is held by more than one particle");
+}
+
 
 /// Section tags ("MPM ", "FLIP", "FEM ") and the (Dim, sizeof T) check shared by the solvers.
 inline constexpr std::uint32_t kTagMpm = 0x204d504d, kTagFlip = 0x50494c46, kTagFem = 0x204d4546,

@@ -16,6 +16,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <thread>
@@ -24,6 +25,8 @@
 #include "checkpoint.h"
 #include "slurry/engine/run.h"
 #include "slurry/engine/scene.h"
+#include "slurry/engine/flip/flip_simulation.h"
+#include "slurry/engine/simulation.h"
 
 namespace {
 
@@ -345,6 +348,57 @@ TEST(Checkpoint, FifoIsRefusedAndThePreviousOneUsed) {
   const Outcome r = run(scene, dir / "frames", 6, 1, /*resume=*/true);
   EXPECT_EQ(r.summary.resumed_from, 3);
   EXPECT_NE(joined(r.notices).find("a FIFO (named pipe)"), std::string::npos) << joined(r.notices);
+}
+
+// A checkpoint is untrusted input however valid its checksum: a state whose positions, ids or
+// values were altered is refused with a message naming the particle (a position outside the grid
+// or a repeated id ended in SIGSEGV), and the unaltered state loads.
+template <class Sim, class Change>
+std::string altered_state_error(const slurry::Scene& scene, Change change) {
+  Sim a(scene);
+  a.step(a.stable_dt());
+  change(a.particles());
+  std::string state;
+  a.save_state(state);
+  Sim b(scene);
+  try {
+    b.load_state(state, "altered.slc");
+  } catch (const slurry::IoError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(Checkpoint, AlteredStateIsRefusedNamingTheParticle) {
+  const auto mpm = slurry::parse_scene(mpm_scene().dump(), "mpm.json");
+  using Mpm = slurry::Simulation<float, 2>;
+  const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
+  EXPECT_EQ(altered_state_error<Mpm>(mpm, [](auto&) {}), "");
+  EXPECT_NE(altered_state_error<Mpm>(mpm, [&](auto& P) { P.x[5][0] = nan; })
+                .find("altered.slc: the solver state does not fit this scene: the position of particle 5 is not "
+                      "finite or lies outside the grid"),
+            std::string::npos);
+  EXPECT_NE(altered_state_error<Mpm>(mpm, [](auto& P) { P.x[6][1] = 1e6f; }).find("the position of particle 6"),
+            std::string::npos);
+  EXPECT_NE(altered_state_error<Mpm>(mpm, [](auto& P) { P.id[7] = P.id[8]; }).find("is held by more than one particle"),
+            std::string::npos);
+  EXPECT_NE(altered_state_error<Mpm>(mpm, [](auto& P) { P.id[7] = 4000000000u; })
+                .find("the id 4000000000 of particle 7 is not below"),
+            std::string::npos);
+  EXPECT_NE(altered_state_error<Mpm>(mpm, [&](auto& P) { P.v[2][1] = inf; }).find("the velocity of particle 2 is not finite"),
+            std::string::npos);
+  EXPECT_NE(altered_state_error<Mpm>(mpm, [&](auto& P) { P.F[3](0, 1) = nan; }).find("F of particle 3 is not finite"),
+            std::string::npos);
+
+  const auto flip = slurry::parse_scene(flip_scene().dump(), "flip.json");
+  using Flip = slurry::flip::FlipSimulation<float, 2>;
+  EXPECT_EQ(altered_state_error<Flip>(flip, [](auto&) {}), "");
+  EXPECT_NE(altered_state_error<Flip>(flip, [](auto& P) { P.x[4][0] = -3.0f; }).find("the position of particle 4"),
+            std::string::npos);
+  EXPECT_NE(altered_state_error<Flip>(flip, [](auto& P) { P.id[1] = P.id[0]; }).find("is held by more than one particle"),
+            std::string::npos);
+  EXPECT_NE(altered_state_error<Flip>(flip, [](auto& P) { P.id[1] = P.next_id; }).find("is not below"),
+            std::string::npos);
 }
 
 TEST(Checkpoint, OtherSolverLayoutIsRefused) {

@@ -156,7 +156,10 @@ void FemSimulation<T, Dim>::load_state(std::string_view in, const std::string& w
   const auto n = std::int64_t(fem_->vertex_count());
   r.vec(fem_->x, n, "vertex positions");
   r.vec(fem_->v, n, "vertex velocities");
+  detail::require_finite(r, fem_->x, "the position");
+  detail::require_finite(r, fem_->v, "the velocity");
   r.pod(time_);
+  if (!(time_ >= 0 && std::isfinite(time_))) r.fail("its time is not a finite value >= 0");
   r.pod(steps_);
   r.pod(cfl_reached_);
   r.pod(last_iterations_);

@@ -541,6 +541,10 @@ void FlipSimulation<T, Dim>::load_state(std::string_view in, const std::string& 
   r.pod(P.next_id);
   for (const auto k : P.material)
     if (k >= scene_.materials.size()) r.fail("a particle's material " + std::to_string(k) + " is not one of this scene's");
+  slurry::detail::require_inside(r, P.x, grid_.origin, Vec(grid_.origin + grid_.res.template cast<T>() * grid_.dx));
+  slurry::detail::require_finite(r, P.v, "the velocity");
+  for (int d = 0; d < Dim; ++d) slurry::detail::require_finite(r, P.c[std::size_t(d)], "the affine vector");
+  slurry::detail::require_unique_ids(r, P.id, P.next_id);
   for (int d = 0; d < Dim; ++d) {
     r.vec(grid_.u[std::size_t(d)], std::int64_t(grid_.num_faces(d)), "u");
     r.vec(grid_.valid[std::size_t(d)], std::int64_t(grid_.num_faces(d)), "valid");
@@ -558,6 +562,7 @@ void FlipSimulation<T, Dim>::load_state(std::string_view in, const std::string& 
   r.pod(max_speed_);
   r.pod(cfl_reached_);
   r.pod(time_);
+  if (!(time_ >= 0 && std::isfinite(time_))) r.fail("its time is not a finite value >= 0");
   r.pod(steps_);
   r.pod(reseed_added_);
   r.pod(reseed_removed_);
