@@ -47,20 +47,23 @@ std::uintmax_t regular_file_size(const fs::path& path, const std::string& expect
     if (ec == std::errc::too_many_symbolic_link_levels) fail("a loop of symbolic links");
     fail("cannot be examined: " + ec.message());
   }
+  const char* what = nullptr;
   switch (st.type()) {
     case fs::file_type::regular: break;
     case fs::file_type::not_found: {
       std::error_code lec;
-      if (fs::is_symlink(fs::symlink_status(path, lec))) fail("a symbolic link to a file that does not exist");
-      fail("no such file");
+      what = fs::is_symlink(fs::symlink_status(path, lec)) ? "a symbolic link to a file that does not exist"
+                                                           : "no such file";
+      break;
     }
-    case fs::file_type::directory: fail("a directory, not a file");
-    case fs::file_type::fifo: fail("a FIFO (named pipe), not a regular file");
-    case fs::file_type::socket: fail("a socket, not a regular file");
+    case fs::file_type::directory: what = "a directory, not a file"; break;
+    case fs::file_type::fifo: what = "a FIFO (named pipe), not a regular file"; break;
+    case fs::file_type::socket: what = "a socket, not a regular file"; break;
     case fs::file_type::block:
-    case fs::file_type::character: fail("a device, not a regular file");
-    default: fail("not a regular file");
+    case fs::file_type::character: what = "a device, not a regular file"; break;
+    default: what = "not a regular file"; break;
   }
+  if (what) fail(what);
   const std::uintmax_t size = fs::file_size(path, ec);
   if (ec) fail("its size cannot be read: " + ec.message());
   if (::access(path.c_str(), R_OK) != 0) fail(std::string("cannot be read: ") + std::strerror(errno));

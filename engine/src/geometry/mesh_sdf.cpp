@@ -229,10 +229,19 @@ void MeshSdf::row_crossings(int axis, double b, double c, std::vector<double>& o
     double w[3];
     bool inside = true;
     for (int e = 0; e < 3 && inside; ++e) {
-      const Eigen::Vector2d &s = p[(e + 1) % 3], &q = p[(e + 2) % 3];  // edge opposite vertex e
-      const Eigen::Vector2d d = q - s;
-      w[e] = d.x() * (-s.y()) - d.y() * (-s.x());  // cross(d, origin - s)
-      inside = w[e] > 0 || (w[e] == 0 && owns_edge(d.x(), d.y()));
+      // The edge opposite vertex e, from s to q. Its edge function is computed from the edge's
+      // lexicographically smaller end, whichever way this triangle runs along it, and negated
+      // for the other way: the two triangles that share the edge then get exactly opposite
+      // values, so a row through the edge is counted once. Computed from each triangle's own
+      // end, round-off could make both values negative (a cube's face diagonal dropped whole
+      // rows of particles) or both positive.
+      const Eigen::Vector2d &s = p[(e + 1) % 3], &q = p[(e + 2) % 3];
+      const bool flip = q.x() < s.x() || (q.x() == s.x() && q.y() < s.y());
+      const Eigen::Vector2d& a = flip ? q : s;
+      const Eigen::Vector2d d = (flip ? s : q) - a;
+      const double wa = d.x() * (-a.y()) - d.y() * (-a.x());  // cross(d, origin - a)
+      w[e] = flip ? -wa : wa;
+      inside = w[e] > 0 || (w[e] == 0 && (flip ? owns_edge(-d.x(), -d.y()) : owns_edge(d.x(), d.y())));
     }
     if (!inside) continue;
     out.push_back((w[0] * along[0] + w[1] * along[1] + w[2] * along[2]) / (w[0] + w[1] + w[2]));
