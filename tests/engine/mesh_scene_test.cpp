@@ -18,6 +18,7 @@
 
 namespace fs = std::filesystem;
 using slurry::Scene;
+using geometry_mesh = slurry::geometry::TriangleMesh;
 
 namespace {
 
@@ -104,6 +105,50 @@ TEST(MeshScene, CubeMeshSeedsItsBoxAtEveryPlacementAndScale) {
     }
   }
   EXPECT_EQ(cases, 20);
+}
+
+// Two closed parts that overlap (a common artist mesh) are filled as their union, the overlap
+// once (not left hollow, as the parity of the crossings left it), and a closed shell whose inner
+// surface faces inward stays hollow. Counted against the lattice points inside the boxes.
+TEST(MeshScene, OverlappingPartsFillTheirUnionAndAShellStaysHollow) {
+  const fs::path dir = temp_dir();
+  const auto joined = [](geometry_mesh a, const geometry_mesh& b, bool flip_b) {
+    const int base = int(a.vertices.size());
+    a.vertices.insert(a.vertices.end(), b.vertices.begin(), b.vertices.end());
+    for (auto t : b.triangles) {
+      if (flip_b) std::swap(t[1], t[2]);
+      a.triangles.push_back({t[0] + base, t[1] + base, t[2] + base});
+    }
+    return a;
+  };
+  const Eigen::Vector3d a_lo(-0.2, -0.2, -0.2), a_hi(0.1, 0.1, 0.1), b_lo(-0.1, -0.1, -0.1), b_hi(0.2, 0.2, 0.2);
+  const Eigen::Vector3d s_lo(-0.1, -0.1, -0.1), s_hi(0.1, 0.1, 0.1);  // the shell's cavity
+  slurry::test::write_obj(dir / "union.obj", joined(slurry::test::box_mesh(a_lo, a_hi), slurry::test::box_mesh(b_lo, b_hi), false));
+  slurry::test::write_obj(dir / "shell.obj", joined(slurry::test::box_mesh(a_lo, b_hi), slurry::test::box_mesh(s_lo, s_hi), true));
+  const auto count = [&](const char* mesh) {
+    return slurry::make_simulation(
+               slurry::parse_scene(std::string(R"({"domain": {"min": [0, 0, 0], "max": [1, 1, 1], "dx": 0.05},
+      "solver": {"dimension": 3}, "materials": [{"name": "m"}],
+      "bodies": [{"shape": "mesh", "mesh": ")") + mesh + R"(", "translation": [0.5, 0.5, 0.5], "material": "m"}]})",
+                                   (dir / "scene.json").string()))
+        ->particle_count();
+  };
+  // The seeding lattice over the bounding box [-0.2, 0.2]^3: 8 per cell of 0.05, spacing 0.025.
+  const auto in = [](const Eigen::Vector3d& x, const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+    return (x.array() > lo.array()).all() && (x.array() < hi.array()).all();
+  };
+  std::size_t in_union = 0, in_shell = 0;
+  for (int i = 0; i < 16; ++i)
+    for (int j = 0; j < 16; ++j)
+      for (int k = 0; k < 16; ++k) {
+        const Eigen::Vector3d x = Eigen::Vector3d(-0.2, -0.2, -0.2) + 0.025 * Eigen::Vector3d(i + 0.5, j + 0.5, k + 0.5);
+        in_union += in(x, a_lo, a_hi) || in(x, b_lo, b_hi);
+        in_shell += !in(x, s_lo, s_hi);
+      }
+  EXPECT_EQ(count("union.obj"), in_union);  // 12^3 + 12^3 - 8^3 = 2944
+  EXPECT_EQ(in_union, 2944u);
+  EXPECT_EQ(count("shell.obj"), in_shell);  // 16^3 - 8^3 = 3584
+  EXPECT_EQ(in_shell, 3584u);
 }
 
 TEST(MeshScene, SphereMeshFillsItsVolume) {

@@ -130,16 +130,16 @@ MeshSdf::MeshSdf(TriangleMesh mesh, double h, double margin, std::int64_t max_no
     const int ab = (axis + 1) % 3, ac = (axis + 2) % 3;
     const std::int64_t rows = std::int64_t(n_[ab]) * n_[ac];
     parallel::parallel_chunks(0, rows, [&](std::int64_t r0, std::int64_t r1) {
-      std::vector<double> cross;
+      std::vector<Crossing> cross;
       for (std::int64_t r = r0; r < r1; ++r) {
         const int ib = int(r % n_[ab]), ic = int(r / n_[ab]);
         row_crossings(axis, lo_[ab] + h_ * ib, lo_[ac] + h_ * ic, cross);
         std::size_t next = 0;
-        bool inside = false;
+        int winding = 0;
         for (int ia = 0; ia < n_[axis]; ++ia) {
           const double x = lo_[axis] + h_ * ia;
-          while (next < cross.size() && cross[next] < x) inside = !inside, ++next;
-          if (!inside) continue;
+          while (next < cross.size() && cross[next].at < x) winding -= cross[next++].exit;
+          if (winding == 0) continue;
           Eigen::Vector3i c;
           c[axis] = ia, c[ab] = ib, c[ac] = ic;
           ++votes[std::size_t(index(c[0], c[1], c[2]))];  // rows of one axis never share a node
@@ -194,7 +194,7 @@ void MeshSdf::build_triangle_bins() {
   }
 }
 
-void MeshSdf::row_crossings(int axis, double b, double c, std::vector<double>& out) const {
+void MeshSdf::row_crossings(int axis, double b, double c, std::vector<Crossing>& out) const {
   out.clear();
   const int ab = (axis + 1) % 3, ac = (axis + 2) % 3;
   const int jb = int(std::floor((b - bin_lo_[ab]) / bin_h_)),
@@ -225,6 +225,9 @@ void MeshSdf::row_crossings(int axis, double b, double c, std::vector<double>& o
     }
     double area = (p[1] - p[0]).x() * (p[2] - p[0]).y() - (p[1] - p[0]).y() * (p[2] - p[0]).x();
     if (area == 0) continue;  // seen edge-on: the row crosses its neighbours instead
+    // Counter-clockwise in the (ab, ac) plane: the outward normal points along +axis, so the row
+    // leaves the solid there.
+    const int exit = area > 0 ? 1 : -1;
     if (area < 0) std::swap(p[1], p[2]), std::swap(along[1], along[2]), area = -area;
     double w[3];
     bool inside = true;
@@ -244,29 +247,43 @@ void MeshSdf::row_crossings(int axis, double b, double c, std::vector<double>& o
       inside = w[e] > 0 || (w[e] == 0 && (flip ? owns_edge(-d.x(), -d.y()) : owns_edge(d.x(), d.y())));
     }
     if (!inside) continue;
-    out.push_back((w[0] * along[0] + w[1] * along[1] + w[2] * along[2]) / (w[0] + w[1] + w[2]));
+    out.push_back({(w[0] * along[0] + w[1] * along[1] + w[2] * along[2]) / (w[0] + w[1] + w[2]), exit});
   }
-  std::sort(out.begin(), out.end());
+  std::sort(out.begin(), out.end(),
+            [](const Crossing& a, const Crossing& b) { return a.at < b.at || (a.at == b.at && a.exit < b.exit); });
 }
+
+namespace {
+/// Whether a point at `x` along a row is inside: the row's winding number there (entries minus
+/// exits before it) is not zero. Overlapping closed parts are filled once (winding 2), a cavity
+/// bounded by an inward-facing surface stays empty (winding 0).
+bool winding_inside(const std::vector<MeshSdf::Crossing>& cross, double x) {
+  int winding = 0;
+  for (const auto& c : cross) {
+    if (!(c.at <= x)) break;
+    winding -= c.exit;
+  }
+  return winding != 0;
+}
+}  // namespace
 
 void MeshSdf::inside_along_row(int axis, double b, double c, const std::vector<double>& xs,
                                std::vector<char>& inside) const {
-  thread_local std::vector<double> cross;
+  thread_local std::vector<Crossing> cross;
   row_crossings(axis, b, c, cross);
   inside.resize(xs.size());
-  for (std::size_t i = 0; i < xs.size(); ++i)
-    inside[i] = char((std::upper_bound(cross.begin(), cross.end(), xs[i]) - cross.begin()) % 2);
+  for (std::size_t i = 0; i < xs.size(); ++i) inside[i] = char(winding_inside(cross, xs[i]));
 }
 
 bool MeshSdf::inside(const Vec3& y) const {
   thread_local std::uint64_t cached_for = 0;
   thread_local double cached_b = 0, cached_c = 0;
-  thread_local std::vector<double> cross;
+  thread_local std::vector<Crossing> cross;
   if (cached_for != serial_ || cached_b != y[0] || cached_c != y[1]) {
     row_crossings(2, y[0], y[1], cross);
     cached_for = serial_, cached_b = y[0], cached_c = y[1];
   }
-  return (std::upper_bound(cross.begin(), cross.end(), y[2]) - cross.begin()) % 2 == 1;
+  return winding_inside(cross, y[2]);
 }
 
 double MeshSdf::phi(const Vec3& y) const {

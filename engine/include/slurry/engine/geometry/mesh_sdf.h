@@ -9,10 +9,13 @@
 ///   triangle (each node tries its neighbours' nearest triangles, eight sweep orders, as in the
 ///   closest-point sweeping of Zhao 2005 and Bridson's level-set notes): every node holds the
 ///   exact distance to a triangle that is nearest or nearly so.
-/// - Sign: parity of ray crossings along the grid rows of all three axes, majority vote. A row
-///   meets a triangle where its projection falls inside the triangle's projection, with a
-///   top-left rule on edges and vertices, so a ray through a shared edge or vertex of a closed
-///   mesh is counted once.
+/// - Sign: the winding number of ray crossings (entries minus exits, from the outward normals)
+///   along the grid rows of all three axes, majority vote of "not zero". Overlapping closed parts
+///   are filled once, as their union; a cavity bounded by an inward-facing surface stays empty. A
+///   row meets a triangle where its projection falls inside the triangle's projection, with a
+///   top-left rule on edges and vertices whose edge functions are computed the same way for
+///   both triangles of an edge, so a ray through a shared edge or vertex of a closed mesh is
+///   counted once.
 /// - phi(y): trilinear interpolation, negative inside; outside the grid, phi at the nearest grid
 ///   point plus the distance to it (still positive, a lower bound near the grid).
 /// - first_entry(y0, y1): the exact first crossing of a segment into the solid (Moller and
@@ -48,8 +51,8 @@ class MeshSdf {
   /// `axis` through the other two coordinates (b, c) in cyclic order (axis 0: y = b, z = c).
   void inside_along_row(int axis, double b, double c, const std::vector<double>& xs,
                         std::vector<char>& inside) const;
-  /// Exact inside test of one point (the parity of the crossings along its z row; consecutive
-  /// points of one row reuse the row's crossings).
+  /// Exact inside test of one point (the winding number of the crossings along its z row is not
+  /// zero; consecutive points of one row reuse the row's crossings).
   bool inside(const Eigen::Vector3d& y) const;
 
   const TriangleMesh& mesh() const { return mesh_; }
@@ -58,12 +61,19 @@ class MeshSdf {
   Eigen::Vector3d upper() const { return lo_ + h_ * (n_.cast<double>() - Eigen::Vector3d::Ones()); }
   std::size_t bytes() const;
 
+  /// A row's crossing of the surface: where, and +1 where the row leaves the solid (the
+  /// triangle's outward normal along +axis), -1 where it enters.
+  struct Crossing {
+    double at;
+    int exit;
+  };
+
  private:
   std::int64_t index(int i, int j, int k) const {
     return (std::int64_t(k) * n_[1] + j) * n_[0] + i;
   }
-  /// Sorted crossing coordinates along the row parallel to `axis` through (b, c).
-  void row_crossings(int axis, double b, double c, std::vector<double>& out) const;
+  /// The crossings along the row parallel to `axis` through (b, c), sorted by position.
+  void row_crossings(int axis, double b, double c, std::vector<Crossing>& out) const;
   void build_triangle_bins();
 
   TriangleMesh mesh_;
