@@ -103,6 +103,18 @@ TEST(TriangleMesh, PlyFacesAndErrorsNameTheFileAndLine) {
   EXPECT_NE(
       slurry::test::message_of([&] { read_triangle_mesh(d / "none.obj"); }).find("no such file"),
       std::string::npos);
+  // Text quoted from the file is made safe: a terminal escape is shown as \x1b, not replayed,
+  // and a 300-digit index is cut to 80 characters.
+  std::ofstream(d / "esc.obj") << "v 0 0 0\nv 1 0 0\nv 0 1 0\nv \x1b[31mred\n";
+  const std::string esc = slurry::test::message_of([&] { read_triangle_mesh(d / "esc.obj"); });
+  EXPECT_NE(esc.find("esc.obj:4: expected a vertex \"v x y z\" of three finite numbers, got \"v \\x1b[31mred\""),
+            std::string::npos)
+      << esc;
+  EXPECT_EQ(esc.find('\x1b'), std::string::npos) << esc;
+  std::ofstream(d / "long.obj") << "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3" << std::string(300, '9') << "x\n";
+  const std::string longer = slurry::test::message_of([&] { read_triangle_mesh(d / "long.obj"); });
+  EXPECT_NE(longer.find("...(302 bytes in all)"), std::string::npos) << longer;
+  EXPECT_LT(longer.size(), 300u) << longer;
   // Named for what they are, not "no such file".
   fs::create_directory(d / "dir.obj");
   EXPECT_NE(slurry::test::message_of([&] { read_triangle_mesh(d / "dir.obj"); })

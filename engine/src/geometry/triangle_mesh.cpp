@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <cstdio>
 #include <fstream>
 #include <limits>
 #include <sstream>
@@ -72,6 +73,24 @@ namespace {
   throw IoError(path.string() + ": " + what);
 }
 
+/// Text from the file for a message: control and non-ASCII bytes as \xNN (terminal escapes are
+/// not replayed on the user's screen), and at most 80 characters.
+std::string safe_text(const std::string& text) {
+  std::string out;
+  for (std::size_t i = 0; i < text.size(); ++i) {
+    if (out.size() >= 80) return out + "...(" + std::to_string(text.size()) + " bytes in all)";
+    const auto c = static_cast<unsigned char>(text[i]);
+    if (c >= 0x20 && c < 0x7f) {
+      out += char(c);
+    } else {
+      char hex[8];
+      std::snprintf(hex, sizeof hex, "\\x%02x", c);
+      out += hex;
+    }
+  }
+  return out;
+}
+
 TriangleMesh read_obj(const fs::path& path) {
   std::ifstream in(path);
   if (!in) fail(path, "cannot be opened (expected a readable OBJ file)");
@@ -89,7 +108,7 @@ TriangleMesh read_obj(const fs::path& path) {
       Eigen::Vector3d v;
       if (!(ls >> v[0] >> v[1] >> v[2]) || !v.allFinite())
         throw IoError(where() + ": expected a vertex \"v x y z\" of three finite numbers, got \"" +
-                      line + "\"");
+                      safe_text(line) + "\"");
       m.vertices.push_back(v);
     } else if (tag == "f") {
       face.clear();
@@ -105,7 +124,7 @@ TriangleMesh read_obj(const fs::path& path) {
           used = 0;
         }
         if (used != head.size() || head.empty())
-          throw IoError(where() + ": expected a vertex index in the face, got \"" + item + "\"");
+          throw IoError(where() + ": expected a vertex index in the face, got \"" + safe_text(item) + "\"");
         const long n = long(m.vertices.size());
         const long zero_based = idx > 0 ? idx - 1 : n + idx;
         if (idx == 0 || zero_based < 0 || zero_based >= n)
