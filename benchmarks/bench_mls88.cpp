@@ -1,4 +1,4 @@
-// Slurry against the 88-line MLS-MPM reference (issue 15, part 2, the 2D bar: >= 2x its
+// Slurry against the 88-line MLS-MPM reference (the 2D bar: >= 2x its
 // particle-steps/s on one thread). The scene, benchmarks/scenes/mls88_snow_2d.json, is the
 // reference's high-resolution set-up: Hu et al. 2018, "A moving least squares material point
 // method with displacement discontinuity and two-way rigid body coupling", 88-line version

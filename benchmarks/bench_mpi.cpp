@@ -1,4 +1,4 @@
-// Scaling of the MPM solver split over processes (issue 14, part 3). Run it under mpirun; rank 0
+// Scaling of the MPM solver split over processes. Run it under mpirun; rank 0
 // prints the table:
 //
 //   mpirun -np N build/release/bin/bench_mpi --benchmark_counters_tabular=true

@@ -73,7 +73,7 @@ void BM_Material(benchmark::State& state) {
 // counters are then the minimum rate, the conservative side.
 double fastest(const std::vector<double>& v) { return v.empty() ? 0.0 : *std::min_element(v.begin(), v.end()); }
 
-// res^3 particles: 31 -> 30 k (the small-scene bar of issue 15), 47 -> 104 k, 100 -> 1.0 M, 159 -> 4.0 M.
+// res^3 particles: 31 -> 30 k (the small-scene bar), 47 -> 104 k, 100 -> 1.0 M, 159 -> 4.0 M.
 void Args3D(benchmark::internal::Benchmark* b) {
   for (int res : {31, 47, 100, 159})
     for (int t : {1, 2}) b->Args({res, t});

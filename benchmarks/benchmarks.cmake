@@ -23,12 +23,12 @@ if(EXISTS ${CMAKE_CURRENT_SOURCE_DIR}/tradeoff/tradeoff.cpp)
                          ENVIRONMENT "OMP_NUM_THREADS=1")
   endif()
 endif()
-# Scaling over MPI processes (run under mpirun; issue 14).
+# Scaling over MPI processes (run under mpirun).
 if(SLURRY_BUILD_MPI AND EXISTS ${CMAKE_CURRENT_SOURCE_DIR}/bench_mpi.cpp)
   slurry_add_benchmark(bench_mpi bench_mpi.cpp)
   target_link_libraries(bench_mpi PRIVATE slurry::mpi)
 endif()
-# Slurry against the 88-line MLS-MPM reference's high-resolution set-up (issue 15, part 2).
+# Slurry against the 88-line MLS-MPM reference's high-resolution set-up.
 if(EXISTS ${CMAKE_CURRENT_SOURCE_DIR}/bench_mls88.cpp)
   slurry_add_benchmark(bench_mls88 bench_mls88.cpp)
   target_compile_definitions(bench_mls88 PRIVATE SLURRY_BENCH_SCENES_DIR="${CMAKE_CURRENT_SOURCE_DIR}/scenes")

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Weak-scaling model of the MPM solver split over MPI processes (issue 14, part 3).
+"""Weak-scaling model of the MPM solver split over MPI processes.
 
     python3 benchmarks/mpi/model.py
 

@@ -1,4 +1,4 @@
-// The bad-input campaign of issue 11, one regression test per case: the CLI's exit code (2 bad
+// Bad input as a new user gives it, one regression test per case: the CLI's exit code (2 bad
 // scene or usage, 3 file or resource error), a fragment of its one-line message (file, field or
 // argument, what was expected), and that a run failing before its first frame creates nothing.
 // Then the output directory (another scene's frames, --overwrite, stale temporary files) and an

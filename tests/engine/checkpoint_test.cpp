@@ -1,4 +1,4 @@
-// Checkpoints and resume (issue 14, part 1) and on_instability "retry" (issue 12, part 5).
+// Checkpoints and resume, and on_instability "retry".
 //
 // A run stopped (or killed) and resumed from its newest checkpoint writes frames and stats.csv
 // byte-identical to an uninterrupted run, for MPM, FLIP (with an emitter: its generator state

@@ -1,4 +1,4 @@
-// Mesh bodies and mesh colliders in whole scenes (issue 13, parts 1-2): a mesh body seeds the
+// Mesh bodies and mesh colliders in whole scenes: a mesh body seeds the
 // same lattice as the box it describes (MPM and FLIP), a sphere mesh fills its volume, bad
 // meshes and keys are refused with messages naming the scene, the key and the mesh file, a
 // static mesh collider holds a block where the analytic box collider does, and a keyframed

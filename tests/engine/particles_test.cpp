@@ -1,4 +1,4 @@
-// Mass and rest volume stored once while uniform (particles.h, issue 15): the storage follows
+// Mass and rest volume stored once while uniform (particles.h): the storage follows
 // the values (once while every particle has the same bits, per particle from the first that
 // differs), and it changes no bit of a simulation, of its checkpoints or of its statistics.
 #include <gtest/gtest.h>

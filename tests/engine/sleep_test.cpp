@@ -1,4 +1,4 @@
-// Sleeping material (issue 15, part 4; solver.sleep): a sand layer settles on the floor and goes
+// Sleeping material (solver.sleep): a sand layer settles on the floor and goes
 // to sleep block by block; a ball dropped into it wakes what it hits. Frames equal the run
 // without sleeping bit for bit until the first block sleeps, and stay within a fraction of a
 // cell of it after; the ball comes to rest on the layer at the same height; a checkpoint taken

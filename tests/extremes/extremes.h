@@ -1,4 +1,4 @@
-// The harness of the extremes suite (issue 12, part 4): runs a scene frame by frame through the
+// The harness of the extremes suite: runs a scene frame by frame through the
 // public API and checks, after every frame, what every extreme case must keep:
 //   - every position and velocity (and J) written in a frame is finite;
 //   - every particle is inside the domain box;

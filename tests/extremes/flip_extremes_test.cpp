@@ -1,4 +1,4 @@
-// The extremes suite, FLIP liquids (issue 12, part 4): a drop from 10 m, a closed box filled
+// The extremes suite, FLIP liquids: a drop from 10 m, a closed box filled
 // to the lid, a single particle, and an emitter running at its limit.
 #include <gtest/gtest.h>
 

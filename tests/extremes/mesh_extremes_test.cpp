@@ -1,4 +1,4 @@
-// Mesh colliders at the extremes (issue 13, part 2): a triangle-mesh wall a quarter of a cell
+// Mesh colliders at the extremes: a triangle-mesh wall a quarter of a cell
 // thick, hit at 20 m/s by an elastic block (MPM, separate and sticky) and by a block of water
 // (FLIP). The grid cannot resolve such a wall: nodes on both sides of it lie outside the solid.
 // The particle-level check (colliders.h, stop_at_collider: the exact first crossing of each

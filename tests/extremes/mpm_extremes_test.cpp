@@ -1,4 +1,4 @@
-// The extremes suite, MPM solids (issue 12, part 4): stiffness, Poisson's ratio, density, impact
+// The extremes suite, MPM solids: stiffness, Poisson's ratio, density, impact
 // speed, compression, one-particle bodies, thin colliders, the Courant numbers at their bounds
 // and every transfer x kernel pair. The outcome of each case (runs or stops) is asserted; the
 // figures go to tests/extremes/README.md.

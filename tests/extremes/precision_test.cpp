@@ -1,4 +1,4 @@
-// The extremes suite, float precision far from the origin (issue 12, part 4).
+// The extremes suite, float precision far from the origin.
 #include <gtest/gtest.h>
 
 #include <cmath>

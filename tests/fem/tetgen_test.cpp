@@ -127,7 +127,7 @@ const BadCase kBad[] = {
      "m.ele:3: element 2: is inverted: its orientation is opposite to that of the other 2 elements"},
     {"extra_element", "4 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n", "1 4 0\n1 1 2 3 4\n2 1 2 3 4\n",
      "m.ele:3: end of file: expected no more elements after 1"},
-    // Headers announcing 2^30 items in a short file fail at its end, before allocating them (issue 11).
+    // Headers announcing 2^30 items in a short file fail at its end, before allocating them.
     {"node_header_2_30", "1073741824 3 0 0\n1 0 0 0\n", "1 4 0\n", "m.node:2: the file ends early (expected point 2 of 1073741824)"},
     {"ele_header_2_30", "4 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n", "1073741824 4 0\n1 1 2 3 4\n",
      "m.ele:2: the file ends early (expected element 2 of 1073741824)"},

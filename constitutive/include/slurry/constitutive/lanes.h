@@ -167,7 +167,7 @@ constexpr int kWidth = 64 / int(sizeof(T));
 
 /// Whether lane code beats the scalar code it batches: packets of 4 or more T (AVX2 or AVX-512,
 /// or SSE2 floats). With SSE2 doubles (2 per packet) the batched 3x3 SVD measured slower than
-/// svd.h's scalar one, 171 against 156 ns (benchmarks/RESULTS.md, 2026-11-26 session 13).
+/// svd.h's scalar one, 171 against 156 ns (benchmarks/RESULTS.md, "3x3 SVD").
 template <class T>
 constexpr bool kPays = detail::kPacketSize<T> >= 4;
 

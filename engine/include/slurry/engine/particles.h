@@ -10,7 +10,7 @@
 ///
 /// Mass and rest volume are the same for every particle of a body, and usually of a whole
 /// scene: they are `ScalarChannel`s, stored once while every particle has the same value and per
-/// particle from the first particle that differs (8 bytes per particle in 3D float, issue 15).
+/// particle from the first particle that differs (8 bytes per particle in 3D float).
 #include <Eigen/Core>
 #include <cstddef>
 #include <cstdint>

@@ -117,7 +117,7 @@ void parallel_tasks(std::int64_t begin, std::int64_t end, Fn&& fn) {
 /// of each other's particle ranges (x, v, C, F), and each thread's prefetch streams restart at
 /// every block (which of the two cost more was not measured). 3D G2P on two threads, 1 M
 /// particles: 14.2 -> 12.9 ms per substep with runs of 16 or more; one thread unchanged
-/// (BM_MlsStep, benchmarks/RESULTS.md, 2026-11-27 session 21).
+/// (BM_MlsStep, benchmarks/RESULTS.md, "3D MPM throughput").
 inline std::int64_t task_run(std::int64_t tasks) {
   return std::clamp<std::int64_t>(tasks / (8 * std::int64_t(std::max(1, max_threads()))), 1, 32);
 }
