@@ -1066,20 +1066,20 @@ void Simulation<T, Dim>::return_mapping() {
       if (m.plastic_kind == PlasticModel::Snow)
         m.wave_speed = std::max(m.wave_speed, m.base_wave_speed * std::sqrt(hmax[bi]));
     }
-    if (split_) {  // the time step is global: the stiffest snow of any rank
-      std::vector<double> c;
-      for (const auto& m : materials_) c.push_back(double(m.wave_speed));
-      split_->comm->max(c.data(), int(c.size()));
-      for (std::size_t k = 0; k < c.size(); ++k) materials_[k].wave_speed = T(c[k]);
-    }
   }
-  fluid_wave_speeds();
+  const bool fluid = fluid_wave_speeds();
+  if (split_ && (snow || fluid)) {  // the time step is global: the stiffest snow or liquid of any rank
+    std::vector<double> c;
+    for (const auto& m : materials_) c.push_back(double(m.wave_speed));
+    split_->comm->max(c.data(), int(c.size()));
+    for (std::size_t k = 0; k < c.size(); ++k) materials_[k].wave_speed = T(c[k]);
+  }
   max_wave_speed_ = 0;
   for (const auto& m : materials_) max_wave_speed_ = std::max(max_wave_speed_, m.wave_speed);
 }
 
 template <class T, int Dim>
-void Simulation<T, Dim>::fluid_wave_speeds() {
+bool Simulation<T, Dim>::fluid_wave_speeds() {
   // A Tait liquid stiffens as it is compressed: c(J) = c(1) J^((1-gamma)/2) (fluid.h). Where a
   // liquid hits a wall it reaches J = 0.8 and below, c(J) is nearly twice c(1), and a step set by
   // c(1) alone would run at an elastic Courant number near 1 there and blow up. So each fluid's
@@ -1087,7 +1087,7 @@ void Simulation<T, Dim>::fluid_wave_speeds() {
   // c(J) is monotonic in J, the smallest and the largest J bound it.
   bool any = false;
   for (const auto& m : materials_) any = any || m.fluid;
-  if (!any) return;
+  if (!any) return false;
   const auto& P = particles_;
   const auto& bins = bins_.bins();
   const std::uint32_t* order = bins_.order();
@@ -1113,12 +1113,7 @@ void Simulation<T, Dim>::fluid_wave_speeds() {
     const T ratio = std::max(eos.sound_speed_ratio(range[bi].first), eos.sound_speed_ratio(range[bi].second));
     m.wave_speed = std::max(m.wave_speed, m.base_wave_speed * ratio);
   }
-  if (split_) {  // the time step is global: the stiffest liquid of any rank
-    std::vector<double> c;
-    for (const auto& m : materials_) c.push_back(double(m.wave_speed));
-    split_->comm->max(c.data(), int(c.size()));
-    for (std::size_t k = 0; k < c.size(); ++k) materials_[k].wave_speed = T(c[k]);
-  }
+  return true;
 }
 
 template <class T, int Dim>

@@ -106,13 +106,12 @@ int main(int argc, char** argv) {
   fs::remove_all(out);
   fs::create_directories(out);
 
-  const std::string run_path = scene_path;
-  const slurry::Scene scene = slurry::load_scene(run_path);
+  const slurry::Scene scene = slurry::load_scene(scene_path);
   const int dim = scene.solver.dimension;
   const int last = frames >= 0 ? frames : scene.output.frames;
   const fs::path frame_dir = fs::path(out) / "frames";
 
-  std::string cmd = quote(cli) + " run --quiet " + quote(run_path) + " --out " + quote(frame_dir.string());
+  std::string cmd = quote(cli) + " run --quiet " + quote(scene_path) + " --out " + quote(frame_dir.string());
   if (frames >= 0) cmd += " --frames " + std::to_string(frames);
   const fs::path err_file = fs::path(out) / "stderr.txt";
   std::printf("%s\n", cmd.c_str());

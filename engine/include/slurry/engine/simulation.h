@@ -233,7 +233,7 @@ class Simulation final : public SimulationBase {
   /// Walls (node index ranges) and colliders at time t, for both grid updates.
   GridBoundaries<T, Dim> grid_boundaries(T t) const;
   void return_mapping();
-  void fluid_wave_speeds();  // return_mapping's end: the liquids' wave speeds at their current J
+  bool fluid_wave_speeds();  // return_mapping's end: this rank's liquids' wave speeds at their J; false if no liquid
   [[noreturn]] void diagnose(T dt) const;
   // Sleeping material (solver.sleep, scene.h): which blocks sleep this substep and their cached
   // grid contributions (sleep_prepare, after binning); blocks whose nodes moved wake
