@@ -1,7 +1,7 @@
 // FLIP/APIC liquid solver throughput.
 //
 //   build/release/bin/bench_flip --benchmark_counters_tabular=true
-//     BM_FlipStep/<res>/<threads>: one full FLIP substep (every phase of FlipSimulation::step),
+//     BM_FlipStep/<res>/<threads>: one full FLIP substep (every phase of FlipSolver::step),
 //       APIC, linear kernel, float, a block of liquid filling the lower half of a res^3 box at 8
 //       particles per cell, settling under gravity. Counter: particle-steps/s.
 //     BM_DamBreakFrame/<threads>: the bar, a 3D dam break on a 150 x 100 x 75 grid
@@ -16,12 +16,13 @@
 #include <cstring>
 #include <string>
 
-#include "slurry/engine/flip/flip_simulation.h"
+#include "slurry/engine/flip/flip_solver.h"
 #include "slurry/transfer/parallel.h"
+#include "slurry/io/scene_file.h"
 
 namespace {
 
-using Sim3 = slurry::flip::FlipSimulation<float, 3>;
+using Sim3 = slurry::flip::FlipSolver<float, 3>;
 
 slurry::Scene block_scene(int res) {
   slurry::Scene s;
@@ -92,7 +93,7 @@ BENCHMARK(BM_DamBreakFrame)->Arg(1)->Arg(2)->Unit(benchmark::kSecond)->UseRealTi
 /// --phases SCENE FRAMES [THREADS]: per-phase breakdown of any FLIP scene.
 template <class T, int Dim>
 int run_phases(const slurry::Scene& scene, int frames) {
-  slurry::flip::FlipSimulation<T, Dim> sim(scene);
+  slurry::flip::FlipSolver<T, Dim> sim(scene);
   const auto t0 = std::chrono::steady_clock::now();
   int iterations = 0;
   for (int f = 1; f <= frames; ++f) {

@@ -12,7 +12,7 @@
 
 #include <cmath>
 
-#include "slurry/engine/simulation.h"
+#include "slurry/engine/mpm/mpm_solver.h"
 #include "slurry/transfer/parallel.h"
 
 namespace {
@@ -68,9 +68,9 @@ void BM_StiffBodyOneSecond(benchmark::State& state) {
       particles = double(sim.particle_count());
     };
     if (dim == 2)
-      run(slurry::Simulation<double, 2>(scene));
+      run(slurry::MpmSolver<double, 2>(scene));
     else
-      run(slurry::Simulation<double, 3>(scene));
+      run(slurry::MpmSolver<double, 3>(scene));
   }
   const double runs = double(state.iterations());
   state.counters["particles"] = particles;

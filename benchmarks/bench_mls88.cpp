@@ -23,8 +23,9 @@
 
 #include <string>
 
-#include "slurry/engine/simulation.h"
+#include "slurry/engine/mpm/mpm_solver.h"
 #include "slurry/transfer/parallel.h"
+#include "slurry/io/scene_file.h"
 
 #ifndef SLURRY_BENCH_SCENES_DIR
 #define SLURRY_BENCH_SCENES_DIR "benchmarks/scenes"
@@ -44,7 +45,7 @@ void BM_Mls88(benchmark::State& state) {
   slurry::PhaseTimes spent;
   for (auto _ : state) {
     state.PauseTiming();
-    slurry::Simulation<float, 2> sim(scene);
+    slurry::MpmSolver<float, 2> sim(scene);
     for (int i = 0; i < warm; ++i) sim.step(dt);
     const slurry::PhaseTimes before = sim.phase_times();
     state.ResumeTiming();

@@ -23,7 +23,7 @@
 #include <memory>
 
 #include "block_scene.h"
-#include "slurry/engine/simulation.h"
+#include "slurry/engine/mpm/mpm_solver.h"
 #include "slurry/mpi/mpi.h"
 #include "slurry/transfer/parallel.h"
 
@@ -35,7 +35,7 @@ void run(benchmark::State& state, bool weak) {
   auto& mpi = *g_mpi;
   const int res = int(state.range(0));
   slurry::parallel::ThreadLimit threads(1);
-  slurry::Simulation<float, 3> sim(slurry::bench::block_scene(3, res, false, weak ? mpi.size() : 1), &mpi);
+  slurry::MpmSolver<float, 3> sim(slurry::bench::block_scene(3, res, false, weak ? mpi.size() : 1), &mpi);
   const float dt = 0.2f * sim.stable_dt();
   for (int i = 0; i < 3; ++i) sim.step(dt);  // warm up: grid blocks and particle order settle
   const auto sent = mpi.exchanged_bytes();

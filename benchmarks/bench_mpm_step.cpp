@@ -15,7 +15,7 @@
 
 #include "block_scene.h"
 #include "peak_rss.h"
-#include "slurry/engine/simulation.h"
+#include "slurry/engine/mpm/mpm_solver.h"
 #include "slurry/transfer/parallel.h"
 
 namespace {
@@ -24,7 +24,7 @@ template <class T, int Dim>
 void run_steps(benchmark::State& state, int threads_wanted, const slurry::Scene& scene, std::string label = {}) {
   slurry::parallel::ThreadLimit threads(threads_wanted);
   const bool reset = slurry::bench::reset_peak_rss();
-  slurry::Simulation<T, Dim> sim(scene);
+  slurry::MpmSolver<T, Dim> sim(scene);
   const T dt = T(0.2) * sim.stable_dt();
   for (int i = 0; i < 3; ++i) sim.step(dt);  // warm up: grid blocks and particle order settle
   const slurry::PhaseTimes before = sim.phase_times();

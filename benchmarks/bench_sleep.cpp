@@ -10,8 +10,9 @@
 // Arguments: sleeping (0 off, 1 on), threads.
 #include <benchmark/benchmark.h>
 
-#include "slurry/engine/simulation.h"
+#include "slurry/engine/mpm/mpm_solver.h"
 #include "slurry/transfer/parallel.h"
+#include "slurry/io/scene_file.h"
 
 namespace {
 
@@ -40,7 +41,7 @@ void BM_SleepingPile(benchmark::State& state) {
   double n = 0, substeps = 0, asleep = 0;
   for (auto _ : state) {
     state.PauseTiming();
-    slurry::Simulation<float, 3> sim(pile_scene(sleep));
+    slurry::MpmSolver<float, 3> sim(pile_scene(sleep));
     sim.advance_to(0.35);
     state.ResumeTiming();
     substeps += double(sim.advance_to(0.65));

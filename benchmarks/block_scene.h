@@ -4,7 +4,7 @@
 // res^3 particles for res cells per axis (res^2 in 2D). `stretch` lengthens the domain and the
 // block along x by that factor (weak scaling: the same particles per rank on `stretch` ranks).
 #pragma once
-#include "slurry/engine/scene.h"
+#include "slurry/engine/scene/scene.h"
 
 namespace slurry::bench {
 

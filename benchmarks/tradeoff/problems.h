@@ -9,9 +9,9 @@
 #include <string>
 #include <vector>
 
-#include "slurry/engine/flip/flip_simulation.h"
-#include "slurry/engine/scene.h"
-#include "slurry/engine/simulation.h"
+#include "slurry/engine/flip/flip_solver.h"
+#include "slurry/engine/scene/scene.h"
+#include "slurry/engine/mpm/mpm_solver.h"
 
 namespace tradeoff {
 
@@ -22,7 +22,7 @@ struct Result {
   double value = NAN;           ///< the signed quantity behind it (for self-convergence in dt)
   double aux = NAN;             ///< a second figure (e.g. spurious speed), NAN if none
   double particle_steps = 0;    ///< sum over substeps of the particle count
-  double sim_bytes = 0;         ///< Simulation::bytes() at the end (particles and grid)
+  double sim_bytes = 0;         ///< MpmSolver::bytes() at the end (particles and grid)
   double substeps = 0;
 };
 
@@ -98,7 +98,7 @@ inline Scene bar_scene(double dx) {
 
 template <class T>
 Result bar_run_t(const Scene& s) {
-  slurry::Simulation<T, 2> sim(s);
+  slurry::MpmSolver<T, 2> sim(s);
   const double E = s.materials[0].E, rho = s.materials[0].density;
   const double L = 1.0, c = std::sqrt(E / rho), period = 2 * L / c, v0 = 0.05;
   auto& P = sim.particles();
@@ -159,7 +159,7 @@ inline Scene disks_scene(double dx) {
 
 template <class T>
 Result disks_run_t(const Scene& s) {
-  slurry::Simulation<T, 2> sim(s);
+  slurry::MpmSolver<T, 2> sim(s);
   const double e0 = double(sim.kinetic_energy() + sim.elastic_energy());
   sim.advance_to(3.0);
   Result r;
@@ -223,7 +223,7 @@ inline Scene granular3d_scene(double dx) {
 
 template <class T, int Dim>
 Result granular_run_t(const Scene& s) {
-  slurry::Simulation<T, Dim> sim(s);
+  slurry::MpmSolver<T, Dim> sim(s);
   sim.advance_to(1.0);
   const auto& P = sim.particles();
   const double dx = s.domain.dx, ppc = s.bodies[0].particles_per_cell;
@@ -269,7 +269,7 @@ inline Scene hydrostatic_scene(int dim, double dx) {
 
 template <class T, int Dim>
 Result hydrostatic_run_t(const Scene& s) {
-  slurry::flip::FlipSimulation<T, Dim> sim(s);
+  slurry::flip::FlipSolver<T, Dim> sim(s);
   const double H = s.bodies[0].max[1], g = 9.81, rho = 1000, dx = s.domain.dx;
   double worst_speed = 0;
   for (int f = 1; f <= 24; ++f) {
@@ -313,7 +313,7 @@ inline Scene wave_scene(double dx) {
 
 template <class T>
 Result wave_run_t(const Scene& s) {
-  slurry::flip::FlipSimulation<T, 2> sim(s);
+  slurry::flip::FlipSolver<T, 2> sim(s);
   const double L = 1, h = 0.5, g = 9.81, amp = 0.01;
   const double k = M_PI / L, omega = std::sqrt(g * k * std::tanh(k * h)), period = 2 * M_PI / omega;
   auto& P = sim.particles();
@@ -367,7 +367,7 @@ inline Scene taylor_green_scene(double dx) {
 
 template <class T>
 Result taylor_green_run_t(const Scene& s) {
-  slurry::flip::FlipSimulation<T, 2> sim(s);
+  slurry::flip::FlipSolver<T, 2> sim(s);
   auto& P = sim.particles();
   for (std::size_t p = 0; p < P.size(); ++p) {
     const double x = double(P.x[p][0]), y = double(P.x[p][1]);
@@ -410,7 +410,7 @@ inline Scene dam_break_scene(double dx) {
 
 template <class T>
 Result dam_break_run_t(const Scene& s) {
-  slurry::flip::FlipSimulation<T, 2> sim(s);
+  slurry::flip::FlipSolver<T, 2> sim(s);
   const double g = 9.81, spacing = s.domain.dx / std::sqrt(s.bodies[0].particles_per_cell);
   double sum = 0, abs_sum = 0;
   const int n = int(std::size(kMartinMoyceT));

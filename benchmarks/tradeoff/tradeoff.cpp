@@ -25,7 +25,7 @@
 #include <vector>
 
 #include "problems.h"
-#include "slurry/engine/quality.h"
+#include "slurry/engine/scene/quality.h"
 #include "slurry/transfer/parallel.h"
 
 namespace {

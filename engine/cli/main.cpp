@@ -5,7 +5,7 @@
 //   slurry resume DIR [--frames N] [--threads N] [--memory-limit GB] [--ascii] [--quiet] [--force]
 //   slurry validate SCENE.json [--memory-limit GB]
 //   slurry surface DIR [--scene S] [--voxel-size H] [--spacing S] [--smoothing N] [--formats vdb,ply,obj] [--points]
-//                      (built with slurry::io, SLURRY_BUILD_IO=ON)
+//                      (built with slurry::io, SLURRY_WITH_OPENVDB=ON)
 //   mpirun -np N slurry run SCENE.json ...   (built with slurry::mpi, SLURRY_BUILD_MPI=ON): the MPM
 //                      domain split over N processes; rank 0 writes the frames and prints the log
 //                      (with output.per_rank each process writes frame_NNNN.rankR.ply instead)
@@ -28,10 +28,11 @@
 #include <thread>
 #include <unistd.h>
 
-#include "slurry/engine/run.h"
-#include "slurry/engine/scene.h"
+#include "slurry/engine/run/run.h"
+#include "slurry/engine/scene/scene.h"
+#include "slurry/io/scene_file.h"
 #include "slurry/transfer/parallel.h"
-#ifdef SLURRY_WITH_IO
+#ifdef SLURRY_WITH_OPENVDB
 #include "pipeline.h"
 #endif
 #ifdef SLURRY_WITH_MPI
@@ -210,7 +211,7 @@ int main(int argc, char** argv) {
   validate->add_option("scene", scene_path, "Scene file (JSON)")->required();
   validate->add_option("--memory-limit", memory_text, "Memory limit in GiB (replaces limits.memory_gb)");
 
-#ifdef SLURRY_WITH_IO
+#ifdef SLURRY_WITH_OPENVDB
   slurry::cli::SurfaceCommand surface;
   slurry::cli::add_surface_command(app, surface);
 #endif
@@ -252,7 +253,7 @@ int main(int argc, char** argv) {
     return code;
   };
 
-#ifdef SLURRY_WITH_IO
+#ifdef SLURRY_WITH_OPENVDB
   if (surface.app->parsed()) {
     try {
       return slurry::cli::pipeline_module().run_surface_command(surface);
@@ -318,7 +319,7 @@ int main(int argc, char** argv) {
                    std::string(slurry::to_string(scene.solver.kernel)).c_str(), slurry::parallel::backend(),
                    threads > 0 ? threads : slurry::parallel::max_threads(),
                    ranks > 1 ? (" per process, " + std::to_string(ranks) + " MPI processes").c_str() : "");
-#ifdef SLURRY_WITH_IO
+#ifdef SLURRY_WITH_OPENVDB
     // The module (and OpenVDB) is loaded only for a scene that asks for its outputs, and only by
     // rank 0, which writes them.
     const slurry::cli::FrameOutputFn pipeline = rank == 0 && wants_pipeline_outputs(scene)
@@ -327,12 +328,12 @@ int main(int argc, char** argv) {
 #else
     if (wants_pipeline_outputs(scene))
       throw slurry::SceneError(scene_path + ": " + (scene.output.vdb_points ? "output.vdb_points" : "output.surface") +
-                               ": this slurry was built without OpenVDB (SLURRY_BUILD_IO=OFF); expected no pipeline outputs");
+                               ": this slurry was built without OpenVDB (SLURRY_WITH_OPENVDB=OFF); expected no pipeline outputs");
 #endif
     install_signal_handlers();
     Progress progress(quiet);
     const auto on_frame = [&](const slurry::FrameReport& r) {
-#ifdef SLURRY_WITH_IO
+#ifdef SLURRY_WITH_OPENVDB
       if (pipeline) {  // rank 0's: a split run's rank 0 holds every particle of the frame (simulation.h)
         const std::string line = pipeline(r);
         if (!quiet && !line.empty() && !isatty(fileno(stderr))) std::fprintf(stderr, "frame %d: %s\n", r.frame, line.c_str());

@@ -10,6 +10,7 @@
 
 #include "slurry/engine/errors.h"
 #include "slurry/io/pipeline.h"
+#include "slurry/io/scene_file.h"
 
 namespace fs = std::filesystem;
 
@@ -148,7 +149,7 @@ int run_surface_command(const SurfaceCommand& c) {
                      "frame %d: %zu particles -> %zu vertices, %zu triangles, %zu voxels; "
                      "surfacing %.3f s, writing %.3f s, "
                      "frame %.3f s\n",
-                     frames[i].first, frame.element("vertex").count, r.vertices, r.triangles,
+                     frames[i].first, frame.table("vertex").count, r.vertices, r.triangles,
                      r.voxels, r.surface_seconds, r.write_seconds, took);
       }
       std::fflush(stderr);
@@ -185,11 +186,10 @@ bool FrameOutputWriter::active() const {
 }
 
 std::string FrameOutputWriter::operator()(const FrameReport& r) const {
-  if (!active()) return "";
-  const io::PlyData frame = io::read_ply(r.file);
+  if (!active() || !r.frame_data) return "";
   const auto t0 = std::chrono::steady_clock::now();
   const io::FrameOutputReport out =
-      io::write_frame_outputs(frame, r.frame, r.file.parent_path(), state_->outputs);
+      io::write_frame_outputs(*r.frame_data, r.frame, r.file.parent_path(), state_->outputs);
   const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   char line[160];
   std::snprintf(line, sizeof line,

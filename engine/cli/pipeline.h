@@ -1,5 +1,5 @@
 #pragma once
-// The effects-pipeline part of the slurry CLI, built when slurry::io is (SLURRY_BUILD_IO=ON): the
+// The effects-pipeline part of the slurry CLI, built when slurry::io is (SLURRY_WITH_OPENVDB=ON): the
 // per-frame outputs a scene asks for (output.surface, output.vdb_points) and the
 // `slurry surface DIR` command.
 //
@@ -13,8 +13,8 @@
 #include <memory>
 #include <string>
 
-#include "slurry/engine/run.h"
-#include "slurry/engine/scene.h"
+#include "slurry/engine/run/run.h"
+#include "slurry/engine/scene/scene.h"
 
 namespace slurry::cli {
 
@@ -52,7 +52,8 @@ class FrameOutputWriter {
  public:
   explicit FrameOutputWriter(const Scene& scene);
   bool active() const;
-  /// Reads the frame just written and writes the outputs beside it; returns a log line.
+  /// Writes the outputs of the frame just written (FrameReport::frame_data, from memory) beside
+  /// it; returns a log line.
   std::string operator()(const FrameReport& r) const;
 
  private:

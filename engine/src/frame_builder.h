@@ -1,13 +1,13 @@
 #pragma once
 // What the three solvers' frame() functions share (private to the engine): the number format of
-// messages and frame comments, and a builder for the PLY "vertex" element of a frame.
+// messages and frame comments, and a builder for the "vertex" table of a frame.
 #include <cstdint>
 #include <sstream>
 #include <string>
 #include <utility>
 #include <vector>
 
-#include "slurry/engine/ply.h"
+#include "slurry/engine/frame.h"
 
 namespace slurry::detail {
 
@@ -31,7 +31,7 @@ class VertexFrame {
               const std::uint32_t* rows = nullptr)
       : n_(n), rows_(rows) {
     data_.comments.push_back("slurry " + kind + "frame t=" + fmt(t) + " source=" + source);
-    auto& el = data_.elements.emplace_back();
+    auto& el = data_.tables.emplace_back();
     el.name = "vertex";
     el.count = n;
   }
@@ -42,12 +42,12 @@ class VertexFrame {
     using V = std::decay_t<decltype(value(std::size_t(0)))>;
     std::vector<V> c(n_);
     for (std::size_t i = 0; i < n_; ++i) c[rows_ ? rows_[i] : i] = value(i);
-    vertex().properties.push_back({name, std::move(c)});
+    vertex().columns.push_back({name, std::move(c)});
   }
   /// An already ordered column (moved in as is).
   template <class V>
   void add_column(const char* name, std::vector<V> column) {
-    vertex().properties.push_back({name, std::move(column)});
+    vertex().columns.push_back({name, std::move(column)});
   }
   /// Dim columns x, y(, z) from positions or vx, vy(, vz) from velocities.
   template <int Dim, class Vecs>
@@ -59,18 +59,18 @@ class VertexFrame {
     for (int d = 0; d < Dim; ++d) add(kVelocityNames[d], [&](std::size_t i) { return v[i][d]; });
   }
 
-  /// Columns read in place when the frame is written (io::PlyColumnRef), for a frame that is
-  /// written without a copy of the particles (SimulationBase::frame_view): valid while the
+  /// Columns read in place when the frame is written (ColumnRef), for a frame that is
+  /// written without a copy of the particles (Solver::frame_view): valid while the
   /// arrays are unchanged. Only for frames in storage order (no `rows`). A frame made of
   /// borrowed columns alone keeps the order of the calls, as add() does.
   template <class V>
   void borrow_column(const char* name, const std::vector<V>& column) {
-    vertex().refs.push_back(io::PlyColumnRef::of(name, n_ ? column.data() : nullptr));
+    vertex().refs.push_back(ColumnRef::of(name, n_ ? column.data() : nullptr));
   }
   /// A column holding `value` on every row (read from one place: a stride of 0).
   template <class V>
   void borrow_constant(const char* name, const V& value) {
-    vertex().refs.push_back(io::PlyColumnRef::of(name, &value, 0));
+    vertex().refs.push_back(ColumnRef::of(name, &value, 0));
   }
   /// Dim columns x, y(, z) (or vx, vy(, vz)), each reading one component of the vectors.
   template <int Dim, class Vecs>
@@ -82,19 +82,19 @@ class VertexFrame {
     borrow_components<Dim>(kVelocityNames, v);
   }
 
-  io::PlyData& data() { return data_; }
+  Frame& data() { return data_; }
 
  private:
-  io::PlyElement& vertex() { return data_.elements.front(); }
+  Table& vertex() { return data_.tables.front(); }
 
   template <int Dim, class Vecs>
   void borrow_components(const char* const* names, const Vecs& x) {
     using S = std::decay_t<decltype(x[0][0])>;
     for (int d = 0; d < Dim; ++d)
-      vertex().refs.push_back(io::PlyColumnRef::of(names[d], n_ ? &x[0][d] : static_cast<const S*>(nullptr), sizeof(x[0])));
+      vertex().refs.push_back(ColumnRef::of(names[d], n_ ? &x[0][d] : static_cast<const S*>(nullptr), sizeof(x[0])));
   }
 
-  io::PlyData data_;
+  Frame data_;
   std::size_t n_;
   const std::uint32_t* rows_;
 };

@@ -1,5 +1,5 @@
 // Binary (de)serialisation of solver state for checkpoints and the retry snapshot
-// (SimulationBase::save_state / load_state): plain bytes in this machine's byte order, every
+// (Solver::save_state / load_state): plain bytes in this machine's byte order, every
 // vector prefixed by its length. Nothing is converted: a checkpoint is read back on a machine of
 // the byte order that wrote it (its header, checkpoint.h, carries a byte-order mark, a format
 // version and a checksum).
@@ -30,7 +30,7 @@ class StateWriter {
   using Sink = std::function<void(const char* data, std::size_t size)>;
   /// Appends to `out`.
   explicit StateWriter(std::string& out) : out_([&out](const char* d, std::size_t n) { out.append(d, n); }) {}
-  /// Hands the bytes to `sink` (SimulationBase::StateSink), a whole vector at a time.
+  /// Hands the bytes to `sink` (Solver::StateSink), a whole vector at a time.
   explicit StateWriter(const Sink& sink) : out_(sink) {}
   /// A scalar or a fixed-size Eigen object, as its bytes.
   template <class V>

@@ -44,20 +44,4 @@ std::vector<std::string> drift_warnings(const RunStats& first, const RunStats& n
   return out;
 }
 
-std::string stats_csv_header() {
-  return "frame,time,substeps,particles,mass,momentum_x,momentum_y,momentum_z,angular_momentum_x,"
-         "angular_momentum_y,angular_momentum_z,kinetic,potential,elastic,energy,volume,max_fluid_J_error,"
-         "projected,cfl";
-}
-
-std::string stats_csv_row(const RunStats& s) {
-  std::string r = std::to_string(s.frame) + "," + g(s.time) + "," + std::to_string(s.substeps) + "," +
-                  std::to_string(s.particles) + "," + g(s.mass);
-  for (int d = 0; d < 3; ++d) r += "," + g(s.momentum[d]);
-  for (int d = 0; d < 3; ++d) r += "," + g(s.angular_momentum[d]);
-  r += "," + g(s.kinetic) + "," + g(s.potential) + "," + g(s.elastic) + "," + g(s.energy()) + "," + g(s.volume) +
-       "," + g(s.max_fluid_J_error) + "," + std::to_string(s.projected) + "," + g(s.cfl);
-  return r;
-}
-
 }  // namespace slurry

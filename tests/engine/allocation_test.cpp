@@ -8,8 +8,8 @@
 #include <new>
 
 #include "determinism_scene.h"
-#include "slurry/engine/flip/flip_simulation.h"
-#include "slurry/engine/simulation.h"
+#include "slurry/engine/flip/flip_solver.h"
+#include "slurry/engine/mpm/mpm_solver.h"
 #include "slurry/transfer/parallel.h"
 
 namespace {
@@ -45,7 +45,7 @@ long allocations_per_step(slurry::GridKind grid, slurry::TransferKind transfer, 
   slurry::Scene s = slurry::test::determinism_scene(Dim, grid);
   s.solver.transfer = transfer;
   slurry::parallel::ThreadLimit limit(threads);
-  slurry::Simulation<T, Dim> sim(s);
+  slurry::MpmSolver<T, Dim> sim(s);
   const T dt = sim.stable_dt();
   for (int i = 0; i < 3; ++i) sim.step(dt);  // warm up: buffers reach their working size
   const long before = g_allocations.load();
@@ -56,7 +56,7 @@ long allocations_per_step(slurry::GridKind grid, slurry::TransferKind transfer, 
 TEST(Allocation, WarmSubstepsAllocateNothing) {
   // Allocations are counted, so the counter itself must see the warm-up allocate.
   const long before = g_allocations.load();
-  { slurry::Simulation<float, 2> sim(slurry::test::determinism_scene(2, slurry::GridKind::Sparse)); }
+  { slurry::MpmSolver<float, 2> sim(slurry::test::determinism_scene(2, slurry::GridKind::Sparse)); }
   EXPECT_GT(g_allocations.load(), before);
   for (int threads : {1, 2}) {
     EXPECT_EQ((allocations_per_step<float, 3>(slurry::GridKind::Sparse, slurry::TransferKind::MLS, threads)), 0);
@@ -90,7 +90,7 @@ long flip_allocations_per_step(slurry::PressurePreconditioner preconditioner, in
   b.particles_per_cell = 4;
   s.bodies = {b};
   slurry::parallel::ThreadLimit limit(threads);
-  slurry::flip::FlipSimulation<float, 2> sim(s);
+  slurry::flip::FlipSolver<float, 2> sim(s);
   const float dt = float(s.solver.max_dt);
   for (int i = 0; i < 10; ++i) sim.step(dt);
   const long before = g_allocations.load();

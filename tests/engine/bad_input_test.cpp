@@ -18,8 +18,8 @@
 #include <string>
 #include <thread>
 
-#include "slurry/engine/run.h"
-#include "slurry/engine/scene.h"
+#include "slurry/engine/run/run.h"
+#include "slurry/engine/scene/scene.h"
 
 namespace {
 

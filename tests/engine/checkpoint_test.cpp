@@ -22,11 +22,12 @@
 #include <thread>
 #include <vector>
 
-#include "checkpoint.h"
-#include "slurry/engine/run.h"
-#include "slurry/engine/scene.h"
-#include "slurry/engine/flip/flip_simulation.h"
-#include "slurry/engine/simulation.h"
+#include "slurry/io/checkpoint.h"
+#include "slurry/engine/run/run.h"
+#include "slurry/engine/scene/scene.h"
+#include "slurry/io/scene_file.h"
+#include "slurry/engine/flip/flip_solver.h"
+#include "slurry/engine/mpm/mpm_solver.h"
 
 namespace {
 
@@ -371,7 +372,7 @@ std::string altered_state_error(const slurry::Scene& scene, Change change) {
 
 TEST(Checkpoint, AlteredStateIsRefusedNamingTheParticle) {
   const auto mpm = slurry::parse_scene(mpm_scene().dump(), "mpm.json");
-  using Mpm = slurry::Simulation<float, 2>;
+  using Mpm = slurry::MpmSolver<float, 2>;
   const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
   EXPECT_EQ(altered_state_error<Mpm>(mpm, [](auto&) {}), "");
   EXPECT_NE(altered_state_error<Mpm>(mpm, [&](auto& P) { P.x[5][0] = nan; })
@@ -391,7 +392,7 @@ TEST(Checkpoint, AlteredStateIsRefusedNamingTheParticle) {
             std::string::npos);
 
   const auto flip = slurry::parse_scene(flip_scene().dump(), "flip.json");
-  using Flip = slurry::flip::FlipSimulation<float, 2>;
+  using Flip = slurry::flip::FlipSolver<float, 2>;
   EXPECT_EQ(altered_state_error<Flip>(flip, [](auto&) {}), "");
   EXPECT_NE(altered_state_error<Flip>(flip, [](auto& P) { P.x[4][0] = -3.0f; }).find("the position of particle 4"),
             std::string::npos);

@@ -4,10 +4,10 @@
 #include <filesystem>
 #include <string>
 
-#include "slurry/engine/flip/flip_simulation.h"
-#include "slurry/engine/ply.h"
-#include "slurry/engine/scene.h"
-#include "slurry/engine/simulation.h"
+#include "slurry/engine/flip/flip_solver.h"
+#include "slurry/io/ply.h"
+#include "slurry/engine/scene/scene.h"
+#include "slurry/engine/mpm/mpm_solver.h"
 
 namespace slurry::test {
 
@@ -57,7 +57,7 @@ inline Scene determinism_scene(int dim, GridKind grid) {
 /// Runs `steps` substeps and writes the frame (all attributes) to `file`; returns its bytes.
 template <class Read>
 std::string determinism_frame(const Scene& s, int steps, const std::filesystem::path& file, Read&& read) {
-  Simulation<float, 3> sim(s);
+  MpmSolver<float, 3> sim(s);
   for (int i = 0; i < steps; ++i) sim.step(sim.stable_dt());
   io::write_ply(file, sim.frame({"position", "velocity", "material", "J", "plastic"}));
   return read(file);
@@ -105,7 +105,7 @@ std::string flip_determinism_frame(int steps, const std::filesystem::path& file,
   e.particles_per_cell = 8;
   s.emitters = {e};
   s.validate();
-  flip::FlipSimulation<float, 3> sim(s);
+  flip::FlipSolver<float, 3> sim(s);
   for (int i = 0; i < steps; ++i) sim.step(float(s.solver.max_dt));
   io::write_ply(file, sim.frame({"position", "velocity", "id"}));
   return read(file);

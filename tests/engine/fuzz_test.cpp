@@ -18,9 +18,10 @@
 #include <typeinfo>
 #include <vector>
 
-#include "slurry/engine/fem/tetgen.h"
-#include "slurry/engine/ply.h"
-#include "slurry/engine/scene.h"
+#include "slurry/io/tetgen.h"
+#include "slurry/io/ply.h"
+#include "slurry/engine/scene/scene.h"
+#include "slurry/io/scene_file.h"
 
 namespace {
 
@@ -147,16 +148,16 @@ TEST(Fuzz, SceneParser) {
 TEST(Fuzz, PlyReader) {
   slurry::io::PlyData data;
   data.comments = {"fuzz seed"};
-  slurry::io::PlyElement v;
+  slurry::Table v;
   v.name = "vertex";
   v.count = 5;
-  v.properties.push_back({"x", std::vector<float>{0, 1, 2, 3, 4}});
-  v.properties.push_back({"id", std::vector<std::uint32_t>{5, 6, 7, 8, 9}});
-  slurry::io::PlyElement f;
+  v.columns.push_back({"x", std::vector<float>{0, 1, 2, 3, 4}});
+  v.columns.push_back({"id", std::vector<std::uint32_t>{5, 6, 7, 8, 9}});
+  slurry::Table f;
   f.name = "face";
   f.count = 2;
   f.lists.push_back({"vertex_indices", {{0, 1, 2}, {2, 3, 4}}});
-  data.elements = {v, f};
+  data.tables = {v, f};
   const fs::path dir = scratch("ply");
   std::vector<std::string> seeds;
   for (auto format : {slurry::io::PlyFormat::Ascii, slurry::io::PlyFormat::BinaryLittleEndian}) {
@@ -177,7 +178,7 @@ TEST(Fuzz, TetgenReader) {
   const fs::path dir = scratch("tetgen");
   const auto cube = slurry::fem::box_mesh<3>(Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(1, 1, 1),
                                              Eigen::Vector3i(2, 1, 1));
-  slurry::fem::write_tetgen<3>(dir / "seed", cube);
+  slurry::io::write_tetgen<3>(dir / "seed", cube);
   const std::string node = read_file(dir / "seed.node"), ele = read_file(dir / "seed.ele");
   std::mt19937_64 rng(13);
   const int n = iterations(3000);
@@ -186,8 +187,8 @@ TEST(Fuzz, TetgenReader) {
     const std::string input = mutate(mutate_node ? node : ele, rng);
     write_file(dir / "in.node", mutate_node ? input : node);
     write_file(dir / "in.ele", mutate_node ? ele : input);
-    expect_clean(input, [&] { slurry::fem::read_tetgen<3>(dir / "in"); });
-    expect_clean(input, [&] { slurry::fem::read_tetgen<2>(dir / "in"); });
+    expect_clean(input, [&] { slurry::io::read_tetgen<3>(dir / "in"); });
+    expect_clean(input, [&] { slurry::io::read_tetgen<2>(dir / "in"); });
   }
   fs::remove_all(dir);
 }

@@ -17,9 +17,11 @@
 #include <string>
 #include <vector>
 
-#include "slurry/engine/ply.h"
-#include "slurry/engine/scene.h"
-#include "slurry/engine/simulation.h"
+#include "slurry/io/ply.h"
+#include "slurry/engine/scene/scene.h"
+#include "slurry/io/scene_file.h"
+#include "slurry/engine/mpm/mpm_solver.h"
+#include "slurry/engine/run/run.h"
 
 namespace {
 
@@ -61,7 +63,7 @@ std::vector<Deposit> collapse(double radius, double height, const std::vector<do
   for (int f = 1; out.size() < times.size(); ++f) {
     sim->advance_to(f / 24.0);
     const auto data = sim->frame({"position", "velocity"});
-    const auto& v = data.element("vertex");
+    const auto& v = data.table("vertex");
     const auto vx = v.column_as_double("vx"), vy = v.column_as_double("vy"), vz = v.column_as_double("vz");
     std::vector<double> s(vx.size());
     for (std::size_t i = 0; i < s.size(); ++i) s[i] = std::sqrt(vx[i] * vx[i] + vy[i] * vy[i] + vz[i] * vz[i]);

@@ -11,10 +11,11 @@
 #include <utility>
 #include <vector>
 
-#include "implicit_update.h"
-#include "slurry/engine/simulation.h"
+#include "mpm/implicit_update.h"
+#include "slurry/engine/mpm/mpm_solver.h"
 #include "slurry/transfer/parallel.h"
 #include "slurry/transfer/transfers.h"
+#include "slurry/io/scene_file.h"
 
 namespace {
 
@@ -387,7 +388,7 @@ void rigid_motion(slurry::TransferKind transfer, slurry::KernelKind kernel, bool
     s.solver.gravity = {0, 0, 0};
     s.bodies[0].velocity = {0.5, -0.3, 0.2};
   }
-  slurry::Simulation<double, Dim> sim(s);
+  slurry::MpmSolver<double, Dim> sim(s);
   const auto c0 = center_of_mass<Dim>(sim.particles());
   const double dt = 1e-3, g = gravity ? -9.81 : 0;
   const int n = 100;
@@ -432,7 +433,7 @@ BarHistory vibrating_bar(slurry::Integrator integrator, double dt_factor) {
   const double E = 1e4, rho = 1;
   Scene s = scene(2, slurry::TransferKind::MLS, {2, 1, 0}, 1.0 / 64, rho, E, 0, integrator);
   s.bodies = {box({0.5, 0.6, 0}, {1.5, 0.7, 0}, 4)};
-  slurry::Simulation<double, 2> sim(s);
+  slurry::MpmSolver<double, 2> sim(s);
   const double L = 1.0, c = std::sqrt(E / rho), period = 2 * L / c, v0 = 0.5;
   auto& P = sim.particles();
   std::vector<bool> left_half(P.size());
@@ -498,7 +499,7 @@ void stiff_body(double factor) {
     s.bodies = {box({0.3, 0.4, 0.4}, {0.7, 0.6, 0.6}, Dim == 3 ? 8 : 4)};
     return s;
   };
-  auto init = [](slurry::Simulation<double, Dim>& sim) {
+  auto init = [](slurry::MpmSolver<double, Dim>& sim) {
     // A squeeze-and-shear velocity field with zero mean: v = 0.5 m/s (y - yc, -(x - xc), ...) / 0.1 m
     auto& P = sim.particles();
     const auto c = center_of_mass<Dim>(P);
@@ -509,7 +510,7 @@ void stiff_body(double factor) {
       P.v[p][1] = -5.0 * r[1] + 3.0 * r[0];
     }
   };
-  slurry::Simulation<double, Dim> imp(make(slurry::Integrator::Implicit)), exp(make(slurry::Integrator::Explicit));
+  slurry::MpmSolver<double, Dim> imp(make(slurry::Integrator::Implicit)), exp(make(slurry::Integrator::Explicit));
   init(imp);
   init(exp);
   const double dt = factor * exp.stable_dt();
@@ -540,7 +541,7 @@ void stiff_body(double factor) {
 // iterations than Jacobi, and the IC(0) run is bit for bit the same on one and two threads
 // (the assembled operator is summed in particle order, its product row by row).
 TEST(ImplicitMPM, PreconditionersAgreeAndAreThreadIndependent) {
-  using Sim = slurry::Simulation<double, 3>;
+  using Sim = slurry::MpmSolver<double, 3>;
   auto run = [](slurry::ImplicitPreconditioner pre, int threads) {
     slurry::parallel::ThreadLimit limit(threads);
     Scene s = scene(3, slurry::TransferKind::MLS, {1, 1, 1}, 1.0 / 16, 1000, 1e7, 0.3, slurry::Integrator::Implicit);
@@ -590,7 +591,7 @@ TEST(ImplicitMPM, StableDtIgnoresElasticLimit) {
   Scene s = scene(2, slurry::TransferKind::MLS, {1, 1, 0}, 1.0 / 64, 1000, 1e7, 0.3, slurry::Integrator::Implicit);
   s.bodies = {box({0.4, 0.4, 0}, {0.6, 0.6, 0}, 4)};
   s.solver.max_dt = 2e-3;
-  using Sim = slurry::Simulation<double, 2>;
+  using Sim = slurry::MpmSolver<double, 2>;
   EXPECT_DOUBLE_EQ(Sim(s).stable_dt(), 2e-3);
   s.bodies[0].velocity = {4, 0, 0};
   EXPECT_NEAR(Sim(s).stable_dt(), 0.5 / 64 / 4, 1e-12);
@@ -608,7 +609,7 @@ TEST(ImplicitMPM, BlockLandsOnFloorWithEachWallCondition) {
     s.boundaries.walls = walls;
     if (walls == slurry::Condition::Separate) s.boundaries.friction = 0.3;
     s.solver.max_dt = 2e-3;  // 30x the explicit elastic limit of 6.7e-5 s
-    slurry::Simulation<double, 2> sim(s);
+    slurry::MpmSolver<double, 2> sim(s);
     const auto c0 = center_of_mass<2>(sim.particles());
     double peak = 0;
     for (int f = 1; f <= 20; ++f) {
@@ -635,7 +636,7 @@ TEST(ImplicitMPM, UnconvergedSolvesAreRecordedAndNamed) {
   Scene s = scene(2, slurry::TransferKind::MLS, {1, 1, 0}, 1.0 / 64, 1000, 1e7, 0.3, slurry::Integrator::Implicit);
   s.bodies = {box({0.4, 0.1, 0}, {0.6, 0.2, 0}, 4)};
   s.solver.cg_max_iterations = 1;
-  slurry::Simulation<double, 2> sim(s);
+  slurry::MpmSolver<double, 2> sim(s);
   auto& P = sim.particles();
   for (std::size_t p = 0; p < P.size(); ++p) P.v[p] = Eigen::Vector2d(5 * (P.x[p][1] - 0.15), 0);  // shear
   std::string message;

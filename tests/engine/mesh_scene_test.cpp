@@ -14,7 +14,9 @@
 
 #include "engine/mesh_util.h"
 #include "slurry/engine/errors.h"
-#include "slurry/engine/simulation_base.h"
+#include "slurry/engine/solver.h"
+#include "slurry/io/scene_file.h"
+#include "slurry/engine/run/run.h"
 
 namespace fs = std::filesystem;
 using slurry::Scene;
@@ -29,8 +31,8 @@ fs::path temp_dir() {
   return d;
 }
 
-std::vector<double> column(const slurry::SimulationBase& sim, const char* name) {
-  return sim.frame({"position", "velocity"}).element("vertex").column_as_double(name);
+std::vector<double> column(const slurry::Solver& sim, const char* name) {
+  return sim.frame({"position", "velocity"}).table("vertex").column_as_double(name);
 }
 
 double mean(const std::vector<double>& v) {

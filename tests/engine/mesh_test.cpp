@@ -17,10 +17,12 @@
 #include "slurry/engine/geometry/mesh_sdf.h"
 #include "slurry/engine/geometry/rigid_motion.h"
 #include "slurry/engine/geometry/triangle_mesh.h"
-#include "slurry/engine/ply.h"
+#include "slurry/io/ply.h"
+#include "slurry/io/triangle_mesh_file.h"
 
 namespace fs = std::filesystem;
 using namespace slurry::geometry;
+using slurry::io::read_triangle_mesh;
 using Eigen::Vector3d;
 
 namespace {
@@ -67,14 +69,14 @@ TEST(TriangleMesh, PlyFacesAndErrorsNameTheFileAndLine) {
   const TriangleMesh cube = slurry::test::box_mesh({0, 0, 0}, {1, 2, 3});
   slurry::test::write_obj(d / "box.obj", cube);
   slurry::io::PlyData ply;
-  auto& v = ply.elements.emplace_back();
+  auto& v = ply.tables.emplace_back();
   v.name = "vertex";
   v.count = cube.vertices.size();
   std::vector<float> xs[3];
   for (const auto& p : cube.vertices)
     for (int k = 0; k < 3; ++k) xs[k].push_back(float(p[k]));
-  v.properties = {{"x", xs[0]}, {"y", xs[1]}, {"z", xs[2]}};
-  auto& f = ply.elements.emplace_back();
+  v.columns = {{"x", xs[0]}, {"y", xs[1]}, {"z", xs[2]}};
+  auto& f = ply.tables.emplace_back();
   f.name = "face";
   f.count = cube.triangles.size();
   auto& list = f.lists.emplace_back();

@@ -16,10 +16,10 @@
 #include <string>
 #include <vector>
 
-#include "deformation_lanes.h"
+#include "mpm/deformation_lanes.h"
 #include "determinism_scene.h"
-#include "slurry/engine/ply.h"
-#include "slurry/engine/simulation.h"
+#include "slurry/io/ply.h"
+#include "slurry/engine/mpm/mpm_solver.h"
 #include "slurry/transfer/blocks.h"
 #include "slurry/transfer/grid.h"
 #include "slurry/transfer/parallel.h"
@@ -49,7 +49,7 @@ void expect_bitwise_equal(const slurry::Particles<T, Dim>& a, const slurry::Part
 template <class T, int Dim>
 slurry::Particles<T, Dim> run(const Scene& s, int threads, int steps) {
   slurry::parallel::ThreadLimit limit(threads);
-  slurry::Simulation<T, Dim> sim(s);
+  slurry::MpmSolver<T, Dim> sim(s);
   const T dt = sim.stable_dt();
   for (int i = 0; i < steps; ++i) sim.step(dt);
   return sim.particles();
@@ -64,7 +64,7 @@ TEST(Determinism, ThreeDimensionalMultiMaterialSceneIsBitwiseEqualOnOneAndTwoThr
   ASSERT_GT(one.size(), 5000u);
   expect_bitwise_equal(one, two, "1 vs 2 threads");
   // The run did something: particles moved and deformed.
-  slurry::Simulation<float, 3> start(s);
+  slurry::MpmSolver<float, 3> start(s);
   double moved = 0;
   for (std::size_t p = 0; p < one.size(); ++p)
     moved = std::max(moved, double((one.x[p] - start.particles().x[one.id[p]]).norm()));
@@ -358,7 +358,7 @@ void check_vector_bin_check() {
   bins.resize(IVec::Constant(cells));
   bins.build(n, base_of, material_of, 2);
   bins.sort_within_bins(rank_of);
-  // Stores the particles in bin order, as Simulation::reorder_particles does.
+  // Stores the particles in bin order, as MpmSolver::reorder_particles does.
   auto reorder = [&] {
     auto permute = [&](auto& channel) {
       auto copy = channel;
@@ -585,7 +585,7 @@ TEST(SparseGrid, ThinSheetInA1024CubedDomainStaysUnder600MB) {
   b.velocity = {0.0, -0.5, 0.0};
   b.particles_per_cell = 8;
   s.bodies = {b};
-  slurry::Simulation<float, 3> sim(s);
+  slurry::MpmSolver<float, 3> sim(s);
   const float dt = sim.stable_dt();
   for (int i = 0; i < 3; ++i) sim.step(dt);
   rusage usage{};

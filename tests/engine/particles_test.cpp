@@ -6,8 +6,9 @@
 #include <string>
 #include <vector>
 
-#include "domain_split.h"
-#include "slurry/engine/simulation.h"
+#include "mpm/domain_split.h"
+#include "slurry/engine/mpm/mpm_solver.h"
+#include "slurry/io/scene_file.h"
 
 namespace slurry {
 namespace {
@@ -169,7 +170,7 @@ Scene one_density_scene(int dim, TransferKind transfer) {
 /// statistics, with mass and rest volume stored as seeded or per particle.
 template <class T, int Dim>
 std::string run(const Scene& s, bool per_particle, int steps) {
-  Simulation<T, Dim> sim(s);
+  MpmSolver<T, Dim> sim(s);
   auto& P = sim.particles();
   if (per_particle) {
     P.m.materialize(P.size());
@@ -195,13 +196,13 @@ std::string run(const Scene& s, bool per_particle, int steps) {
 
 TEST(UniformMass, SeedingStoresOnceWhatIsUniform) {
   {
-    Simulation<float, 3> sim(one_density_scene(3, TransferKind::MLS));
+    MpmSolver<float, 3> sim(one_density_scene(3, TransferKind::MLS));
     EXPECT_TRUE(sim.particles().m.uniform());
     EXPECT_TRUE(sim.particles().vol0.uniform());
   }
   Scene s = one_density_scene(2, TransferKind::MLS);
   s.materials[1].density = 400;  // snow: another mass, the same volume
-  Simulation<float, 2> sim(s);
+  MpmSolver<float, 2> sim(s);
   const auto& P = sim.particles();
   EXPECT_FALSE(P.m.uniform());
   EXPECT_TRUE(P.vol0.uniform());
@@ -243,13 +244,13 @@ TEST(UniformMass, StepsStatsAndStateAreBitwiseThoseOfPerParticleStorage) {
 
 TEST(UniformMass, CheckpointsKeepTheirFormatAndResumeStoredAsSeeded) {
   const Scene s = one_density_scene(3, TransferKind::MLS);
-  Simulation<float, 3> a(s), b(s);
+  MpmSolver<float, 3> a(s), b(s);
   b.particles().m.materialize(b.particles().size());
   std::string sa, sb;
   a.save_state(sa);
   b.save_state(sb);
   EXPECT_TRUE(sa == sb) << "a uniform mass is written as one value per particle";
-  Simulation<float, 3> c(s);
+  MpmSolver<float, 3> c(s);
   c.load_state(sb, "state");
   EXPECT_TRUE(c.particles().m.uniform());
   EXPECT_TRUE(c.particles().vol0.uniform());
@@ -263,7 +264,7 @@ TEST(UniformMass, CheckpointsKeepTheirFormatAndResumeStoredAsSeeded) {
   // Masses that differ stay per particle, every value in place.
   Scene two = s;
   two.materials[1].density = 400;
-  Simulation<float, 3> d(two), e(two);
+  MpmSolver<float, 3> d(two), e(two);
   for (int i = 0; i < 3; ++i) d.step(d.stable_dt());
   std::string sd;
   d.save_state(sd);

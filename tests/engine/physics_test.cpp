@@ -6,8 +6,8 @@
 #include <cstdio>
 #include <vector>
 
-#include "slurry/engine/colliders.h"
-#include "slurry/engine/simulation.h"
+#include "slurry/engine/geometry/colliders.h"
+#include "slurry/engine/mpm/mpm_solver.h"
 
 namespace {
 
@@ -69,7 +69,7 @@ Eigen::Matrix<double, Dim, 1> center_of_mass(const slurry::Particles<double, Dim
 template <int Dim>
 void free_fall(slurry::TransferKind transfer, slurry::KernelKind kernel) {
   Scene s = block_scene(Dim, transfer, kernel);
-  slurry::Simulation<double, Dim> sim(s);
+  slurry::MpmSolver<double, Dim> sim(s);
   const auto c0 = center_of_mass<Dim>(sim.particles());
   const double dt = sim.stable_dt(), g = -9.81;
   const int n = int(0.2 / dt);
@@ -105,7 +105,7 @@ TEST(Physics, BlockSettlesOnFloor) {
   s.bodies[0].max = {0.6, 0.24, 0};
   s.boundaries.walls = slurry::Condition::Separate;
   s.boundaries.friction = 0.5;
-  slurry::Simulation<double, 2> sim(s);
+  slurry::MpmSolver<double, 2> sim(s);
   const auto c0 = center_of_mass<2>(sim.particles());
   double peak = 0;
   for (int f = 1; f <= 60; ++f) {
@@ -138,7 +138,7 @@ double bar_period_error() {
   b.min = {0.5, 0.2, 0};
   b.max = {1.5, 0.3, 0};
   s.bodies = {b};
-  slurry::Simulation<double, 2> sim(s);
+  slurry::MpmSolver<double, 2> sim(s);
   const double L = 1.0, c = std::sqrt(E / rho), T = 2 * L / c, v0 = 0.05;
   auto& P = sim.particles();
   for (std::size_t p = 0; p < P.size(); ++p) P.v[p] = Eigen::Vector2d(v0 * std::cos(M_PI * (P.x[p][0] - 0.5) / L), 0);
@@ -204,7 +204,7 @@ DiskRun colliding_disks(double dx) {
   b.center = {0.75, 0.75, 0};
   b.velocity = {-0.1, -0.1, 0};
   s.bodies = {a, b};
-  slurry::Simulation<double, 2> sim(s);
+  slurry::MpmSolver<double, 2> sim(s);
   const double e0 = sim.kinetic_energy() + sim.elastic_energy();
   DiskRun r;
   r.min_ke = 1;
@@ -249,7 +249,7 @@ TEST(Physics, LiquidStepFollowsTheMostCompressedParticle) {
   s.materials[0].gamma = 7;
   s.solver.gravity = {0, 0, 0};
   s.solver.max_dt = 1;
-  slurry::Simulation<double, 2> sim(s);
+  slurry::MpmSolver<double, 2> sim(s);
   const double rest = sim.stable_dt();
   EXPECT_NEAR(rest, s.solver.elastic_cfl * s.domain.dx / std::sqrt(2e5 / 1000), 1e-15);
   sim.step(rest * 1e-6);  // at rest: J stays 1 (to round-off)
@@ -266,7 +266,7 @@ TEST(Physics, LiquidStepFollowsTheMostCompressedParticle) {
 TEST(Physics, InstabilityStopsWithDiagnosis) {
   Scene s = block_scene(2, slurry::TransferKind::MLS, slurry::KernelKind::Quadratic);
   s.bodies[0].velocity = {3, 0, 0};
-  slurry::Simulation<double, 2> sim(s);
+  slurry::MpmSolver<double, 2> sim(s);
   const double stable = sim.stable_dt();
   try {
     for (int i = 0; i < 200; ++i) sim.step(50 * stable);

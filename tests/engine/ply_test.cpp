@@ -1,7 +1,7 @@
 // Tests of the PLY reader and writer against the format as described by Greg Turk, "The PLY
 // Polygon File Format" (Stanford 3D Scanning Repository): exact round trips, the header text
 // and body size byte for byte, a hand-made big-endian file, error messages and atomic writes.
-#include "slurry/engine/ply.h"
+#include "slurry/io/ply.h"
 
 #include <gtest/gtest.h>
 #include <sys/stat.h>
@@ -116,7 +116,7 @@ std::vector<T> edge_column(std::size_t n) {
   return v;
 }
 
-void expect_same_column(const PlyScalarData& a, const PlyScalarData& b, const std::string& name) {
+void expect_same_column(const ColumnData& a, const ColumnData& b, const std::string& name) {
   ASSERT_EQ(a.index(), b.index()) << "property " << name << " changed type";
   std::visit(
       [&](const auto& va) {
@@ -143,17 +143,17 @@ void expect_same_column(const PlyScalarData& a, const PlyScalarData& b, const st
 void expect_same(const PlyData& a, const PlyData& b) {
   EXPECT_EQ(a.comments, b.comments);
   EXPECT_EQ(a.obj_info, b.obj_info);
-  ASSERT_EQ(a.elements.size(), b.elements.size());
-  for (std::size_t e = 0; e < a.elements.size(); ++e) {
-    const PlyElement& ea = a.elements[e];
-    const PlyElement& eb = b.elements[e];
+  ASSERT_EQ(a.tables.size(), b.tables.size());
+  for (std::size_t e = 0; e < a.tables.size(); ++e) {
+    const Table& ea = a.tables[e];
+    const Table& eb = b.tables[e];
     EXPECT_EQ(ea.name, eb.name);
     EXPECT_EQ(ea.count, eb.count);
-    ASSERT_EQ(ea.properties.size(), eb.properties.size()) << ea.name;
-    for (std::size_t p = 0; p < ea.properties.size(); ++p) {
-      EXPECT_EQ(ea.properties[p].name, eb.properties[p].name);
-      expect_same_column(ea.properties[p].data, eb.properties[p].data,
-                         ea.name + "." + ea.properties[p].name);
+    ASSERT_EQ(ea.columns.size(), eb.columns.size()) << ea.name;
+    for (std::size_t p = 0; p < ea.columns.size(); ++p) {
+      EXPECT_EQ(ea.columns[p].name, eb.columns[p].name);
+      expect_same_column(ea.columns[p].data, eb.columns[p].data,
+                         ea.name + "." + ea.columns[p].name);
     }
     ASSERT_EQ(ea.lists.size(), eb.lists.size()) << ea.name;
     for (std::size_t l = 0; l < ea.lists.size(); ++l) {
@@ -169,10 +169,10 @@ PlyData all_types_data() {
   PlyData d;
   d.comments = {"every PLY scalar type", "", "  leading spaces kept"};
   d.obj_info = {"slurry ply_test"};
-  PlyElement& v = d.elements.emplace_back();
+  Table& v = d.tables.emplace_back();
   v.name = "vertex";
   v.count = n;
-  v.properties = {{"c", edge_column<std::int8_t>(n)},  {"uc", edge_column<std::uint8_t>(n)},
+  v.columns = {{"c", edge_column<std::int8_t>(n)},  {"uc", edge_column<std::uint8_t>(n)},
                   {"s", edge_column<std::int16_t>(n)}, {"us", edge_column<std::uint16_t>(n)},
                   {"i", edge_column<std::int32_t>(n)}, {"ui", edge_column<std::uint32_t>(n)},
                   {"f", edge_column<float>(n)},        {"d", edge_column<double>(n)}};
@@ -183,16 +183,16 @@ PlyData all_types_data() {
 // length 0 to 255 with extreme indices.
 PlyData mesh_data() {
   PlyData d;
-  PlyElement& v = d.elements.emplace_back();
+  Table& v = d.tables.emplace_back();
   v.name = "vertex";
   v.count = 4;
-  v.properties = {{"x", std::vector<float>{0.f, 1.f, 0.f, 0.25f}},
+  v.columns = {{"x", std::vector<float>{0.f, 1.f, 0.f, 0.25f}},
                   {"y", std::vector<float>{0.f, 0.f, 1.f, -0.5f}},
                   {"z", std::vector<float>{0.f, 0.f, 0.f, 1e-40f}}};
-  PlyElement& f = d.elements.emplace_back();
+  Table& f = d.tables.emplace_back();
   f.name = "face";
   f.count = 4;
-  f.properties = {{"flags", std::vector<std::uint8_t>{1, 2, 255, 0}}};
+  f.columns = {{"flags", std::vector<std::uint8_t>{1, 2, 255, 0}}};
   std::vector<std::int32_t> long_list(255);
   for (std::size_t i = 0; i < long_list.size(); ++i) long_list[i] = static_cast<std::int32_t>(i);
   f.lists = {{"vertex_indices",
@@ -201,17 +201,17 @@ PlyData mesh_data() {
                long_list,
                {std::numeric_limits<std::int32_t>::max(), std::numeric_limits<std::int32_t>::min(),
                 -1, 3}}}};
-  PlyElement& e = d.elements.emplace_back();
+  Table& e = d.tables.emplace_back();
   e.name = "edge";
   e.count = 3;
-  e.properties = {{"vertex1", std::vector<std::int32_t>{0, 1, 2}},
+  e.columns = {{"vertex1", std::vector<std::int32_t>{0, 1, 2}},
                   {"vertex2", std::vector<std::int32_t>{1, 2, 0}}};
   return d;
 }
 
 PlyData xyz_data(std::size_t n) {
   PlyData d;
-  PlyElement& v = d.elements.emplace_back();
+  Table& v = d.tables.emplace_back();
   v.name = "vertex";
   v.count = n;
   std::vector<float> x(n), y(n), z(n);
@@ -220,7 +220,7 @@ PlyData xyz_data(std::size_t n) {
     y[i] = -static_cast<float>(i);
     z[i] = 1.0f / static_cast<float>(i + 1);
   }
-  v.properties = {{"x", x}, {"y", y}, {"z", z}};
+  v.columns = {{"x", x}, {"y", y}, {"z", z}};
   return d;
 }
 
@@ -251,7 +251,7 @@ TEST_P(PlyRoundTrip, EveryScalarTypeWithEdgeValuesIsExact) {
   const PlyData read = read_ply(path);
   expect_same(written, read);
   EXPECT_EQ(read.source, path);
-  EXPECT_EQ(read.element("vertex").source, path);
+  EXPECT_EQ(read.table("vertex").source, path);
 }
 
 TEST_P(PlyRoundTrip, ListPropertiesAndSeveralElements) {
@@ -260,20 +260,20 @@ TEST_P(PlyRoundTrip, ListPropertiesAndSeveralElements) {
   write_ply(path, written, GetParam());
   const PlyData read = read_ply(path);
   expect_same(written, read);
-  EXPECT_EQ(read.element("face").list("vertex_indices").data[2].size(), 255u);
+  EXPECT_EQ(read.table("face").list("vertex_indices").data[2].size(), 255u);
 }
 
 TEST_P(PlyRoundTrip, EmptyElementsAndNoElements) {
   PlyData d;
-  d.elements.push_back({"vertex", 0, {{"x", std::vector<double>{}}}, {}, {}, {}});
-  d.elements.push_back({"face", 0, {}, {{"vertex_indices", {}}}, {}, {}});
+  d.tables.push_back({"vertex", 0, {{"x", std::vector<double>{}}}, {}, {}, {}});
+  d.tables.push_back({"face", 0, {}, {{"vertex_indices", {}}}, {}, {}});
   const fs::path path = dir_ / "empty.ply";
   write_ply(path, d, GetParam());
   expect_same(d, read_ply(path));
 
   const PlyData none;
   write_ply(path, none, GetParam());
-  EXPECT_TRUE(read_ply(path).elements.empty());
+  EXPECT_TRUE(read_ply(path).tables.empty());
 }
 
 TEST_P(PlyRoundTrip, OverwritesAnExistingFileAndLeavesNoTemporaryFile) {
@@ -292,22 +292,22 @@ TEST_F(PlyTest, ColumnAccessorsConvertAndCheckTypes) {
   const fs::path path = dir_ / "all_types.ply";
   write_ply(path, all_types_data(), PlyFormat::BinaryLittleEndian);
   const PlyData d = read_ply(path);
-  const PlyElement& v = d.element("vertex");
+  const Table& v = d.table("vertex");
   EXPECT_EQ(v.column_as_double("ui")[1], 4294967295.0);
   EXPECT_EQ(v.column_as_double("c")[0], -128.0);
   EXPECT_EQ(v.column_as_double("f")[6], static_cast<double>(std::numeric_limits<float>::max()));
   EXPECT_EQ(v.column_as_float("d")[9], 1.0f / 3.0f);
-  EXPECT_EQ(v.column<std::uint16_t>("us")[1], 65535);
-  EXPECT_EQ(v.column<double>("d").size(), 40u);
+  EXPECT_EQ(v.values<std::uint16_t>("us")[1], 65535);
+  EXPECT_EQ(v.values<double>("d").size(), 40u);
 
   std::string msg = io_error_of([&] { v.column_as_double("vz"); });
   EXPECT_CONTAINS(msg, path.string());
   EXPECT_CONTAINS(msg, "element 'vertex' has no property 'vz'");
   EXPECT_CONTAINS(msg, "'ui'");
-  msg = io_error_of([&] { v.column<float>("d"); });
+  msg = io_error_of([&] { v.values<float>("d"); });
   EXPECT_CONTAINS(msg, path.string());
   EXPECT_CONTAINS(msg, "stored as double, not float");
-  msg = io_error_of([&] { d.element("face"); });
+  msg = io_error_of([&] { d.table("face"); });
   EXPECT_CONTAINS(msg, path.string());
   EXPECT_CONTAINS(msg, "no element 'face'");
   EXPECT_EQ(d.find("face"), nullptr);
@@ -321,10 +321,10 @@ TEST_F(PlyTest, BinaryHeaderLinesAndBodySizeFollowTheSpec) {
   d.comments = {"written by ply_test", ""};
   d.obj_info = {"num_cols 3"};
   constexpr std::size_t n = 7;
-  PlyElement& v = d.elements.emplace_back();
+  Table& v = d.tables.emplace_back();
   v.name = "vertex";
   v.count = n;
-  v.properties = {{"x", std::vector<float>(n)},
+  v.columns = {{"x", std::vector<float>(n)},
                   {"vx", std::vector<double>(n)},
                   {"material", std::vector<std::uint8_t>(n)},
                   {"m16", std::vector<std::uint16_t>(n)},
@@ -359,14 +359,14 @@ TEST_F(PlyTest, BinaryHeaderLinesAndBodySizeFollowTheSpec) {
 
 TEST_F(PlyTest, BinaryBodyIsPackedLittleEndianRows) {
   PlyData d;
-  d.elements.push_back({"vertex",
+  d.tables.push_back({"vertex",
                         2,
                         {{"x", std::vector<float>{1.5f, -2.0f}},
                          {"m", std::vector<std::uint16_t>{0x0102, 0xA0B0}},
                          {"d", std::vector<double>{-2.25, 1.0}}},
                         {},
                         {}, {}});
-  d.elements.push_back({"face", 1, {}, {{"vertex_indices", {{1, -1}}}}, {}, {}});
+  d.tables.push_back({"face", 1, {}, {{"vertex_indices", {{1, -1}}}}, {}, {}});
   const fs::path path = dir_ / "body.ply";
   write_ply(path, d);
   const std::string bytes = read_bytes(path);
@@ -390,7 +390,7 @@ TEST_F(PlyTest, BinaryBodyIsPackedLittleEndianRows) {
 
 TEST_F(PlyTest, AsciiHeaderAndBodyText) {
   PlyData d;
-  d.elements.push_back({"vertex",
+  d.tables.push_back({"vertex",
                         2,
                         {{"x", std::vector<float>{0.1f, -0.0f}},
                          {"material", std::vector<std::uint8_t>{255, 7}},
@@ -398,7 +398,7 @@ TEST_F(PlyTest, AsciiHeaderAndBodyText) {
                          {"J", std::vector<double>{1e300, 0.1}}},
                         {},
                         {}, {}});
-  d.elements.push_back({"face", 1, {}, {{"vertex_indices", {{0, 1, -1}}}}, {}, {}});
+  d.tables.push_back({"face", 1, {}, {{"vertex_indices", {{0, 1, -1}}}}, {}, {}});
   const fs::path path = dir_ / "ascii.ply";
   write_ply(path, d, PlyFormat::Ascii);
   const std::string bytes = read_bytes(path);
@@ -452,14 +452,14 @@ TEST_F(PlyTest, ReadsHandWrittenBigEndianFile) {
 
   const PlyData d = read_ply(path);
   EXPECT_EQ(d.comments, std::vector<std::string>{"written byte by byte"});
-  const PlyElement& v = d.element("vertex");
+  const Table& v = d.table("vertex");
   ASSERT_EQ(v.count, 2u);
-  EXPECT_EQ(v.column<float>("x")[0], 1.5f);
-  EXPECT_EQ(bits(v.column<float>("x")[1]), 0x80000000u);
-  EXPECT_EQ(v.column<std::int16_t>("s"), (std::vector<std::int16_t>{-2, 258}));
-  EXPECT_EQ(v.column<std::uint32_t>("u"), (std::vector<std::uint32_t>{0x01020304u, 0xFFFFFFFFu}));
-  EXPECT_EQ(v.column<double>("d"), (std::vector<double>{-2.25, 1.0}));
-  EXPECT_EQ(d.element("face").list("vertex_indices").data,
+  EXPECT_EQ(v.values<float>("x")[0], 1.5f);
+  EXPECT_EQ(bits(v.values<float>("x")[1]), 0x80000000u);
+  EXPECT_EQ(v.values<std::int16_t>("s"), (std::vector<std::int16_t>{-2, 258}));
+  EXPECT_EQ(v.values<std::uint32_t>("u"), (std::vector<std::uint32_t>{0x01020304u, 0xFFFFFFFFu}));
+  EXPECT_EQ(v.values<double>("d"), (std::vector<double>{-2.25, 1.0}));
+  EXPECT_EQ(d.table("face").list("vertex_indices").data,
             (std::vector<std::vector<std::int32_t>>{{1, 2, -1}}));
 }
 
@@ -485,11 +485,11 @@ TEST_F(PlyTest, ReadsAsciiWithCrLfObjInfoAndOtherListTypes) {
   const PlyData d = read_ply(path);
   EXPECT_EQ(d.obj_info, std::vector<std::string>{"scanned 1994"});
   EXPECT_EQ(d.comments, std::vector<std::string>{"made by hand"});
-  EXPECT_EQ(d.element("vertex").column<float>("x"), (std::vector<float>{1.25f, -7e-3f}));
-  EXPECT_EQ(d.element("vertex").column<std::uint8_t>("m"), (std::vector<std::uint8_t>{3, 0}));
-  EXPECT_EQ(d.element("face").list("vertex_indices").data,
+  EXPECT_EQ(d.table("vertex").values<float>("x"), (std::vector<float>{1.25f, -7e-3f}));
+  EXPECT_EQ(d.table("vertex").values<std::uint8_t>("m"), (std::vector<std::uint8_t>{3, 0}));
+  EXPECT_EQ(d.table("face").list("vertex_indices").data,
             (std::vector<std::vector<std::int32_t>>{{0, 1, 2}, {}}));
-  EXPECT_EQ(d.element("face").column<std::uint8_t>("red"), (std::vector<std::uint8_t>{200, 9}));
+  EXPECT_EQ(d.table("face").values<std::uint8_t>("red"), (std::vector<std::uint8_t>{200, 9}));
 }
 
 // ---- errors -------------------------------------------------------------------------------
@@ -677,7 +677,7 @@ TEST_F(PlyTest, BadAsciiValuesAreErrors) {
 
 TEST_F(PlyTest, MismatchedColumnSizesAreRejectedBeforeTouchingTheDisk) {
   PlyData d = xyz_data(10);
-  std::get<std::vector<float>>(d.elements[0].properties[1].data).pop_back();
+  std::get<std::vector<float>>(d.tables[0].columns[1].data).pop_back();
   const fs::path path = dir_ / "bad.ply";
   const std::string msg = io_error_of([&] { write_ply(path, d); });
   EXPECT_CONTAINS(msg, path.string());
@@ -695,25 +695,25 @@ TEST_F(PlyTest, InvalidDataIsRejectedOnWrite) {
     EXPECT_TRUE(dir_entries().empty());
   };
   PlyData d = xyz_data(2);
-  d.elements[0].properties[2].name = "x";
+  d.tables[0].columns[2].name = "x";
   expect_rejected(d, "two properties called 'x'");
   d = xyz_data(2);
-  d.elements[0].properties[2].name = "z coordinate";
+  d.tables[0].columns[2].name = "z coordinate";
   expect_rejected(d, "property called 'z coordinate'");
   d = xyz_data(2);
-  d.elements[0].properties[2].name = "";
+  d.tables[0].columns[2].name = "";
   expect_rejected(d, "expected a non-empty name without whitespace");
   d = xyz_data(2);
-  d.elements.push_back(d.elements[0]);
+  d.tables.push_back(d.tables[0]);
   expect_rejected(d, "two elements are called 'vertex'");
   d = xyz_data(2);
   d.comments = {"one\ntwo"};
   expect_rejected(d, "contains a line break");
   d = mesh_data();
-  d.elements[1].lists[0].data[0].resize(256);
+  d.tables[1].lists[0].data[0].resize(256);
   expect_rejected(d, "row 0 has 256 items (expected at most 255");
   d = mesh_data();
-  d.elements[1].lists[0].data.pop_back();
+  d.tables[1].lists[0].data.pop_back();
   expect_rejected(d, "list property 'vertex_indices' has 3 rows but the element count is 4");
 }
 
@@ -743,7 +743,7 @@ TEST_F(PlyTest, FailedWriteLeavesTheOlderFileIntact) {
   const std::string before = read_bytes(path);
 
   PlyData bad = xyz_data(8);
-  bad.elements[0].count = 9;
+  bad.tables[0].count = 9;
   const std::string msg = io_error_of([&] { write_ply(path, bad); });
   EXPECT_CONTAINS(msg, "has 8 values but the element count is 9");
   EXPECT_EQ(read_bytes(path), before);
@@ -761,7 +761,7 @@ TEST_F(PlyTest, WritingOntoADirectoryFailsAndRemovesNothing) {
   EXPECT_EQ(dir_entries(), std::vector<std::string>{"frame.ply"});
 }
 
-// Borrowed columns (PlyColumnRef) read packed vectors component by component, a constant with
+// Borrowed columns (ColumnRef) read packed vectors component by component, a constant with
 // stride 0, and a plain array; the file must be byte-identical to the one written from copies,
 // in both encodings, and own() must turn the borrowed frame into exactly those copies.
 TEST_F(PlyTest, BorrowedColumnsWriteTheSameBytesAsCopies) {
@@ -779,26 +779,26 @@ TEST_F(PlyTest, BorrowedColumnsWriteTheSameBytesAsCopies) {
 
   PlyData copied;
   copied.comments = {"borrowed"};
-  PlyElement& c = copied.elements.emplace_back();
+  Table& c = copied.tables.emplace_back();
   c.name = "vertex";
   c.count = n;
   const char* names[3] = {"x", "y", "z"};
   for (int d = 0; d < 3; ++d) {
     std::vector<float> col(n);
     for (std::size_t i = 0; i < n; ++i) col[i] = x[i].c[d];
-    c.properties.push_back({names[d], col});
+    c.columns.push_back({names[d], col});
   }
-  c.properties.push_back({"material", std::vector<std::uint16_t>(n, material)});
-  c.properties.push_back({"id", id});
+  c.columns.push_back({"material", std::vector<std::uint16_t>(n, material)});
+  c.columns.push_back({"id", id});
 
   PlyData borrowed;
   borrowed.comments = {"borrowed"};
-  PlyElement& b = borrowed.elements.emplace_back();
+  Table& b = borrowed.tables.emplace_back();
   b.name = "vertex";
   b.count = n;
-  for (int d = 0; d < 3; ++d) b.refs.push_back(PlyColumnRef::of(names[d], &x[0].c[d], sizeof(Vec3)));
-  b.refs.push_back(PlyColumnRef::of("material", &material, 0));
-  b.refs.push_back(PlyColumnRef::of("id", id.data()));
+  for (int d = 0; d < 3; ++d) b.refs.push_back(ColumnRef::of(names[d], &x[0].c[d], sizeof(Vec3)));
+  b.refs.push_back(ColumnRef::of("material", &material, 0));
+  b.refs.push_back(ColumnRef::of("id", id.data()));
 
   for (const PlyFormat format : {PlyFormat::BinaryLittleEndian, PlyFormat::Ascii}) {
     write_ply(dir_ / "copied.ply", copied, format);
@@ -808,25 +808,25 @@ TEST_F(PlyTest, BorrowedColumnsWriteTheSameBytesAsCopies) {
     EXPECT_EQ(read_bytes(dir_ / "borrowed.ply"), want) << (format == PlyFormat::Ascii ? "ascii" : "binary");
   }
   // A borrowed column is not a property until it is owned; then it is the copy.
-  EXPECT_EQ(borrowed.elements[0].find("x"), nullptr);
+  EXPECT_EQ(borrowed.tables[0].find("x"), nullptr);
   PlyData owned = borrowed;
   x[0].c[0] = 99.0f;  // the copy does not follow the array any more
   owned.own();
   x[0].c[0] = 0.0f;
-  ASSERT_TRUE(owned.elements[0].refs.empty());
-  ASSERT_EQ(owned.elements[0].properties.size(), 5u);
-  EXPECT_EQ(owned.elements[0].column<float>("x")[0], 99.0f);
-  owned.elements[0].properties[0] = c.properties[0];
+  ASSERT_TRUE(owned.tables[0].refs.empty());
+  ASSERT_EQ(owned.tables[0].columns.size(), 5u);
+  EXPECT_EQ(owned.tables[0].values<float>("x")[0], 99.0f);
+  owned.tables[0].columns[0] = c.columns[0];
   for (std::size_t k = 0; k < 5; ++k) {
-    EXPECT_EQ(owned.elements[0].properties[k].name, c.properties[k].name);
-    EXPECT_EQ(owned.elements[0].properties[k].data, c.properties[k].data) << c.properties[k].name;
+    EXPECT_EQ(owned.tables[0].columns[k].name, c.columns[k].name);
+    EXPECT_EQ(owned.tables[0].columns[k].data, c.columns[k].data) << c.columns[k].name;
   }
   // Names are checked across owned and borrowed columns; a borrowed column must point somewhere.
   PlyData clash = borrowed;
-  clash.elements[0].properties.push_back({"id", std::vector<std::uint8_t>(n)});
+  clash.tables[0].columns.push_back({"id", std::vector<std::uint8_t>(n)});
   EXPECT_CONTAINS(io_error_of([&] { write_ply(dir_ / "bad.ply", clash); }), "two properties called 'id'");
   PlyData dangling = borrowed;
-  dangling.elements[0].refs[1].first = nullptr;
+  dangling.tables[0].refs[1].first = nullptr;
   EXPECT_CONTAINS(io_error_of([&] { write_ply(dir_ / "bad.ply", dangling); }), "borrowed column 'y' points nowhere");
   EXPECT_FALSE(fs::exists(dir_ / "bad.ply"));
 }

@@ -5,8 +5,9 @@
 
 #include <string>
 
-#include "slurry/engine/quality.h"
-#include "slurry/engine/scene.h"
+#include "slurry/engine/scene/quality.h"
+#include "slurry/engine/scene/scene.h"
+#include "slurry/io/scene_file.h"
 
 namespace {
 

@@ -10,7 +10,8 @@
 #include <string>
 
 #include "slurry/engine/errors.h"
-#include "slurry/engine/simulation.h"
+#include "slurry/engine/mpm/mpm_solver.h"
+#include "slurry/io/scene_file.h"
 
 using slurry::Scene;
 
@@ -48,9 +49,9 @@ struct Columns {
   std::vector<double> x, y, vx, vy, material;
 };
 
-Columns columns(const slurry::Simulation<float, 2>& sim) {
+Columns columns(const slurry::MpmSolver<float, 2>& sim) {
   const auto data = sim.frame({"position", "velocity", "material"});
-  const auto& v = data.element("vertex");
+  const auto& v = data.table("vertex");
   return {v.column_as_double("x"), v.column_as_double("y"), v.column_as_double("vx"),
           v.column_as_double("vy"), v.column_as_double("material")};
 }
@@ -66,7 +67,7 @@ double largest_difference(const Columns& a, const Columns& b) {
 
 TEST(Sleep, FramesEqualUntilTheFirstBlockSleepsAndStayCloseAfter) {
   // The ball falls from 1.4 m and lands at about t = 0.5 s (5 m/s), when much of the layer sleeps.
-  slurry::Simulation<float, 2> awake(pile(0, 0.0, 1.4)), sleepy(pile(0.01, 0.0, 1.4));
+  slurry::MpmSolver<float, 2> awake(pile(0, 0.0, 1.4)), sleepy(pile(0.01, 0.0, 1.4));
   bool slept = false;
   int first_sleep_frame = -1;
   double worst_after = 0;
@@ -116,12 +117,12 @@ TEST(Sleep, FramesEqualUntilTheFirstBlockSleepsAndStayCloseAfter) {
 // unchanged particles, in the same order).
 TEST(Sleep, ResumeWhileBlocksSleepIsExact) {
   const Scene s = pile(0.01, 0.0, 1.4);
-  slurry::Simulation<float, 2> a(s);
+  slurry::MpmSolver<float, 2> a(s);
   a.advance_to(12 / 30.0);
   ASSERT_GT(a.sleeping_blocks(), 0u);
   std::string state;
   a.save_state(state);
-  slurry::Simulation<float, 2> b(s);
+  slurry::MpmSolver<float, 2> b(s);
   b.load_state(state, "test state");
   EXPECT_EQ(b.sleeping_blocks(), a.sleeping_blocks());
   for (int f = 13; f <= 20; ++f) {

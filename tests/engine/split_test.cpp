@@ -8,8 +8,8 @@
 #include <random>
 
 #include "determinism_scene.h"
-#include "domain_split.h"
-#include "slurry/engine/simulation.h"
+#include "mpm/domain_split.h"
+#include "slurry/engine/mpm/mpm_solver.h"
 
 namespace slurry {
 namespace {
@@ -121,10 +121,10 @@ TEST(StorageOrder, ShufflingTheParticlesChangesNoBit) {
         return by_id(sim.particles());
       };
       if (dim == 2) {
-        Simulation<float, 2> sim(s);
+        MpmSolver<float, 2> sim(s);
         return steps(sim);
       }
-      Simulation<float, 3> sim(s);
+      MpmSolver<float, 3> sim(s);
       return steps(sim);
     };
     const std::string plain = run(false), shuffled = run(true);

@@ -9,8 +9,9 @@
 #include <string>
 #include <vector>
 
-#include "slurry/engine/run.h"
-#include "slurry/engine/scene.h"
+#include "slurry/engine/run/run.h"
+#include "slurry/engine/scene/scene.h"
+#include "slurry/io/scene_file.h"
 
 namespace {
 

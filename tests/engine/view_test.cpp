@@ -48,15 +48,15 @@ const char* kFem2D = R"({
 // Rows of the frame keyed by particle id (MPM and FEM frames list particles by id already;
 // FLIP frames are in storage order with an "id" column).
 template <class T, int Dim>
-void expect_view_matches_frame(const slurry::SimulationBase& sim, bool frame_has_ids) {
+void expect_view_matches_frame(const slurry::Solver& sim, bool frame_has_ids) {
   const auto view = sim.particles_view<T, Dim>();
   ASSERT_EQ(view.size(), sim.particle_count());
   const auto frame = sim.frame(frame_has_ids ? std::vector<std::string>{"position", "velocity", "id"}
                                              : std::vector<std::string>{"position", "velocity"});
-  const auto& vertex = frame.element("vertex");
+  const auto& vertex = frame.table("vertex");
   std::map<std::uint32_t, std::size_t> row_of;
   for (std::size_t r = 0; r < vertex.count; ++r)
-    row_of[frame_has_ids ? vertex.column<std::uint32_t>("id")[r] : std::uint32_t(r)] = r;
+    row_of[frame_has_ids ? vertex.values<std::uint32_t>("id")[r] : std::uint32_t(r)] = r;
   static const char* xs[3] = {"x", "y", "z"};
   static const char* vs[3] = {"vx", "vy", "vz"};
   for (std::size_t i = 0; i < view.size(); ++i) {
@@ -66,8 +66,8 @@ void expect_view_matches_frame(const slurry::SimulationBase& sim, bool frame_has
     ASSERT_EQ(row_of.count(view.id(i)), 1u) << "id " << view.id(i) << " is not in the frame";
     const std::size_t r = row_of[view.id(i)];
     for (int d = 0; d < Dim; ++d) {
-      ASSERT_EQ(view.position(i)[d], vertex.column<T>(xs[d])[r]) << "particle id " << view.id(i);
-      ASSERT_EQ(view.velocity(i)[d], vertex.column<T>(vs[d])[r]) << "particle id " << view.id(i);
+      ASSERT_EQ(view.position(i)[d], vertex.values<T>(xs[d])[r]) << "particle id " << view.id(i);
+      ASSERT_EQ(view.velocity(i)[d], vertex.values<T>(vs[d])[r]) << "particle id " << view.id(i);
     }
     // In place: the view's element is the solver's own storage, not a copy.
     ASSERT_EQ(&view.position(i), view.positions() + view.slot(i));

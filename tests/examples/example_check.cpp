@@ -34,8 +34,10 @@
 #include <Eigen/Geometry>
 
 #include "slurry/engine/geometry/triangle_mesh.h"
-#include "slurry/engine/ply.h"
-#include "slurry/engine/scene.h"
+#include "slurry/io/ply.h"
+#include "slurry/io/triangle_mesh_file.h"
+#include "slurry/engine/scene/scene.h"
+#include "slurry/io/scene_file.h"
 
 namespace fs = std::filesystem;
 
@@ -72,7 +74,7 @@ double speed_bound(const slurry::Scene& s, int dim) {
       // A keyframed mesh: its fastest point between two keys moves at |dc/dt| + omega R, R the
       // largest distance of a (scaled) vertex from the origin of the mesh's frame.
       double R = 0;
-      for (const auto& x : slurry::geometry::read_triangle_mesh(s.resolve(c.mesh)).vertices)
+      for (const auto& x : slurry::io::read_triangle_mesh(s.resolve(c.mesh)).vertices)
         R = std::max(R, c.scale.cwiseProduct(x).norm());
       double fastest = 0;
       for (std::size_t k = 1; k < c.keyframes.size(); ++k) {
@@ -141,9 +143,9 @@ int main(int argc, char** argv) {
     const fs::path file = frame_dir / name;
     if (!fs::exists(file)) fail(file.string() + ": missing (expected frames 0.." + std::to_string(last) + ")");
     const slurry::io::PlyData data = slurry::io::read_ply(file);
-    const auto& v = data.element("vertex");
+    const auto& v = data.table("vertex");
     particles = v.count;
-    for (const auto& p : v.properties) {
+    for (const auto& p : v.columns) {
       const auto col = v.column_as_double(p.name);
       for (std::size_t i = 0; i < col.size(); ++i)
         if (!std::isfinite(col[i]))

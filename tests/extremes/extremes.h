@@ -20,8 +20,9 @@
 #include <string>
 #include <vector>
 
-#include "slurry/engine/run.h"
-#include "slurry/engine/simulation.h"
+#include "slurry/engine/run/run.h"
+#include "slurry/engine/mpm/mpm_solver.h"
+#include "slurry/io/scene_file.h"
 
 namespace extremes {
 
@@ -53,12 +54,12 @@ inline double available_energy(const slurry::Scene& s, const slurry::RunStats& s
 /// Runs `scene` for `frames` frames. `inspect` sees every frame's vertex element (after the
 /// harness's own checks).
 inline Outcome run(const slurry::Scene& scene, int frames,
-                   const std::function<void(const slurry::io::PlyElement&)>& inspect = {}) {
+                   const std::function<void(const slurry::Table&)>& inspect = {}) {
   Outcome out;
   const int dim = scene.solver.dimension;
   std::vector<std::string> attributes{"position", "velocity"};
   if (scene.solver.type == slurry::SolverType::MPM) attributes.push_back("J");
-  std::unique_ptr<slurry::SimulationBase> sim;
+  std::unique_ptr<slurry::Solver> sim;
   try {
     sim = slurry::make_simulation(scene);
   } catch (const slurry::SceneError& e) {
@@ -80,8 +81,8 @@ inline Outcome run(const slurry::Scene& scene, int frames,
       }
       out.frames = f;
     }
-    const slurry::io::PlyData data = sim->frame(attributes);
-    const auto& v = data.element("vertex");
+    const slurry::Frame data = sim->frame(attributes);
+    const auto& v = data.table("vertex");
     out.particles = v.count;
     static const char* xn[3] = {"x", "y", "z"};
     static const char* vn[3] = {"vx", "vy", "vz"};

@@ -98,7 +98,7 @@ TEST(ExtremesFlip, EmitterAtItsLimit) {
     "output": {"fps": 10, "frames": 20}
   })", "emitter_limit");
   std::vector<std::size_t> counts;
-  const Outcome o = extremes::run(s, 20, [&](const slurry::io::PlyElement& v) { counts.push_back(v.count); });
+  const Outcome o = extremes::run(s, 20, [&](const slurry::Table& v) { counts.push_back(v.count); });
   expect_runs("FLIP 2D: emitter at its limit into a closed box", o, 20, 1e300);
   std::printf("[ extreme ] emitter: particles every 0.2 s:");
   for (std::size_t f = 0; f < counts.size(); f += 2) std::printf(" %zu", counts[f]);
@@ -127,7 +127,7 @@ TEST(ExtremesFlip, ThinWallHitAt20MetresPerSecond) {
     "output": {"fps": 500, "frames": 20}
   })", "flip_thin_wall_2d");
   double far = -1;
-  const Outcome o = extremes::run(s, 20, [&](const slurry::io::PlyElement& v) {
+  const Outcome o = extremes::run(s, 20, [&](const slurry::Table& v) {
     for (double x : v.column_as_double("x")) far = std::max(far, x - 0.5);
   });
   expect_runs("FLIP 2D: water at 20 m/s into a box wall dx/4 thick", o, 20, 1.05);

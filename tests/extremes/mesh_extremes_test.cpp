@@ -59,7 +59,7 @@ TEST(Extremes, ThinMeshWallHitAt20MetresPerSecond) {
     Scene s = wall_scene(flip, 20, t, dir);
     if (c == 1) s.colliders[0].condition = slurry::Condition::Sticky;
     double far = -1;
-    const Outcome o = extremes::run(s, 15, [&](const slurry::io::PlyElement& v) {
+    const Outcome o = extremes::run(s, 15, [&](const slurry::Table& v) {
       for (double x : v.column_as_double("x")) far = std::max(far, x - 0.5);
     });
     const std::string name = std::string(flip ? "FLIP water" : "MPM jelly") +
@@ -93,7 +93,7 @@ TEST(Extremes, ThinMeshWallTurnedAndMovingThroughKeyframes) {
     const Eigen::Vector3d n = R * Eigen::Vector3d(-1, 0, 0);
     int frame = 0;
     double worst = -1;
-    const Outcome o = extremes::run(s, 15, [&](const slurry::io::PlyElement& v) {
+    const Outcome o = extremes::run(s, 15, [&](const slurry::Table& v) {
       const double time = frame++ / 500.0, x0 = 0.6 - 5 * std::min(time, 0.03);
       const auto x = v.column_as_double("x"), y = v.column_as_double("y"),
                  z = v.column_as_double("z");

@@ -181,7 +181,7 @@ Outcome compress(slurry::ElasticModel model, double* mean_J) {
   })", "compression");
   s.materials[0].model = model;
   double last_mean = 0;
-  Outcome o = extremes::run(s, 10, [&](const slurry::io::PlyElement& v) {
+  Outcome o = extremes::run(s, 10, [&](const slurry::Table& v) {
     const auto J = v.column_as_double("J");
     double sum = 0;
     for (double j : J) sum += j;
@@ -210,7 +210,7 @@ TEST(Extremes, BodyOneParticleThick) {
   s.bodies[0].max = {0.7, 0.5 + 0.03125 / 2, 0};  // one particle spacing at 4 per cell
   s.output.fps = 20;
   int rows = 0;
-  const Outcome o = extremes::run(s, 10, [&](const slurry::io::PlyElement& v) {
+  const Outcome o = extremes::run(s, 10, [&](const slurry::Table& v) {
     if (rows == 0) rows = int(v.count);
   });
   EXPECT_EQ(rows, 26) << "one row of 0.4 m / (dx / 2)";
@@ -250,7 +250,7 @@ TEST(Extremes, ThinWallColliderHitAtSpeed) {
         wall.condition = condition;
         s.colliders = {wall};
         double far = -1;
-        const Outcome o = extremes::run(s, 10, [&](const slurry::io::PlyElement& v) {
+        const Outcome o = extremes::run(s, 10, [&](const slurry::Table& v) {
           for (double x : v.column_as_double("x")) far = std::max(far, x - 0.5);
         });
         const std::string name = "wall " + sci(thickness / dx) + " dx thick hit at " + sci(speed) + " m/s, " +

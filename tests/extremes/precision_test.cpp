@@ -37,7 +37,7 @@ struct Trajectory {
 Trajectory run_shifted(double offset, slurry::Precision precision) {
   Trajectory t;
   const Scene s = shifted_block(offset, precision);
-  t.outcome = extremes::run(s, 6, [&](const slurry::io::PlyElement& v) {
+  t.outcome = extremes::run(s, 6, [&](const slurry::Table& v) {
     double sum = 0;
     for (double y : v.column_as_double("y")) sum += y - offset;
     t.com_y = sum / double(v.count);

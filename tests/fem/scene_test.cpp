@@ -9,11 +9,12 @@
 #include <fstream>
 #include <string>
 
-#include "slurry/engine/fem/fem_simulation.h"
-#include "slurry/engine/fem/tetgen.h"
-#include "slurry/engine/ply.h"
-#include "slurry/engine/run.h"
-#include "slurry/engine/scene.h"
+#include "slurry/engine/fem/fem_solver.h"
+#include "slurry/io/tetgen.h"
+#include "slurry/io/ply.h"
+#include "slurry/engine/run/run.h"
+#include "slurry/engine/scene/scene.h"
+#include "slurry/io/scene_file.h"
 
 namespace {
 
@@ -36,7 +37,7 @@ const char* kScene2D = R"({
 
 // The checked-in TetGen example is exactly what ball_mesh generates, and close to a ball.
 TEST(FemScene, ExampleBallMeshMatchesItsGenerator) {
-  const auto m = slurry::fem::read_tetgen<3>(fs::path(SLURRY_EXAMPLES_DIR) / "meshes" / "ball");
+  const auto m = slurry::io::read_tetgen<3>(fs::path(SLURRY_EXAMPLES_DIR) / "meshes" / "ball");
   const auto g = slurry::fem::ball_mesh<3>(Eigen::Vector3d(0.25, 0.55, 0.25), 0.12, 6);
   ASSERT_EQ(m.vertex_count(), g.vertex_count());
   ASSERT_EQ(m.element_count(), g.element_count());
@@ -59,7 +60,7 @@ TEST(FemScene, RunsEndToEndWritingPlyWithFaces) {
   const auto dir = temp_dir("e2e");
   fs::create_directories(dir / "meshes");
   const auto cube = slurry::fem::box_mesh<3>(Eigen::Vector3d(0.4, 0.5, 0.4), Eigen::Vector3d(0.6, 0.7, 0.6), Eigen::Vector3i(2, 2, 2));
-  slurry::fem::write_tetgen<3>(dir / "meshes" / "cube", cube);
+  slurry::io::write_tetgen<3>(dir / "meshes" / "cube", cube);
   std::ofstream(dir / "scene3d.json") << R"({
     "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "dx": 0.05},
     "solver": {"type": "fem", "dimension": 3, "integrator": "implicit", "max_dt": 0.005},
@@ -80,8 +81,8 @@ TEST(FemScene, RunsEndToEndWritingPlyWithFaces) {
     double y0 = 0;
     for (int f = 0; f <= scene.output.frames; ++f) {
       const auto ply = slurry::io::read_ply(slurry::frame_file(*opt.directory, f));
-      const auto& v = ply.element("vertex");
-      const auto& fc = ply.element("face");
+      const auto& v = ply.table("vertex");
+      const auto& fc = ply.table("face");
       ASSERT_EQ(v.count, vertices) << name;
       ASSERT_EQ(fc.count, faces) << name;
       for (const auto& t : fc.list("vertex_indices").data) {
@@ -102,10 +103,10 @@ TEST(FemScene, RunsEndToEndWritingPlyWithFaces) {
     }
     if (dim == 3) {  // outward faces: the divergence theorem gives the body's volume
       const auto ply = slurry::io::read_ply(slurry::frame_file(*opt.directory, 0));
-      const auto x = ply.element("vertex").column_as_double("x"), y = ply.element("vertex").column_as_double("y"),
-                 z = ply.element("vertex").column_as_double("z");
+      const auto x = ply.table("vertex").column_as_double("x"), y = ply.table("vertex").column_as_double("y"),
+                 z = ply.table("vertex").column_as_double("z");
       double vol = 0;
-      for (const auto& t : ply.element("face").list("vertex_indices").data) {
+      for (const auto& t : ply.table("face").list("vertex_indices").data) {
         const Eigen::Vector3d a(x[t[0]], y[t[0]], z[t[0]]), b(x[t[1]], y[t[1]], z[t[1]]), c(x[t[2]], y[t[2]], z[t[2]]);
         vol += a.dot(b.cross(c)) / 6;
       }
@@ -118,7 +119,7 @@ TEST(FemScene, RunsEndToEndWritingPlyWithFaces) {
 // y_n = y_0 + g dt^2 n (n + 1) / 2 exactly (the co-rotated forces of a translation vanish).
 TEST(FemScene, FreeFallFollowsSymplecticEuler) {
   const auto scene = slurry::parse_scene(kScene2D, "free_fall.json");
-  slurry::FemSimulation<double, 2> sim(scene);
+  slurry::FemSolver<double, 2> sim(scene);
   const auto x0 = sim.fem().x;
   const double dt = sim.stable_dt();
   const int n = int(0.1 / dt);
@@ -144,7 +145,7 @@ TEST(FemScene, ClampedBeamSettlesToEulerBernoulliDeflection) {
     "bodies": [{"shape": "box", "min": [0.1, 0.4], "max": [0.9, 0.48], "material": "beam"}],
     "colliders": [{"shape": "box", "min": [0, 0.3], "max": [0.105, 0.6], "condition": "sticky"}]
   })", "beam.json");
-  slurry::FemSimulation<double, 2> sim(scene);
+  slurry::FemSolver<double, 2> sim(scene);
   const auto x0 = sim.fem().x;
   sim.advance_to(1.0);
   double tip = 0, clamped = 0;
@@ -209,7 +210,7 @@ TEST(FemScene, MissingMeshNamesTheResolvedFile) {
     "bodies": [{"mesh": "nothere", "material": "a"}]})";
   const auto scene = slurry::load_scene(dir / "s.json");
   try {
-    slurry::FemSimulation<double, 2> sim(scene);
+    slurry::FemSolver<double, 2> sim(scene);
     FAIL();
   } catch (const slurry::IoError& e) {
     EXPECT_NE(std::string(e.what()).find((dir / "nothere.node").string() + ": no such file (expected a TetGen mesh file)"), std::string::npos) << e.what();

@@ -7,13 +7,13 @@
 #include <fstream>
 #include <string>
 
-#include "slurry/engine/fem/tetgen.h"
+#include "slurry/io/tetgen.h"
 
 namespace {
 
 namespace fs = std::filesystem;
 using slurry::IoError;
-using slurry::fem::read_tetgen;
+using slurry::io::read_tetgen;
 
 fs::path temp_dir(const std::string& name) {
   const fs::path dir = fs::temp_directory_path() / ("slurry_tetgen_test_" + name);
@@ -64,7 +64,7 @@ TEST(TetGen, ReadsCommentsAttributesMarkersAndOneBasedIndices) {
     EXPECT_NEAR(volume, 1.0, 1e-14);
     EXPECT_EQ(slurry::fem::boundary_faces(m).size(), 12u);  // two triangles per cube face
   }
-  EXPECT_EQ(slurry::fem::tetgen_dimension(dir / "cube"), 3);
+  EXPECT_EQ(slurry::io::tetgen_dimension(dir / "cube"), 3);
 }
 
 TEST(TetGen, ZeroBasedTwoDimensionalTriangles) {
@@ -90,7 +90,7 @@ TEST(TetGen, ConsistentOppositeOrientationIsFlipped) {
 TEST(TetGen, RoundTripsThroughWriteTetgen) {
   const auto dir = temp_dir("roundtrip");
   const auto m = slurry::fem::box_mesh<3>(Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(2, 1, 1), Eigen::Vector3i(4, 2, 2));
-  slurry::fem::write_tetgen<3>(dir / "box", m);
+  slurry::io::write_tetgen<3>(dir / "box", m);
   const auto r = read_tetgen<3>(dir / "box.node");
   ASSERT_EQ(r.vertex_count(), m.vertex_count());
   ASSERT_EQ(r.element_count(), m.element_count());

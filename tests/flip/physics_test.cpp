@@ -11,13 +11,13 @@
 #include <vector>
 
 #include "slurry/engine/flip/cell_sort.h"
-#include "slurry/engine/flip/flip_simulation.h"
+#include "slurry/engine/flip/flip_solver.h"
 #include "slurry/transfer/parallel.h"
 
 namespace {
 
 using slurry::Scene;
-using Sim2 = slurry::flip::FlipSimulation<double, 2>;
+using Sim2 = slurry::flip::FlipSolver<double, 2>;
 
 /// A 2D double-precision FLIP scene over [0, w] x [0, h] with one liquid; bodies are the caller's.
 Scene liquid_scene(double w, double h, double dx, slurry::TransferKind transfer) {
@@ -121,7 +121,7 @@ double dam_break_worst_volume_drift(double volume_correction, double* final_drif
   s.solver.pressure.tolerance = 1e-6;
   s.solver.volume_correction = volume_correction;
   s.bodies = {box(0, 0, 0.54, 1.08)};
-  slurry::flip::FlipSimulation<float, 2> sim(s);
+  slurry::flip::FlipSolver<float, 2> sim(s);
   sim.advance_to(1.0 / 60);
   const double cells0 = sim.fluid_cell_volume();
   double worst = 0;
@@ -315,7 +315,7 @@ TEST(FlipPhysics, ParticleIdsSurviveReordering) {
   EXPECT_LT(worst, 1e-9 * dx);
   EXPECT_GT(max_step, 0.01 * dx) << "the liquid must move";
   const auto frame = sim.frame({"id", "position"});
-  const auto* ids = std::get_if<std::vector<std::uint32_t>>(&frame.elements[0].properties[0].data);
+  const auto* ids = std::get_if<std::vector<std::uint32_t>>(&frame.tables[0].columns[0].data);
   ASSERT_NE(ids, nullptr);
   EXPECT_EQ(*ids, P.id);
 }
@@ -343,7 +343,7 @@ std::vector<T> run_dam_break(int threads, bool quadratic_with_collider = true) {
   c.velocity = {0, 0.05, 0};
   if (quadratic_with_collider) s.colliders = {c};
   s.solver.pressure.tolerance = 1e-5;
-  slurry::flip::FlipSimulation<T, 3> sim(s);
+  slurry::flip::FlipSolver<T, 3> sim(s);
   sim.advance_to(0.05);
   std::vector<T> out;
   for (std::size_t p = 0; p < sim.particle_count(); ++p)

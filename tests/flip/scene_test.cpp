@@ -8,8 +8,10 @@
 #include <string>
 #include <variant>
 
-#include "slurry/engine/flip/flip_simulation.h"
-#include "slurry/engine/scene.h"
+#include "slurry/engine/flip/flip_solver.h"
+#include "slurry/engine/scene/scene.h"
+#include "slurry/io/scene_file.h"
+#include "slurry/engine/run/run.h"
 
 namespace {
 
@@ -117,17 +119,17 @@ TEST(FlipScene, GoodSceneKeepsItsValuesAndRuns) {
   EXPECT_DOUBLE_EQ(s.emitters[0].rate, 0.02);
   EXPECT_DOUBLE_EQ(s.emitters[0].end, 0.5);
   auto sim = slurry::make_simulation(s);
-  const bool is_flip = dynamic_cast<slurry::flip::FlipSimulation<float, 2>*>(sim.get()) != nullptr;
+  const bool is_flip = dynamic_cast<slurry::flip::FlipSolver<float, 2>*>(sim.get()) != nullptr;
   ASSERT_TRUE(is_flip);
   const auto n0 = sim->particle_count();
   sim->advance_to(0.5);
   EXPECT_GT(sim->particle_count(), n0) << "the emitter added liquid";
   const auto frame = sim->frame({"position", "velocity", "id"});
-  ASSERT_EQ(frame.elements[0].properties.size(), 5u);
+  ASSERT_EQ(frame.tables[0].columns.size(), 5u);
   // Emitted particles take new ids: all distinct.
-  const auto* ids = std::get_if<std::vector<std::uint32_t>>(&frame.elements[0].properties[4].data);
+  const auto* ids = std::get_if<std::vector<std::uint32_t>>(&frame.tables[0].columns[4].data);
   ASSERT_NE(ids, nullptr) << "id is a uint32 property";
-  EXPECT_EQ(frame.elements[0].properties[4].name, "id");
+  EXPECT_EQ(frame.tables[0].columns[4].name, "id");
   std::vector<std::uint32_t> sorted = *ids;
   std::sort(sorted.begin(), sorted.end());
   EXPECT_EQ(std::adjacent_find(sorted.begin(), sorted.end()), sorted.end()) << "duplicate ids";

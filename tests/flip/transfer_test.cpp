@@ -11,7 +11,7 @@
 
 #include "slurry/engine/flip/advection.h"
 #include "slurry/engine/flip/face_transfer.h"
-#include "slurry/engine/flip/flip_simulation.h"
+#include "slurry/engine/flip/flip_solver.h"
 #include "slurry/engine/flip/seeding.h"
 #include "slurry/engine/flip/solids.h"
 #include "slurry/transfer/parallel.h"

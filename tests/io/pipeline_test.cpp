@@ -13,7 +13,8 @@
 #include <vector>
 
 #include "slurry/engine/errors.h"
-#include "slurry/engine/scene.h"
+#include "slurry/engine/scene/scene.h"
+#include "slurry/io/scene_file.h"
 #include "slurry/io/pipeline.h"
 
 namespace fs = std::filesystem;
@@ -136,7 +137,7 @@ TEST(Pipeline, CliWritesSurfacesPointsAndIdsAndResurfaces) {
     EXPECT_TRUE(fs::exists(f / name)) << name;
   // MPM frames list particles by id: the id column is the row.
   const auto frame = slurry::io::read_ply(f / "frame_0001.ply");
-  const auto& id = frame.element("vertex").column<std::uint32_t>("id");
+  const auto& id = frame.table("vertex").values<std::uint32_t>("id");
   for (std::size_t i = 0; i < id.size(); ++i) ASSERT_EQ(id[i], i);
   // The VDB points: every particle, its id and velocity.
   const auto cloud = slurry::io::point_cloud(frame);
@@ -149,7 +150,7 @@ TEST(Pipeline, CliWritesSurfacesPointsAndIdsAndResurfaces) {
   // The surface of the water alone: its mesh lies within the water cube grown by a voxel or so
   // (the jelly at x >= 0.6 is not surfaced).
   const auto mesh =
-      slurry::io::read_ply(f / "surface_0001.ply").element("vertex").column_as_double("x");
+      slurry::io::read_ply(f / "surface_0001.ply").table("vertex").column_as_double("x");
   ASSERT_FALSE(mesh.empty());
   for (double x : mesh) ASSERT_LT(x, 0.5);
   const std::size_t vertices = mesh.size();
@@ -157,7 +158,7 @@ TEST(Pipeline, CliWritesSurfacesPointsAndIdsAndResurfaces) {
   // Re-meshing the frames already written: the scene named in them gives the same parameters.
   fs::remove(f / "surface_0001.ply");
   ASSERT_EQ(run(std::string(SLURRY_CLI) + " surface -q " + f.string() + " --formats ply"), 0);
-  EXPECT_EQ(slurry::io::read_ply(f / "surface_0001.ply").element("vertex").count, vertices);
+  EXPECT_EQ(slurry::io::read_ply(f / "surface_0001.ply").table("vertex").count, vertices);
   // Usage and file errors.
   EXPECT_EQ(
       run(std::string(SLURRY_CLI) + " surface -q " + f.string() + " --formats stl 2>/dev/null"), 2);
@@ -174,7 +175,7 @@ TEST(Pipeline, CliWritesSurfacesPointsAndIdsAndResurfaces) {
   // infinity, or wrote an empty surface).
   auto data = slurry::io::read_ply(f / "frame_0001.ply");
   std::vector<float>* column = nullptr;
-  for (auto& p : data.find("vertex")->properties)
+  for (auto& p : data.find("vertex")->columns)
     if (p.name == "x") column = &std::get<std::vector<float>>(p.data);
   ASSERT_NE(column, nullptr);
   auto& x = *column;

@@ -281,11 +281,11 @@ TEST(Surface, MeshFilesReadBack) {
   const fs::path dir = temp_dir("mesh");
   slurry::io::write_mesh_ply(dir / "m.ply", m);
   const auto ply = slurry::io::read_ply(dir / "m.ply");
-  const auto& v = ply.element("vertex");
+  const auto& v = ply.table("vertex");
   EXPECT_EQ(v.count, m.vertices.size());
-  EXPECT_EQ(v.column<float>("vx")[7], m.velocities[7][0]);
-  EXPECT_EQ(v.column<float>("z")[9], m.vertices[9][2]);
-  const auto& f = ply.element("face");
+  EXPECT_EQ(v.values<float>("vx")[7], m.velocities[7][0]);
+  EXPECT_EQ(v.values<float>("z")[9], m.vertices[9][2]);
+  const auto& f = ply.table("face");
   ASSERT_EQ(f.count, m.triangles.size());
   EXPECT_EQ(f.list("vertex_indices").data[5],
             (std::vector<std::int32_t>{m.triangles[5][0], m.triangles[5][1], m.triangles[5][2]}));
@@ -324,15 +324,15 @@ TEST(Surface, MeshFilesReadBack) {
 
 TEST(Surface, PointCloudFromAFrameSelectsAMaterial) {
   slurry::io::PlyData frame;
-  auto& v = frame.elements.emplace_back();
+  auto& v = frame.tables.emplace_back();
   v.name = "vertex";
   v.count = 4;
-  v.properties.push_back({"x", std::vector<double>{0, 1, 2, 3}});
-  v.properties.push_back({"y", std::vector<double>{4, 5, 6, 7}});
-  v.properties.push_back({"vx", std::vector<double>{1, 1, 2, 2}});
-  v.properties.push_back({"vy", std::vector<double>{0, 0, 0, 0}});
-  v.properties.push_back({"material", std::vector<std::uint16_t>{0, 1, 0, 1}});
-  v.properties.push_back({"id", std::vector<std::uint32_t>{10, 11, 12, 13}});
+  v.columns.push_back({"x", std::vector<double>{0, 1, 2, 3}});
+  v.columns.push_back({"y", std::vector<double>{4, 5, 6, 7}});
+  v.columns.push_back({"vx", std::vector<double>{1, 1, 2, 2}});
+  v.columns.push_back({"vy", std::vector<double>{0, 0, 0, 0}});
+  v.columns.push_back({"material", std::vector<std::uint16_t>{0, 1, 0, 1}});
+  v.columns.push_back({"id", std::vector<std::uint32_t>{10, 11, 12, 13}});
   const PointCloud all = slurry::io::point_cloud(frame);
   ASSERT_EQ(all.size(), 4u);
   EXPECT_EQ(all.position[2], (std::array<float, 3>{2, 6, 0}));  // 2D: z = 0

@@ -1,4 +1,4 @@
-#include "slurry/engine/flip/flip_simulation.h"
+#include "slurry/engine/flip/flip_solver.h"
 
 namespace slurry::flip {
 

@@ -1,26 +1,20 @@
-#include "scene_meshes.h"
+#include "geometry/scene_meshes.h"
 
 #include <cmath>
 #include <random>
 
 #include "slurry/engine/errors.h"
+#include "slurry/engine/scene/scene_files.h"
 
 namespace slurry::detail {
 
-geometry::TriangleMesh load_scene_mesh(const Scene& scene, const std::string& file,
+geometry::TriangleMesh place_scene_mesh(const Scene& scene, const std::string& file,
                                        const Eigen::Vector3d& scale,
                                        const Eigen::Vector3d& rotation,
                                        const Eigen::Vector3d& translation,
                                        const std::string& where) {
   const std::string what = scene.source + ": " + where + ".mesh (" + file + ")";
-  geometry::TriangleMesh mesh;
-  try {
-    mesh = geometry::read_triangle_mesh(scene.resolve(file));
-  } catch (const ResourceError&) {
-    throw;
-  } catch (const IoError& e) {
-    throw IoError(scene.source + ": " + where + ".mesh: " + e.what());
-  }
+  geometry::TriangleMesh mesh = scene_triangle_mesh(scene, file, where);
   return geometry::place_closed_mesh(std::move(mesh), scale, geometry::euler_degrees(rotation),
                                      translation, what);
 }
@@ -32,7 +26,7 @@ geometry::TriangleMesh placed_body_mesh(const Scene& scene, std::size_t body, Ei
   const BodyParams& b = scene.bodies[body];
   const std::string where = "bodies[" + std::to_string(body) + "]";
   geometry::TriangleMesh mesh =
-      load_scene_mesh(scene, b.mesh, b.scale, b.rotation, b.translation, where);
+      place_scene_mesh(scene, b.mesh, b.scale, b.rotation, b.translation, where);
   mesh.bounds(lo, hi);
   for (int d = 0; d < 3; ++d)
     if (lo[d] < scene.domain.min[d] || hi[d] > scene.domain.max[d])
@@ -46,7 +40,7 @@ geometry::TriangleMesh placed_body_mesh(const Scene& scene, std::size_t body, Ei
 }  // namespace
 
 void check_scene_meshes(const Scene& scene) {
-  if (scene.solver.type == SolverType::FEM) return;  // FEM reads TetGen meshes (run.cpp)
+  if (scene.solver.type == SolverType::FEM) return;  // FEM bodies are TetGen meshes
   for (std::size_t i = 0; i < scene.bodies.size(); ++i) {
     if (scene.bodies[i].shape != Shape::Mesh) continue;
     Eigen::Vector3d lo, hi;
@@ -55,7 +49,7 @@ void check_scene_meshes(const Scene& scene) {
   for (std::size_t i = 0; i < scene.colliders.size(); ++i) {
     const ColliderParams& c = scene.colliders[i];
     if (c.shape == ColliderShape::Mesh)
-      load_scene_mesh(scene, c.mesh, c.scale, Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(),
+      place_scene_mesh(scene, c.mesh, c.scale, Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(),
                       "colliders[" + std::to_string(i) + "]");
   }
 }
@@ -106,7 +100,7 @@ std::vector<Eigen::Vector3d> seed_mesh_body(const Scene& scene, std::size_t body
 MeshColliderParts make_mesh_collider(const Scene& scene, std::size_t index) {
   const ColliderParams& c = scene.colliders[index];
   const std::string where = "colliders[" + std::to_string(index) + "]";
-  geometry::TriangleMesh mesh = load_scene_mesh(scene, c.mesh, c.scale, Eigen::Vector3d::Zero(),
+  geometry::TriangleMesh mesh = place_scene_mesh(scene, c.mesh, c.scale, Eigen::Vector3d::Zero(),
                                                 Eigen::Vector3d::Zero(), where);
   // Half the grid spacing resolves the surface between grid nodes; the margin covers the widest
   // kernel's reach (two cells) around the solid and a band beyond it.

@@ -1,21 +1,22 @@
-// Mesh bodies and mesh colliders of a scene: reading a scene's triangle meshes, placing them,
-// filling a mesh body with particles and building the colliders. Internal to the engine.
+// Mesh bodies and mesh colliders of a scene: placing the scene's triangle meshes (as read into
+// Scene::files), filling a mesh body with particles and building the colliders. Internal to the
+// engine.
 #pragma once
 #include <Eigen/Core>
 #include <memory>
 #include <string>
 #include <vector>
 
-#include "slurry/engine/colliders.h"
+#include "slurry/engine/geometry/colliders.h"
 #include "slurry/engine/geometry/mesh_sdf.h"
 #include "slurry/engine/geometry/rigid_motion.h"
-#include "slurry/engine/scene.h"
+#include "slurry/engine/scene/scene.h"
 
 namespace slurry::detail {
 
-/// Reads `file` (relative to the scene) and places it; errors name the scene file, the JSON path
-/// `where` (e.g. "bodies[0]") and the mesh file.
-geometry::TriangleMesh load_scene_mesh(const Scene& scene, const std::string& file,
+/// The scene's mesh `file` (as read into Scene::files), placed; errors name the scene file, the
+/// JSON path `where` (e.g. "bodies[0]") and the mesh file.
+geometry::TriangleMesh place_scene_mesh(const Scene& scene, const std::string& file,
                                        const Eigen::Vector3d& scale,
                                        const Eigen::Vector3d& rotation,
                                        const Eigen::Vector3d& translation,
@@ -28,8 +29,9 @@ geometry::TriangleMesh load_scene_mesh(const Scene& scene, const std::string& fi
 std::vector<Eigen::Vector3d> seed_mesh_body(const Scene& scene, std::size_t body,
                                             double& cell_volume);
 
-/// Reads every triangle mesh the scene names (mesh bodies and mesh colliders) and checks that it
-/// encloses a volume and, for a body, lies inside the domain: what `slurry validate` checks.
+/// Places every triangle mesh the scene names (mesh bodies and mesh colliders, read into
+/// Scene::files) and checks that it encloses a volume and, for a body, lies inside the domain:
+/// what `slurry validate` checks after reading them.
 void check_scene_meshes(const Scene& scene);
 
 /// The mesh collider `index` of the scene in its own frame (scale applied) and its motion.

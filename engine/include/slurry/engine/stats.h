@@ -65,11 +65,6 @@ struct DriftTolerances {
 std::vector<std::string> drift_warnings(const RunStats& first, const RunStats& now, const DriftTolerances& tol,
                                         double energy_scale);
 
-/// The header line of stats.csv.
-std::string stats_csv_header();
-/// One row of stats.csv (no line break).
-std::string stats_csv_row(const RunStats& s);
-
 /// Accumulates the particle sums of RunStats over arrays of positions, velocities and masses
 /// (Dim 2 or 3; m may be null with `uniform_mass` given instead).
 template <class Vec, class T>

@@ -13,7 +13,7 @@
 #include <utility>
 #include <vector>
 
-#include "slurry/engine/scene.h"
+#include "slurry/engine/scene/scene.h"
 #include "slurry/io/surface.h"
 
 namespace slurry::io {
@@ -54,7 +54,7 @@ struct FrameOutputReport {
 
 /// Writes the outputs of particle frame `frame` (index `index`) into `dir`. A group with no
 /// particles in this frame writes no surface files. Throws IoError.
-FrameOutputReport write_frame_outputs(const PlyData& frame, int index,
+FrameOutputReport write_frame_outputs(const Frame& frame, int index,
                                       const std::filesystem::path& dir,
                                       const FrameOutputs& outputs);
 

@@ -34,7 +34,7 @@
 #include <string>
 #include <vector>
 
-#include "slurry/engine/ply.h"
+#include "slurry/io/ply.h"
 
 namespace slurry::io {
 
@@ -50,7 +50,7 @@ struct PointCloud {
 /// Reads a particle frame (a PLY "vertex" element with x, y and optionally z, vx, vy, vz, id;
 /// 2D frames get z = 0). If `material` >= 0 and the frame has a "material" column, only that
 /// material's particles are taken. Throws IoError naming the file.
-PointCloud point_cloud(const PlyData& frame, int material = -1);
+PointCloud point_cloud(const Frame& frame, int material = -1);
 
 struct SurfaceParams {
   double voxel_size = 0;  ///< m, > 0: the level set's voxel size (the CLI uses domain.dx)

@@ -13,7 +13,7 @@
 /// field (the convergence-order test).
 #include <Eigen/Core>
 
-#include "slurry/engine/scene.h"
+#include "slurry/engine/scene/scene.h"
 
 namespace slurry::flip {
 

@@ -22,7 +22,7 @@
 #include "slurry/engine/flip/cell_sort.h"
 #include "slurry/engine/flip/flip_particles.h"
 #include "slurry/engine/flip/mac_grid.h"
-#include "slurry/engine/scene.h"
+#include "slurry/engine/scene/scene.h"
 #include "slurry/transfer/parallel.h"
 
 namespace slurry::flip {

@@ -17,7 +17,7 @@
 #include <stdexcept>
 #include <vector>
 
-#include "slurry/engine/colliders.h"
+#include "slurry/engine/geometry/colliders.h"
 #include "slurry/engine/flip/mac_grid.h"
 #include "slurry/transfer/parallel.h"
 

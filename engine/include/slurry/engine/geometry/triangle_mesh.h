@@ -1,8 +1,8 @@
 #pragma once
 /// \file triangle_mesh.h
-/// Closed triangle meshes for mesh bodies (`"shape": "mesh"`) and mesh colliders: reading OBJ
-/// and PLY files, the scale / rotation / translation of a scene's placement, and the check that
-/// a mesh encloses a volume.
+/// Closed triangle meshes for mesh bodies (`"shape": "mesh"`) and mesh colliders: the scale /
+/// rotation / translation of a scene's placement, and the check that a mesh encloses a volume.
+/// The files are read by io::read_triangle_mesh (slurry/io/triangle_mesh_file.h).
 ///
 /// A mesh encloses a volume when it is closed and manifold: every edge is shared by exactly two
 /// triangles, which traverse it in opposite directions (consistent orientation). Anything else
@@ -44,13 +44,6 @@ struct MeshTopology {
 
 /// Counts the edges that keep `mesh` from enclosing a volume.
 MeshTopology check_topology(const TriangleMesh& mesh);
-
-/// Reads a triangle mesh: Wavefront OBJ (`v x y z` and `f i j k ...` lines, indices 1-based or
-/// negative, `i/t/n` forms; polygons are fanned into triangles) or PLY (element `vertex` with
-/// x, y, z and element `face` with a list `vertex_indices` or `vertex_index`), chosen by the
-/// extension. Throws IoError naming the file and the line or element at fault: unreadable file,
-/// unknown extension, malformed numbers, indices out of range, no triangles.
-TriangleMesh read_triangle_mesh(const std::filesystem::path& path);
 
 /// Rotation matrix of Euler angles in degrees, applied about x first, then y, then z
 /// (R = Rz Ry Rx): the order of Blender's default "XYZ Euler" mode.

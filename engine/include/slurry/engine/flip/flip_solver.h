@@ -1,0 +1,182 @@
+#pragma once
+/// \file flip_simulation.h
+/// The FLIP/APIC liquid solver (Zhu & Bridson 2005, "Animating sand as a fluid"; Jiang et al.
+/// 2015, APIC; Bridson, "Fluid Simulation for Computer Graphics", 2nd ed.): incompressible
+/// liquid on a staggered grid, carried by marker particles. One substep is a fixed sequence of
+/// named phases (the shape of Jet's PicSolver / FlipSolver / ApicSolver, without the class tree):
+///
+///   emit             emitters add particles (rate * dt of volume each)
+///   sort             counting sort of the particles by cell (P2G scatters slab by slab from it)
+///   transfer_to_grid P2G on the faces (PIC/FLIP: v; APIC: v + c . (x_f - x_p))
+///   save_velocities  FLIP keeps the face velocities for the delta update
+///   gravity          u += dt g
+///   boundaries       solid face fractions and velocities (moving colliders: at t + dt),
+///                    cell labels and the liquid level set phi from the particles
+///   project          pressure projection (pressure.h: PCG, ghost fluid, variational solids)
+///   extrapolate      face velocities into the air (extrapolate.h)
+///   enforce_solids   closed faces take the solid's velocity
+///   transfer_to_particles  G2P: PIC, FLIP (blend ratio) or APIC (affine vectors)
+///   advect           x through the grid velocity (Euler, midpoint, Heun or RK3), pushed out
+///                    of colliders and kept inside the domain; with the linear kernel in
+///                    transfer_to_particles' pass (its timer then holds both)
+///   reseed           particles per cell between solver.reseed bounds
+///
+/// The substep is min(solver.max_dt, cfl dx / max |v_p|) with cfl up to 5, clipped so frames
+/// land on multiples of 1 / fps. Every phase is parallel over independent items with a fixed
+/// summation order: frames are bitwise identical for any thread count.
+#include <Eigen/Core>
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "slurry/engine/flip/cell_sort.h"
+#include "slurry/engine/flip/extrapolate.h"
+#include "slurry/engine/flip/face_transfer.h"
+#include "slurry/engine/flip/flip_particles.h"
+#include "slurry/engine/flip/mac_grid.h"
+#include "slurry/engine/flip/pressure.h"
+#include "slurry/engine/flip/seeding.h"
+#include "slurry/engine/flip/solids.h"
+#include "slurry/engine/solver.h"
+#include "slurry/engine/substeps.h"
+
+namespace slurry::flip {
+
+/// Named phases of a substep, for the per-phase timing (FlipSolver::phase_seconds).
+enum Phase : int {
+  kEmit, kSort, kToGrid, kSave, kGravity, kBoundaries, kProject, kExtrapolate, kEnforce, kToParticles,
+  kAdvect, kReseed, kPhaseCount
+};
+const char* phase_name(int phase);
+
+template <class T, int Dim>
+class FlipSolver final : public Solver {
+ public:
+  using Vec = Eigen::Matrix<T, Dim, 1>;
+  using IVec = Eigen::Matrix<int, Dim, 1>;
+  using Grid = MacGrid<T, Dim>;
+
+  /// Validates the scene (solver.type "flip") and seeds its bodies.
+  explicit FlipSolver(const Scene& scene);
+
+  /// The substep the CFL condition allows now (not clipped to a frame boundary).
+  T stable_dt() const;
+  /// One substep of length dt. Throws SimulationError on a non-finite state.
+  void step(T dt);
+
+  double time() const override { return time_; }
+  std::int64_t steps() const override { return steps_; }
+  std::size_t particle_count() const override { return particles_.size(); }
+  std::size_t bytes() const override;
+  std::int64_t advance_to(double t_end) override;
+  /// position, velocity, material, id (the persistent particle id, uint32).
+  Frame frame(const std::vector<std::string>& attributes) const override;
+  Frame frame_view(const std::vector<std::string>& attributes) const override;
+
+  FlipParticles<T, Dim>& particles() { return particles_; }
+  const FlipParticles<T, Dim>& particles() const { return particles_; }
+  const Grid& grid() const { return grid_; }
+  const Scene& scene() const { return scene_; }
+  /// What the last pressure projection did (iterations, residual, max divergence).
+  const ProjectionReport& last_projection() const { return last_projection_; }
+  /// "pressure PCG <iterations> iterations, residual <r>, max |div u| <d> 1/s" of the last substep.
+  std::string solver_status() const override;
+  /// Mass from the nominal particle volume (every particle carries dx^Dim / ppc); volume: the
+  /// cells that hold a particle.
+  RunStats take_stats() override;
+  /// position, velocity, id, material (when the scene has more than one liquid).
+  ParticleStorage particle_storage() const override;
+  using Solver::save_state;
+  void save_state(const StateSink& sink) const override;
+  void load_state(std::string_view in, const std::string& what) override;
+  /// Largest particle speed after the last substep (m/s).
+  T max_speed() const { return max_speed_; }
+  /// Particle volume dx^Dim / particles_per_cell (the nominal seeding density).
+  T particle_volume() const { return particle_volume_; }
+  /// Liquid density (kg/m^3).
+  T density() const { return T(scene_.materials[0].density); }
+  /// sum_p m |v_p|^2 / 2 with m = density * particle_volume.
+  T kinetic_energy() const;
+  /// Fluid cells after the last substep times dx^Dim.
+  T fluid_cell_volume() const;
+  /// Particles added and removed by reseeding so far.
+  std::int64_t reseeded_added() const { return reseed_added_; }
+  std::int64_t reseeded_removed() const { return reseed_removed_; }
+  /// Wall seconds spent in each phase so far (index: Phase).
+  const std::array<double, kPhaseCount>& phase_seconds() const { return phase_seconds_; }
+  /// CPU seconds of the process (all threads) spent in each phase so far (std::clock).
+  const std::array<double, kPhaseCount>& phase_cpu_seconds() const { return phase_cpu_seconds_; }
+
+ private:
+  void emit(T dt);
+  void sort_particles();
+  void transfer_to_grid();
+  void save_velocities();
+  void apply_gravity(T dt);
+  void build_boundaries(T t);
+  void project(T dt);
+  void extrapolate_velocities();
+  void enforce_solids();
+  /// With the linear kernel G2P advects each particle as soon as it has its velocity: the grid
+  /// velocity it gathered at x_p is the advection's first stage, and the particles are read and
+  /// written once. advect() is the separate pass of the quadratic kernel.
+  bool advects_in_g2p() const { return order_ == 1; }
+  /// G2P; where advects_in_g2p(), also the advection over dt.
+  void transfer_to_particles(T dt);
+  void advect(T dt);
+  void reseed();
+
+  /// advect()'s step for one particle, shared with G2P's pass for the linear kernel: the
+  /// substep's constants and collider poses, computed once per substep.
+  class Advection {
+   public:
+    Advection(FlipSolver& sim, T dt);
+    /// Moves particle p one step of the scene's advection scheme (advection.h), from its first
+    /// stage k1 = u(x_p), then stops it at thin colliders and keeps it out of solids.
+    void particle(std::int64_t p, const Vec& k1) const;
+    /// The grid velocity u(x) that advection integrates (trilinear on the faces).
+    Vec velocity(const Vec& x) const;
+
+   private:
+    FlipSolver& sim_;
+    T dt_, t0_, t_end_, margin_;
+    AdvectionScheme scheme_;
+    bool solids_, thin_;
+    std::vector<geometry::Pose> poses0_, poses1_;
+  };
+
+  Scene scene_;
+  FlipSolver(const FlipSolver&) = delete;
+  FaceScheme scheme_ = FaceScheme::APIC;
+  int order_ = 1;
+  FlipParticles<T, Dim> particles_;
+  typename FlipParticles<T, Dim>::PermuteBuffers permute_spare_;  // sort_particles()' spare channel
+  CellSort<T, Dim> sort_;
+  Grid grid_;
+  std::array<std::vector<T>, Dim> weight_sum_, old_u_;
+  std::vector<std::uint8_t> holes_;
+  bool faces_ready_ = false;
+  Solids<T, Dim> solids_;
+  std::vector<Emitter<T, Dim>> emitters_;
+  Reseeder<T, Dim> reseeder_;
+  PressureSolver<T, Dim> pressure_;
+  Extrapolator<T, Dim> extrapolator_;
+  ProjectionOptions projection_options_;
+  ProjectionReport last_projection_;
+  Vec gravity_, x_lo_, x_hi_;
+  T particle_volume_ = 0, particle_radius_ = 0, max_speed_ = 0;
+  T cfl_reached_ = 0;  // largest max_speed dt / dx since the last take_stats()
+  double time_ = 0;
+  std::int64_t steps_ = 0, reseed_added_ = 0, reseed_removed_ = 0;
+  std::array<double, kPhaseCount> phase_seconds_{}, phase_cpu_seconds_{};
+};
+
+extern template class FlipSolver<float, 2>;
+extern template class FlipSolver<float, 3>;
+extern template class FlipSolver<double, 2>;
+extern template class FlipSolver<double, 3>;
+
+}  // namespace slurry::flip

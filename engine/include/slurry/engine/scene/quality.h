@@ -1,0 +1,25 @@
+#pragma once
+/// \file quality.h
+/// `solver.quality` presets: "preview", "production", "reference". A preset sets the solver knobs
+/// (and the default particles_per_cell of bodies) that the speed-against-accuracy study
+/// (benchmarks/tradeoff/) found on the Pareto front of error against CPU time for its budget;
+/// keys written in the scene still win (the scene parser applies the preset first). The values
+/// and the error each gives on the study's problems are listed in README.md, "Speed against
+/// accuracy". Grid spacing is not part of a preset: it is the scene's resolution.
+#include <string_view>
+
+#include "slurry/engine/scene/scene.h"
+
+namespace slurry {
+
+/// The names solver.quality accepts.
+inline constexpr std::string_view kQualityPresets[] = {"preview", "production", "reference"};
+
+/// Sets the knobs of preset `quality` for scene.solver.type in scene.solver and the
+/// particles_per_cell of every body already in the scene, and returns that particles_per_cell
+/// (parse_scene makes it the default of the bodies and emitters it reads afterwards). Throws
+/// SceneError naming `scene.source`, `solver.quality`, the value and the allowed names for an
+/// unknown name, and for solver.type "fem" (no preset was measured for it).
+double apply_quality(Scene& scene, std::string_view quality);
+
+}  // namespace slurry

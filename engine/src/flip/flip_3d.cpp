@@ -1,6 +1,0 @@
-// FlipSimulation<double, 3>: one instantiation per translation unit (see flip_simulation_impl.h).
-#include "flip_simulation_impl.h"
-
-namespace slurry::flip {
-template class FlipSimulation<double, 3>;
-}  // namespace slurry::flip

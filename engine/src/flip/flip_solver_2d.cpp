@@ -1,0 +1,6 @@
+// FlipSolver<double, 2>: one instantiation per translation unit (see flip_simulation_impl.h).
+#include "flip/flip_solver_impl.h"
+
+namespace slurry::flip {
+template class FlipSolver<double, 2>;
+}  // namespace slurry::flip

@@ -1,0 +1,6 @@
+// FlipSolver<float, 3>: one instantiation per translation unit (see flip_simulation_impl.h).
+#include "flip/flip_solver_impl.h"
+
+namespace slurry::flip {
+template class FlipSolver<float, 3>;
+}  // namespace slurry::flip

@@ -1,0 +1,6 @@
+// MpmSolver<float, 3>: one instantiation per translation unit (see simulation_impl.h).
+#include "mpm/mpm_solver_impl.h"
+
+namespace slurry {
+template class MpmSolver<float, 3>;
+}  // namespace slurry

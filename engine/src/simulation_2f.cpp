@@ -1,6 +1,0 @@
-// Simulation<float, 2>: one instantiation per translation unit (see simulation_impl.h).
-#include "simulation_impl.h"
-
-namespace slurry {
-template class Simulation<float, 2>;
-}  // namespace slurry

@@ -1,0 +1,190 @@
+// The OpenVDB-free half of slurry::io (surface.h): particle frames to point clouds, per-vertex
+// velocities, PLY and OBJ mesh files.
+#include <unistd.h>
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <limits>
+#include <numeric>
+
+#include "slurry/engine/errors.h"
+#include "slurry/io/surface.h"
+#include "slurry/transfer/parallel.h"
+
+namespace slurry::io {
+
+PointCloud point_cloud(const Frame& frame, int material) {
+  const Table& v = frame.table("vertex");
+  const bool three_d = v.has("z");
+  const auto x = v.column_as_float("x"), y = v.column_as_float("y");
+  const auto z = three_d ? v.column_as_float("z") : std::vector<float>(v.count, 0.0f);
+  const bool has_v = v.has("vx");
+  std::vector<float> vx, vy, vz;
+  if (has_v) {
+    vx = v.column_as_float("vx");
+    vy = v.column_as_float("vy");
+    vz = three_d ? v.column_as_float("vz") : std::vector<float>(v.count, 0.0f);
+  }
+  std::vector<double> id;
+  if (v.has("id")) id = v.column_as_double("id");
+  std::vector<double> mat;
+  if (material >= 0 && v.has("material")) mat = v.column_as_double("material");
+
+  PointCloud c;
+  for (std::size_t i = 0; i < v.count; ++i) {
+    if (!mat.empty() && mat[i] != double(material)) continue;
+    if (!std::isfinite(x[i]) || !std::isfinite(y[i]) || !std::isfinite(z[i]))
+      throw IoError(frame.source.string() + ": vertex " + std::to_string(i) + " has a non-finite position (" +
+                    std::to_string(x[i]) + ", " + std::to_string(y[i]) + ", " + std::to_string(z[i]) +
+                    "); expected finite positions (a frame of a run that became unstable?)");
+    if (has_v && (!std::isfinite(vx[i]) || !std::isfinite(vy[i]) || !std::isfinite(vz[i])))
+      throw IoError(frame.source.string() + ": vertex " + std::to_string(i) +
+                    " has a non-finite velocity; expected finite velocities");
+    c.position.push_back({x[i], y[i], z[i]});
+    if (has_v) c.velocity.push_back({vx[i], vy[i], vz[i]});
+    if (!id.empty()) {
+      if (!(id[i] >= 0 && id[i] <= double(std::numeric_limits<std::uint32_t>::max())))
+        throw IoError(frame.source.string() + ": vertex " + std::to_string(i) + ": id " +
+                      std::to_string(id[i]) + " is not an unsigned 32-bit integer");
+      c.id.push_back(std::uint32_t(id[i]));
+    }
+  }
+  return c;
+}
+
+std::vector<std::array<float, 3>> sample_velocities(
+    const std::vector<std::array<float, 3>>& vertices, const PointCloud& points, double spacing) {
+  const std::size_t n = points.size();
+  std::vector<std::array<float, 3>> out(vertices.size(), {0.0f, 0.0f, 0.0f});
+  if (n == 0 || points.velocity.size() != n) return out;
+  // Particles sorted into cells of side h, the kernel radius; a vertex's neighbours lie in the
+  // 27 cells around its own.
+  const double h = 2 * spacing;
+  std::array<double, 3> lo{1e300, 1e300, 1e300};
+  for (const auto& p : points.position)
+    for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], double(p[d]));
+  std::array<std::int64_t, 3> dims{1, 1, 1};
+  for (const auto& p : points.position)
+    for (int d = 0; d < 3; ++d) dims[d] = std::max(dims[d], std::int64_t((p[d] - lo[d]) / h) + 1);
+  const auto cell_of = [&](const std::array<float, 3>& p, std::array<std::int64_t, 3>& c) {
+    for (int d = 0; d < 3; ++d) c[d] = std::int64_t(std::floor((p[d] - lo[d]) / h));
+  };
+  const auto key = [&](const std::array<std::int64_t, 3>& c) {
+    return (c[0] * dims[1] + c[1]) * dims[2] + c[2];
+  };
+  std::vector<std::pair<std::int64_t, std::uint32_t>> sorted(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    std::array<std::int64_t, 3> c;
+    cell_of(points.position[i], c);
+    sorted[i] = {key(c), std::uint32_t(i)};
+  }
+  std::sort(sorted.begin(), sorted.end());
+
+  slurry::parallel::parallel_for(0, std::int64_t(vertices.size()), [&](std::int64_t vi) {
+    const auto& q = vertices[std::size_t(vi)];
+    std::array<std::int64_t, 3> c;
+    cell_of(q, c);
+    double w_sum = 0, u[3] = {0, 0, 0}, nearest = 1e300;
+    std::uint32_t nearest_index = 0;
+    for (std::int64_t a = c[0] - 1; a <= c[0] + 1; ++a)
+      for (std::int64_t b = c[1] - 1; b <= c[1] + 1; ++b)
+        for (std::int64_t e = c[2] - 1; e <= c[2] + 1; ++e) {
+          if (a < 0 || b < 0 || e < 0 || a >= dims[0] || b >= dims[1] || e >= dims[2]) continue;
+          const std::int64_t k = key({a, b, e});
+          auto it =
+              std::lower_bound(sorted.begin(), sorted.end(), std::make_pair(k, std::uint32_t(0)));
+          for (; it != sorted.end() && it->first == k; ++it) {
+            const auto& p = points.position[it->second];
+            const double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
+            const double r2 = dx * dx + dy * dy + dz * dz;
+            if (r2 < nearest) nearest = r2, nearest_index = it->second;
+            if (r2 >= h * h) continue;
+            const double s = 1 - r2 / (h * h),
+                         w = s * s * s;  // poly6 (Mueller et al. 2003, eq. 20), unnormalized
+            w_sum += w;
+            for (int d = 0; d < 3; ++d) u[d] += w * points.velocity[it->second][d];
+          }
+        }
+    auto& o = out[std::size_t(vi)];
+    if (w_sum > 0) {
+      for (int d = 0; d < 3; ++d) o[d] = float(u[d] / w_sum);
+    } else if (nearest < 1e300) {
+      o = points.velocity[nearest_index];
+    } else {  // no particle within 1.5 h: the closest one of all (rare; closing keeps vertices near
+              // particles)
+      std::size_t best = 0;
+      double best_r2 = 1e300;
+      for (std::size_t i = 0; i < n; ++i) {
+        const auto& p = points.position[i];
+        const double r2 = (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]) +
+                          (p[2] - q[2]) * (p[2] - q[2]);
+        if (r2 < best_r2) best_r2 = r2, best = i;
+      }
+      o = points.velocity[best];
+    }
+  });
+  return out;
+}
+
+void write_mesh_ply(const std::filesystem::path& path, const TriangleMesh& mesh, PlyFormat format) {
+  if (!mesh.velocities.empty() && mesh.velocities.size() != mesh.vertices.size())
+    throw IoError(path.string() + ": " + std::to_string(mesh.velocities.size()) +
+                  " velocities for " + std::to_string(mesh.vertices.size()) + " vertices");
+  PlyData data;
+  data.comments.push_back("slurry surface mesh");
+  Table& v = data.tables.emplace_back();
+  v.name = "vertex";
+  v.count = mesh.vertices.size();
+  const auto column = [&](const std::vector<std::array<float, 3>>& src, int d) {
+    std::vector<float> c(src.size());
+    for (std::size_t i = 0; i < src.size(); ++i) c[i] = src[i][std::size_t(d)];
+    return c;
+  };
+  v.columns.push_back({"x", column(mesh.vertices, 0)});
+  v.columns.push_back({"y", column(mesh.vertices, 1)});
+  v.columns.push_back({"z", column(mesh.vertices, 2)});
+  if (!mesh.velocities.empty()) {
+    v.columns.push_back({"vx", column(mesh.velocities, 0)});
+    v.columns.push_back({"vy", column(mesh.velocities, 1)});
+    v.columns.push_back({"vz", column(mesh.velocities, 2)});
+  }
+  Table& f = data.tables.emplace_back();
+  f.name = "face";
+  f.count = mesh.triangles.size();
+  ListColumn list{"vertex_indices", {}};
+  list.data.reserve(mesh.triangles.size());
+  for (const auto& t : mesh.triangles) list.data.push_back({t[0], t[1], t[2]});
+  f.lists.push_back(std::move(list));
+  write_ply(path, data, format);
+}
+
+void write_mesh_obj(const std::filesystem::path& path, const TriangleMesh& mesh) {
+  static int counter = 0;
+  std::filesystem::path tmp = path;
+  tmp += ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(counter++);
+  {
+    std::FILE* f = std::fopen(tmp.c_str(), "wb");
+    if (!f) throw IoError(path.string() + ": cannot create the temporary file " + tmp.string());
+    std::fprintf(f, "# slurry surface mesh: %zu vertices, %zu triangles\n", mesh.vertices.size(),
+                 mesh.triangles.size());
+    // %.9g prints a float with enough digits to read back to the same bits.
+    for (const auto& p : mesh.vertices) std::fprintf(f, "v %.9g %.9g %.9g\n", p[0], p[1], p[2]);
+    for (const auto& t : mesh.triangles)
+      std::fprintf(f, "f %d %d %d\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    const bool ok = std::ferror(f) == 0;
+    if (std::fclose(f) != 0 || !ok) {
+      std::error_code ec;
+      std::filesystem::remove(tmp, ec);
+      throw IoError(path.string() + ": cannot write the OBJ file (disk full?)");
+    }
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) {
+    std::filesystem::remove(tmp, ec);
+    throw IoError(path.string() + ": cannot rename the temporary file onto it: " + ec.message());
+  }
+}
+
+}  // namespace slurry::io
