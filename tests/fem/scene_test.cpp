@@ -208,9 +208,9 @@ TEST(FemScene, MissingMeshNamesTheResolvedFile) {
   const auto dir = temp_dir("missing");
   std::ofstream(dir / "s.json") << R"({"solver": {"type": "fem", "dimension": 2}, "materials": [{"name": "a", "model": "corotated_linear"}],
     "bodies": [{"mesh": "nothere", "material": "a"}]})";
-  const auto scene = slurry::load_scene(dir / "s.json");
+  auto scene = slurry::load_scene(dir / "s.json");
   try {
-    slurry::FemSolver<double, 2> sim(scene);
+    slurry::io::read_scene_files(scene);  // the solvers take their meshes read (Scene::files)
     FAIL();
   } catch (const slurry::IoError& e) {
     EXPECT_NE(std::string(e.what()).find((dir / "nothere.node").string() + ": no such file (expected a TetGen mesh file)"), std::string::npos) << e.what();
