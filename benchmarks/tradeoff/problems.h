@@ -176,7 +176,7 @@ Result disks_run_t(const Scene& s) {
 // height h_i against the left wall, released onto a rough floor; Lube, Huppert, Sparks & Freundt
 // 2005, "Collapses of two-dimensional granular columns", Phys. Rev. E 72, 041301: runout
 // (d_inf - d_i) / d_i = 1.2 a for a = h_i / d_i below about 2.3. 3D: the axisymmetric squat
-// column of tests/engine/granular_validation_test.cpp against Lube, Huppert, Sparks &
+// column of tests/mpm/granular_validation_test.cpp against Lube, Huppert, Sparks &
 // Hallworth 2004, J. Fluid Mech. 508: (r_inf - r_i) / r_i = 1.24 a for a < 1.7. The sand is that
 // of examples/scenes/sand_column_3d.json (Drucker-Prager, 30 degrees; Klar et al. 2016). Error
 // |runout / published - 1| at t = 1 s (the deposit has stopped), runout measured as the

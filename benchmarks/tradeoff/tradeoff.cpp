@@ -443,8 +443,8 @@ std::vector<bool> pareto(const std::vector<const Point*>& pts) {
 /// The reduced study's assertions: error bounds at the default settings (the finer of the two
 /// reduced levels), the smallest acceptable observed orders where the error converges, and
 /// where the study found it, that the "production" preset beats the library defaults. Each
-/// bound is the measured value with a margin; the reasons are in README.md ("Speed against
-/// accuracy", "The validation test"). NAN: not asserted.
+/// bound is the measured value with a margin; the reasons are in docs/accuracy.md ("The validation
+/// test"). NAN: not asserted.
 struct Check {
   const char* problem;
   double max_default_error;

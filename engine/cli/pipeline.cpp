@@ -11,6 +11,7 @@
 #include "slurry/engine/errors.h"
 #include "slurry/io/pipeline.h"
 #include "slurry/io/scene_file.h"
+#include "slurry/transfer/parallel.h"
 
 namespace fs = std::filesystem;
 
@@ -82,8 +83,7 @@ int run_surface_command(const SurfaceCommand& c) {
     }
     out.vdb_points = c.points;
     if (!out.any()) throw Usage("--formats: expected at least one of vdb, ply, obj (or --points)");
-    const int hardware = int(std::max(1u, std::thread::hardware_concurrency()));
-    const int threads = c.threads.empty() ? 0 : integer("--threads", c.threads, 0, 4 * hardware);
+    const int threads = c.threads.empty() ? 0 : integer("--threads", c.threads, 0, parallel::max_thread_count());
     double voxel = c.voxel_size.empty() ? 0 : positive("--voxel-size", c.voxel_size);
     double spacing = c.spacing.empty() ? 0 : positive("--spacing", c.spacing);
     const int smoothing = c.smoothing.empty() ? -1 : integer("--smoothing", c.smoothing, 0, 100);
@@ -117,7 +117,6 @@ int run_surface_command(const SurfaceCommand& c) {
       throw Usage(std::string("surface parameters: ") + e.what());
     }
 
-    const io::ThreadLimit limit(threads);
     const bool tty = isatty(fileno(stderr)) != 0;
     if (!c.quiet)
       std::fprintf(stderr,
@@ -127,33 +126,36 @@ int run_surface_command(const SurfaceCommand& c) {
                    out.params.radius(), out.params.smoothing);
     const auto start = std::chrono::steady_clock::now();
     std::size_t files = 0;
-    for (std::size_t i = 0; i < frames.size(); ++i) {
-      const auto t0 = std::chrono::steady_clock::now();
-      const io::PlyData frame = io::read_ply(frames[i].second);
-      const io::FrameOutputReport r = io::write_frame_outputs(frame, frames[i].first, c.dir, out);
-      files += r.files.size();
-      if (c.quiet) continue;
-      const auto now = std::chrono::steady_clock::now();
-      const double took = std::chrono::duration<double>(now - t0).count();
-      const double elapsed = std::chrono::duration<double>(now - start).count();
-      const double eta = elapsed / double(i + 1) * double(frames.size() - i - 1);
-      if (tty) {
-        const int width = 30, filled = int(width * (i + 1) / frames.size());
-        std::string bar(std::size_t(filled), '#');
-        bar.resize(width, '.');
-        std::fprintf(stderr, "\r[%s] frame %zu/%zu  %.2f s/frame  ETA %s   ", bar.c_str(), i + 1,
-                     frames.size(), took, seconds(eta).c_str());
-        if (i + 1 == frames.size()) std::fputc('\n', stderr);
-      } else {
-        std::fprintf(stderr,
-                     "frame %d: %zu particles -> %zu vertices, %zu triangles, %zu voxels; "
-                     "surfacing %.3f s, writing %.3f s, "
-                     "frame %.3f s\n",
-                     frames[i].first, frame.table("vertex").count, r.vertices, r.triangles,
-                     r.voxels, r.surface_seconds, r.write_seconds, took);
+    // OpenVDB (oneTBB) and Slurry loops in an arena of `threads` workers.
+    io::with_threads(threads, [&] {
+      for (std::size_t i = 0; i < frames.size(); ++i) {
+        const auto t0 = std::chrono::steady_clock::now();
+        const io::PlyData frame = io::read_ply(frames[i].second);
+        const io::FrameOutputReport r = io::write_frame_outputs(frame, frames[i].first, c.dir, out);
+        files += r.files.size();
+        if (c.quiet) continue;
+        const auto now = std::chrono::steady_clock::now();
+        const double took = std::chrono::duration<double>(now - t0).count();
+        const double elapsed = std::chrono::duration<double>(now - start).count();
+        const double eta = elapsed / double(i + 1) * double(frames.size() - i - 1);
+        if (tty) {
+          const int width = 30, filled = int(width * (i + 1) / frames.size());
+          std::string bar(std::size_t(filled), '#');
+          bar.resize(width, '.');
+          std::fprintf(stderr, "\r[%s] frame %zu/%zu  %.2f s/frame  ETA %s   ", bar.c_str(), i + 1,
+                       frames.size(), took, seconds(eta).c_str());
+          if (i + 1 == frames.size()) std::fputc('\n', stderr);
+        } else {
+          std::fprintf(stderr,
+                       "frame %d: %zu particles -> %zu vertices, %zu triangles, %zu voxels; "
+                       "surfacing %.3f s, writing %.3f s, "
+                       "frame %.3f s\n",
+                       frames[i].first, frame.table("vertex").count, r.vertices, r.triangles,
+                       r.voxels, r.surface_seconds, r.write_seconds, took);
+        }
+        std::fflush(stderr);
       }
-      std::fflush(stderr);
-    }
+    });
     const double total =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     std::printf("done: %zu frames surfaced in %s, %zu files written to %s\n", frames.size(),

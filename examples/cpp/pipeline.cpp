@@ -1,4 +1,4 @@
-// An effects pipeline's use of Slurry (README, "Using Slurry from C++"): a scene built in code,
+// An effects pipeline's use of Slurry (docs/cpp-api.md): a scene built in code,
 // stepped frame by frame, its particles read from memory (positions, velocities, persistent ids)
 // without files; then the same scene through run_scene with a frame callback and no output.
 //

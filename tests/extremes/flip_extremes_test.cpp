@@ -114,7 +114,7 @@ TEST(ExtremesFlip, EmitterAtItsLimit) {
 
 // Water thrown at 20 m/s against a box collider a quarter of a cell thick (2D, dx = 1/32 m, APIC
 // quadratic). No face plane lies inside such a wall, so the pressure solve does not see it; the
-// particle-level path check after advection (flip_simulation_impl.h, advect; colliders.h,
+// particle-level path check after advection (flip_solver_impl.h, advect; colliders.h,
 // stop_at_collider) must keep every particle on its side. Before it, particles ended up to
 // 0.499 m beyond the wall.
 TEST(ExtremesFlip, ThinWallHitAt20MetresPerSecond) {

@@ -10,7 +10,7 @@
 
 #include <filesystem>
 
-#include "engine/mesh_util.h"
+#include "geometry/mesh_util.h"
 #include "extremes/extremes.h"
 
 namespace fs = std::filesystem;

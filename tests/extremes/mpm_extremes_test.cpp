@@ -232,7 +232,7 @@ TEST(Extremes, BodyOneParticleThick) {
 
 // A thin wall: a box collider a quarter of a cell thick across the whole domain at x = 0.5,
 // hit at 20 and 100 m/s. No particle may end up on its far side, nor inside it. Before the
-// particle-level check for thin colliders (simulation_impl.h, detail::keep_out_of_colliders)
+// particle-level check for thin colliders (mpm_solver_impl.h, detail::keep_out_of_colliders)
 // the block passed the wall at 20 m/s: particles took the velocity of the nodes beyond it, and
 // 0.29 m of the block came out on the far side. A wall 8 cells thick is held by the grid alone:
 // particles sink into it (up to 1.3 cells, sticky), never through.
@@ -284,7 +284,7 @@ TEST(Extremes, CourantNumbersAtTheirBounds) {
     const Outcome o = extremes::run(s, 5);
     const std::string name = std::string("cfl = elastic_cfl = 1, ") + std::string(slurry::to_string(transfer)) + " " +
                              std::string(slurry::to_string(kernel));
-    // The linear kernel's elastic limit (a quarter of elastic_cfl dx / c, simulation_impl.h) is
+    // The linear kernel's elastic limit (a quarter of elastic_cfl dx / c, mpm_solver_impl.h) is
     // not enough at elastic_cfl = 1: the block's energy grows (x1.5) until a particle is thrown
     // out of the domain, and the run stops with the diagnosis. The B-splines run.
     if (kernel == K::Linear)

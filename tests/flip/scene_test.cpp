@@ -97,7 +97,7 @@ TEST(FlipScene, IdAttributeIsFlipAndMpm) {
   json j = good_flip_scene();
   j["output"]["attributes"] = {"position", "id"};
   EXPECT_NO_THROW(slurry::parse_scene(j.dump(), "flip.json"));
-  // MPM writes the seeding index (tests/io/pipeline_test.cpp checks the column).
+  // MPM writes the seeding index (tests/io/vdb/pipeline_test.cpp checks the column).
   json m = json::parse(R"({"domain": {"min": [0, 0], "max": [1, 1], "dx": 0.05},
     "solver": {"type": "mpm", "dimension": 2},
     "materials": [{"name": "jelly", "model": "neo_hookean"}],

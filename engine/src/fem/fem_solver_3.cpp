@@ -1,4 +1,4 @@
-// FemSolver<float, 3> and FemSolver<double, 3> (see fem_simulation_impl.h).
+// FemSolver<float, 3> and FemSolver<double, 3> (see fem_solver_impl.h).
 #include "fem/fem_solver_impl.h"
 
 namespace slurry {

@@ -17,7 +17,7 @@
 
 namespace slurry {
 
-/// Walls and colliders on vertex velocities (see fem_simulation.h).
+/// Walls and colliders on vertex velocities (see fem_solver.h).
 template <class T, int Dim>
 struct FemSolver<T, Dim>::Boundary {
   const FemSolver& sim;

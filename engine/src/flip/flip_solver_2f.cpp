@@ -1,4 +1,4 @@
-// FlipSolver<float, 2>: one instantiation per translation unit (see flip_simulation_impl.h).
+// FlipSolver<float, 2>: one instantiation per translation unit (see flip_solver_impl.h).
 #include "flip/flip_solver_impl.h"
 
 namespace slurry::flip {

@@ -7,7 +7,7 @@
 /// (deformation_lanes.cpp, as sand_lanes.cpp).
 ///
 /// Where it runs in lanes (float, 3D, FMA), both forms spell their roundings out, so that they
-/// agree bitwise whatever the compiler does (tests/engine/parallel_test.cpp compares them): each
+/// agree bitwise whatever the compiler does (tests/mpm/parallel_test.cpp compares them): each
 /// entry of A = I + dt G is one fused multiply-add, fma(dt, g_ik, delta_ik), and each entry of
 /// A F is a_0 b_0 + (a_1 b_1 + a_2 b_2) with each product fused into the add that takes it,
 ///   entries (i, j) != (2, 2): fma(A_i0, F_0j, fma(A_i1, F_1j, A_i2 F_2j)),

@@ -11,6 +11,10 @@
 ///
 ///   (M + dt^2 H) v^{n+1} = M v*.
 ///
+/// (One file of about 840 lines: the matrix-free product, the assembled matrix of the IC0
+/// preconditioner and the block-Jacobi blocks are built from the same per-node stencils and must
+/// agree term by term, which is easiest to keep true when they sit side by side.)
+///
 /// H is applied matrix-free (Stomakhin et al. 2013, sec. 9). For a field u on the nodes,
 ///
 ///   G_p(u) = sum_i u_i g_ip^T,   (H u)_i = sum_p Q_p g_ip,   vec(Q_p) = K_p vec(G_p),

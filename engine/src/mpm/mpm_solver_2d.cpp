@@ -1,4 +1,4 @@
-// MpmSolver<double, 2>: one instantiation per translation unit (see simulation_impl.h).
+// MpmSolver<double, 2>: one instantiation per translation unit (see mpm_solver_impl.h).
 #include "mpm/mpm_solver_impl.h"
 
 namespace slurry {

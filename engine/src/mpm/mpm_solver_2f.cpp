@@ -1,4 +1,4 @@
-// MpmSolver<float, 2>: one instantiation per translation unit (see simulation_impl.h).
+// MpmSolver<float, 2>: one instantiation per translation unit (see mpm_solver_impl.h).
 #include "mpm/mpm_solver_impl.h"
 
 namespace slurry {

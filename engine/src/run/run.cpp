@@ -239,10 +239,10 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   // checkpoint records, else the scene's.
   int frames = options.frames.value_or(scene.output.frames);
   if (frames < 0) throw SceneError(scene.source + ": frames: expected an integer >= 0, got " + std::to_string(frames));
-  const int hardware = int(std::max(1u, std::thread::hardware_concurrency()));
-  if (options.threads < 0 || options.threads > 4 * hardware)
-    throw SceneError(scene.source + ": threads: expected an integer in [0, " + std::to_string(4 * hardware) +
-                     "] (4 x the " + std::to_string(hardware) + " hardware threads), got " + std::to_string(options.threads));
+  if (options.threads < 0 || options.threads > parallel::max_thread_count())
+    throw SceneError(scene.source + ": threads: expected an integer in [0, " + std::to_string(parallel::max_thread_count()) +
+                     "] (4 x the " + std::to_string(parallel::max_thread_count() / 4) + " hardware threads), got " +
+                     std::to_string(options.threads));
   const io::PlyFormat format = options.format.value_or(scene.output.format) == PlyEncoding::Ascii
                                    ? io::PlyFormat::Ascii
                                    : io::PlyFormat::BinaryLittleEndian;
@@ -253,6 +253,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
                   (before.source.empty() ? std::string("not written by slurry") : before.source) +
                   "); expected an empty directory or this scene's own frames (pass --overwrite to remove them)");
 
+  // The threads of this call's loops only (parallel.h, ThreadLimit): no process-wide setting.
   parallel::ThreadLimit limit(options.threads);
   const auto start = Clock::now();
   auto sim = make_simulation(limited, comm);

@@ -1,5 +1,5 @@
 // solver.quality presets (quality.h). The values come from the Pareto fronts of the study in
-// benchmarks/tradeoff/ (README.md, "Speed against accuracy", says which point each one is).
+// benchmarks/tradeoff/ (docs/accuracy.md, "Quality presets", says which point each one is).
 #include "slurry/engine/scene/quality.h"
 
 #include <string>

@@ -2,7 +2,7 @@
 // one frame, finding a directory's frames.
 #include "slurry/io/pipeline.h"
 
-#include <tbb/global_control.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <chrono>
@@ -133,17 +133,14 @@ std::vector<std::pair<int, fs::path>> find_frames(const fs::path& dir) {
   return frames;
 }
 
-struct ThreadLimit::Impl {
-  std::unique_ptr<tbb::global_control> tbb;
-  slurry::parallel::ThreadLimit slurry;
-  explicit Impl(int threads)
-      : tbb(threads > 0 ? std::make_unique<tbb::global_control>(
-                              tbb::global_control::max_allowed_parallelism, std::size_t(threads))
-                        : nullptr),
-        slurry(threads) {}
-};
-
-ThreadLimit::ThreadLimit(int threads) : impl_(std::make_unique<Impl>(threads)) {}
-ThreadLimit::~ThreadLimit() = default;
+void with_threads(int threads, const std::function<void()>& work) {
+  const parallel::ThreadLimit slurry_loops(threads);
+  if (threads <= 0) {
+    work();
+    return;
+  }
+  tbb::task_arena arena(threads);
+  arena.execute(work);
+}
 
 }  // namespace slurry::io

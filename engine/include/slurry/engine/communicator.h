@@ -4,7 +4,7 @@
 /// more: the engine stays free of MPI (the solver core builds and runs without it), and
 /// slurry::mpi (mpi/, OpenMPI) implements this interface with MPI_COMM_WORLD.
 ///
-/// The split MPM solver (simulation.h) cuts the domain into slabs of grid-block columns along
+/// The split MPM solver (mpm/mpm_solver.h) cuts the domain into slabs of grid-block columns along
 /// its longest axis, one slab per rank in rank order, so that every exchange of particles is
 /// with the two neighbouring ranks; reductions serve the time step, the health check and the
 /// run statistics, gathers the frames and checkpoints. Every call is collective: all ranks make

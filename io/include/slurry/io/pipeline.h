@@ -1,6 +1,6 @@
 #pragma once
 /// \file pipeline.h
-/// The effects-pipeline files of a particle frame sequence (README, "Effects pipeline outputs"):
+/// The effects-pipeline files of a particle frame sequence (docs/pipeline-outputs.md):
 /// beside `frame_NNNN.ply`, `surface_NNNN.vdb` (a level set grid named "surface"),
 /// `surface_NNNN.ply` and `.obj` (its triangle mesh, the PLY with per-vertex velocity), and
 /// `points_NNNN.vdb` (OpenVDB points with v, id and pscale). A scene asks for them with
@@ -61,17 +61,9 @@ FrameOutputReport write_frame_outputs(const Frame& frame, int index,
 /// The frames `frame_NNNN.ply` of `dir`, sorted by index. Throws IoError if `dir` is no directory.
 std::vector<std::pair<int, std::filesystem::path>> find_frames(const std::filesystem::path& dir);
 
-/// Limits the worker threads of OpenVDB (oneTBB) and of Slurry's loops while alive; 0 = all cores.
-class ThreadLimit {
- public:
-  explicit ThreadLimit(int threads);
-  ~ThreadLimit();
-  ThreadLimit(const ThreadLimit&) = delete;
-  ThreadLimit& operator=(const ThreadLimit&) = delete;
-
- private:
-  struct Impl;
-  std::unique_ptr<Impl> impl_;
-};
+/// Runs `work` with the worker threads of OpenVDB (oneTBB) and of Slurry's loops limited to
+/// `threads` (0 = all cores): in a task arena of that concurrency, with a parallel::ThreadLimit
+/// on the calling thread. Nothing process-wide is changed.
+void with_threads(int threads, const std::function<void()>& work);
 
 }  // namespace slurry::io

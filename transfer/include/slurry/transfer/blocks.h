@@ -507,7 +507,7 @@ class ParticleBins {
   /// and the per-particle check decides. The bases are BSpline<Order>::base((x - origin)
   /// inv_dx) as PositionBases computes them, with the roundings GCC gives that expression when
   /// FMA is available: x - origin rounded, then the product and the quadratic kernel's -1/2 in
-  /// one fused multiply-add (tests/engine/parallel_test.cpp:
+  /// one fused multiply-add (tests/mpm/parallel_test.cpp:
   /// ParticleBins.VectorBinCheckMatchesThePerParticleOne).
   template <int Order>
   bool still_in_place(const Bin& bin, std::int32_t k, const std::uint32_t* order,

@@ -14,7 +14,7 @@
 #include <omp.h>
 #elif defined(SLURRY_PARALLEL_TBB)
 #include <tbb/blocked_range.h>
-#include <tbb/global_control.h>
+#include <tbb/task_arena.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 #include <memory>
@@ -33,8 +33,34 @@ inline const char* backend() {
 #endif
 }
 
-/// Limits the worker threads while alive (0 = leave the default). One per run, owned by the
-/// caller: no global state survives it.
+/// The most worker threads a run accepts: 4 x the hardware threads (more only slows a run down).
+/// The run loop, the CLI and the surface command all check a requested count against it.
+inline int max_thread_count() { return 4 * int(std::max(1u, std::thread::hardware_concurrency())); }
+
+#if defined(SLURRY_PARALLEL_TBB)
+namespace detail {
+/// The arena of the innermost ThreadLimit alive on this thread, or null.
+inline tbb::task_arena*& current_arena() {
+  thread_local tbb::task_arena* arena = nullptr;
+  return arena;
+}
+/// Runs f in the current ThreadLimit's arena, if any.
+template <class F>
+void in_arena(F&& f) {
+  if (tbb::task_arena* a = current_arena())
+    a->execute(f);
+  else
+    f();
+}
+}  // namespace detail
+#endif
+
+/// Limits the worker threads of the parallel loops that the calling thread starts while this
+/// object is alive (0 = leave the default); the previous limit returns when it dies. Nothing
+/// process-wide is changed, so two threads of one program may run two simulations with their own
+/// counts. OpenMP: the calling thread's nthreads ICV (omp_set_num_threads sets the ICV of the
+/// current task only). oneTBB: a task_arena of that concurrency in which this thread's loops run.
+/// run_scene makes one from RunOptions::threads.
 class ThreadLimit {
  public:
   explicit ThreadLimit(int threads) {
@@ -43,13 +69,16 @@ class ThreadLimit {
     previous_ = omp_get_max_threads();
     omp_set_num_threads(threads);
 #elif defined(SLURRY_PARALLEL_TBB)
-    control_ = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
-                                                     std::size_t(threads));
+    arena_ = std::make_unique<tbb::task_arena>(threads);
+    previous_ = detail::current_arena();
+    detail::current_arena() = arena_.get();
 #endif
   }
   ~ThreadLimit() {
 #if defined(SLURRY_PARALLEL_OPENMP)
     if (previous_ > 0) omp_set_num_threads(previous_);
+#elif defined(SLURRY_PARALLEL_TBB)
+    if (arena_) detail::current_arena() = previous_;
 #endif
   }
   ThreadLimit(const ThreadLimit&) = delete;
@@ -59,16 +88,18 @@ class ThreadLimit {
 #if defined(SLURRY_PARALLEL_OPENMP)
   int previous_ = 0;
 #elif defined(SLURRY_PARALLEL_TBB)
-  std::unique_ptr<tbb::global_control> control_;
+  std::unique_ptr<tbb::task_arena> arena_;
+  tbb::task_arena* previous_ = nullptr;
 #endif
 };
 
-/// Threads the next parallel loop may use.
+/// Threads the calling thread's next parallel loop may use.
 inline int max_threads() {
 #if defined(SLURRY_PARALLEL_OPENMP)
   return omp_get_max_threads();
 #elif defined(SLURRY_PARALLEL_TBB)
-  return int(tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism));
+  if (tbb::task_arena* a = detail::current_arena()) return a->max_concurrency();
+  return tbb::this_task_arena::max_concurrency();
 #else
   return 1;
 #endif
@@ -85,10 +116,12 @@ void parallel_for_grain(std::int64_t begin, std::int64_t end, std::int64_t grain
 #pragma omp parallel for schedule(dynamic, grain)
   for (std::int64_t i = begin; i < end; ++i) fn(i);
 #elif defined(SLURRY_PARALLEL_TBB)
-  tbb::parallel_for(tbb::blocked_range<std::int64_t>(begin, end, std::size_t(grain)),
-                    [&](const tbb::blocked_range<std::int64_t>& r) {
-                      for (std::int64_t i = r.begin(); i < r.end(); ++i) fn(i);
-                    });
+  detail::in_arena([&] {
+    tbb::parallel_for(tbb::blocked_range<std::int64_t>(begin, end, std::size_t(grain)),
+                      [&](const tbb::blocked_range<std::int64_t>& r) {
+                        for (std::int64_t i = r.begin(); i < r.end(); ++i) fn(i);
+                      });
+  });
 #else
   (void)grain;
   for (std::int64_t i = begin; i < end; ++i) fn(i);
@@ -139,8 +172,10 @@ void parallel_chunks(std::int64_t begin, std::int64_t end, Fn&& fn) {
 #pragma omp parallel for schedule(dynamic, 1)
   for (std::int64_t c = 0; c < chunks; ++c) fn(begin + c * grain, std::min(end, begin + (c + 1) * grain));
 #elif defined(SLURRY_PARALLEL_TBB)
-  tbb::parallel_for(tbb::blocked_range<std::int64_t>(begin, end, 1024),
-                    [&](const tbb::blocked_range<std::int64_t>& r) { fn(r.begin(), r.end()); });
+  detail::in_arena([&] {
+    tbb::parallel_for(tbb::blocked_range<std::int64_t>(begin, end, 1024),
+                      [&](const tbb::blocked_range<std::int64_t>& r) { fn(r.begin(), r.end()); });
+  });
 #else
   fn(begin, end);
 #endif
@@ -200,12 +235,16 @@ T parallel_max(std::int64_t begin, std::int64_t end, T init, Fn&& chunk_max, std
     result = std::max(result, chunk_max(begin + c * grain, std::min(end, begin + (c + 1) * grain)));
   return result;
 #elif defined(SLURRY_PARALLEL_TBB)
-  return tbb::parallel_reduce(
-      tbb::blocked_range<std::int64_t>(begin, end, std::max<std::int64_t>(1, grain / 2)), init,
-      [&](const tbb::blocked_range<std::int64_t>& r, T acc) {
-        return std::max(acc, chunk_max(r.begin(), r.end()));
-      },
-      [](T a, T b) { return std::max(a, b); });
+  T result = init;
+  detail::in_arena([&] {
+    result = tbb::parallel_reduce(
+        tbb::blocked_range<std::int64_t>(begin, end, std::max<std::int64_t>(1, grain / 2)), init,
+        [&](const tbb::blocked_range<std::int64_t>& r, T acc) {
+          return std::max(acc, chunk_max(r.begin(), r.end()));
+        },
+        [](T a, T b) { return std::max(a, b); });
+  });
+  return result;
 #else
   return std::max(init, chunk_max(begin, end));
 #endif
@@ -237,10 +276,12 @@ T parallel_sum(std::int64_t begin, std::int64_t end, std::int64_t grain, Fn&& ch
 #pragma omp parallel for schedule(dynamic, 1)
   for (std::int64_t c = 0; c < chunks; ++c) run(c);
 #elif defined(SLURRY_PARALLEL_TBB)
-  tbb::parallel_for(tbb::blocked_range<std::int64_t>(0, chunks, 1),
-                    [&](const tbb::blocked_range<std::int64_t>& r) {
-                      for (std::int64_t c = r.begin(); c < r.end(); ++c) run(c);
-                    });
+  detail::in_arena([&] {
+    tbb::parallel_for(tbb::blocked_range<std::int64_t>(0, chunks, 1),
+                      [&](const tbb::blocked_range<std::int64_t>& r) {
+                        for (std::int64_t c = r.begin(); c < r.end(); ++c) run(c);
+                      });
+  });
 #else
   for (std::int64_t c = 0; c < chunks; ++c) run(c);
 #endif

@@ -1,5 +1,5 @@
 #pragma once
-/// \file fem_simulation.h
+/// \file fem_solver.h
 /// A scene (solver.type "fem") simulated as Lagrangian co-rotated linear finite elements
 /// (corotated_fem.h): each body is a tetrahedral (3D) or triangle (2D) mesh, read from a TetGen
 /// file (`bodies[].mesh`, relative to the scene file) or meshed from its box with spacing

@@ -1,5 +1,5 @@
 #pragma once
-/// \file flip_simulation.h
+/// \file flip_solver.h
 /// The FLIP/APIC liquid solver (Zhu & Bridson 2005, "Animating sand as a fluid"; Jiang et al.
 /// 2015, APIC; Bridson, "Fluid Simulation for Computer Graphics", 2nd ed.): incompressible
 /// liquid on a staggered grid, carried by marker particles. One substep is a fixed sequence of

@@ -1,5 +1,5 @@
 #pragma once
-/// \file simulation.h
+/// \file mpm_solver.h
 /// The explicit Material Point Method solver: one substep is
 ///
 ///   bin_particles   particle indices sorted by grid block (blocks.h)
@@ -34,7 +34,7 @@
 /// elastic_cfl dx / max_materials sqrt((lambda + 2 mu) / rho) (sqrt(K / rho) for fluids).
 ///
 /// With solver.integrator "implicit", update_grid is replaced by the linearly implicit
-/// backward-Euler solve of engine/src/implicit_update.h ((M + dt^2 H) v = M v*, matrix-free
+/// backward-Euler solve of engine/src/mpm/implicit_update.h ((M + dt^2 H) v = M v*, matrix-free
 /// Jacobi-preconditioned CG; Stomakhin et al. 2013, sec. 9), and the time step ignores the
 /// elastic limit (only max_dt and the CFL limit remain).
 ///

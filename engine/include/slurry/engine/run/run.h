@@ -45,7 +45,9 @@ struct RunOptions {
   std::optional<std::filesystem::path> directory;  ///< replaces output.directory
   std::optional<int> frames;                       ///< replaces output.frames
   std::optional<PlyEncoding> format;               ///< replaces output.format
-  int threads = 0;                                 ///< worker threads; 0 = all cores
+  /// Worker threads of this call's parallel loops; 0 = all cores. In [0, 4 x the hardware
+  /// threads] (parallel::max_thread_count). It sets nothing process-wide (parallel::ThreadLimit).
+  int threads = 0;
   /// Replaces limits.memory_gb (GiB; 0 keeps the scene's limit).
   double memory_gb = 0;
   /// The output directory holds another scene's frames: remove them (else IoError).
@@ -63,7 +65,7 @@ struct RunOptions {
   /// Told what the run removed from the output directory, which checkpoint it resumes from
   /// (and which it refused), and each retry of an unstable frame (one line each).
   std::function<void(const std::string&)> notice;
-  /// Splits an MPM run over the communicator's ranks (simulation.h; slurry::mpi gives one for
+  /// Splits an MPM run over the communicator's ranks (mpm/mpm_solver.h; slurry::mpi gives one for
   /// `mpirun`): every rank calls run_scene with the same scene and options, and rank 0 alone
   /// writes files (frames, stats.csv, checkpoints), the same files as one process would. Every
   /// rank reads the checkpoints on resume: the output directory must be one they all see.

@@ -4,8 +4,8 @@
 /// (and the default particles_per_cell of bodies) that the speed-against-accuracy study
 /// (benchmarks/tradeoff/) found on the Pareto front of error against CPU time for its budget;
 /// keys written in the scene still win (the scene parser applies the preset first). The values
-/// and the error each gives on the study's problems are listed in README.md, "Speed against
-/// accuracy". Grid spacing is not part of a preset: it is the scene's resolution.
+/// and the error each gives on the study's problems are listed in docs/accuracy.md ("Quality
+/// presets"). Grid spacing is not part of a preset: it is the scene's resolution.
 #include <string_view>
 
 #include "slurry/engine/scene/scene.h"

@@ -1,4 +1,4 @@
-// The linearly implicit MPM grid update (engine/src/implicit_update.h): the stiffness operator is
+// The linearly implicit MPM grid update (engine/src/mpm/implicit_update.h): the stiffness operator is
 // symmetric, positive semidefinite after the definiteness fix and the exact linearization of the
 // explicit stress force (finite differences through the P2G/G2P transfers); the implicit step
 // agrees with the explicit one at small dt and stays stable far beyond the explicit limit.

@@ -12,7 +12,7 @@
 #include <fstream>
 #include <functional>
 
-#include "engine/mesh_util.h"
+#include "geometry/mesh_util.h"
 #include "slurry/engine/errors.h"
 #include "slurry/engine/solver.h"
 #include "slurry/io/scene_file.h"

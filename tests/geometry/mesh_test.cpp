@@ -12,7 +12,7 @@
 #include <functional>
 #include <random>
 
-#include "engine/mesh_util.h"
+#include "geometry/mesh_util.h"
 #include "slurry/engine/errors.h"
 #include "slurry/engine/geometry/mesh_sdf.h"
 #include "slurry/engine/geometry/rigid_motion.h"

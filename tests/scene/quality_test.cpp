@@ -38,7 +38,7 @@ TEST(Quality, PresetsSetTheirKnobsMpm) {
     EXPECT_EQ(s.solver.max_dt, expected.solver.max_dt) << q;
     EXPECT_EQ(s.bodies[0].particles_per_cell, ppc) << q;
   }
-  // The values README.md documents for MPM.
+  // The values docs/accuracy.md documents for MPM.
   const auto preview = slurry::parse_scene(mpm_scene(R"(, "quality": "preview")"), "p.json");
   const auto production = slurry::parse_scene(mpm_scene(R"(, "quality": "production")"), "p.json");
   const auto reference = slurry::parse_scene(mpm_scene(R"(, "quality": "reference")"), "r.json");
