@@ -215,6 +215,155 @@ std::unique_ptr<Solver> make_simulation(const Scene& scene, Communicator* commun
   return make_solver(read, communicator);
 }
 
+namespace {
+
+/// The drift tolerances of a run (stats.h): volume for liquids only, energy only without
+/// emitters or moving colliders.
+DriftTolerances drift_tolerances(const Scene& scene) {
+  DriftTolerances tol;
+  tol.mass = scene.output.mass_drift;
+  tol.volume = scene.output.volume_drift;
+  // Volume is conserved by liquids only; a solid's volume changes with its deformation (two
+  // jelly cubes colliding: -17% for a moment) and is reported in stats.csv without a warning.
+  bool liquid = scene.solver.type == SolverType::FLIP;
+  if (scene.solver.type == SolverType::MPM) {
+    liquid = !scene.materials.empty();
+    for (const auto& m : scene.materials) liquid = liquid && m.model == ElasticModel::Fluid;
+  }
+  if (!liquid) tol.volume = std::numeric_limits<double>::infinity();
+  tol.energy = scene.output.energy_growth;
+  tol.check_energy = scene.emitters.empty();
+  for (const auto& c : scene.colliders) tol.check_energy = tol.check_energy && c.velocity.isZero() && c.keyframes.empty();
+  return tol;
+}
+
+/// The energy the scene can release: its kinetic energy plus its mass falling the domain's
+/// extent along gravity (the denominator of the energy-growth warning).
+double energy_scale_of(const Scene& scene, const RunStats& first) {
+  const Eigen::Vector3d g = scene.solver.gravity;
+  const int dim = scene.solver.dimension;
+  double H = 0;
+  if (g.head(dim).norm() > 0)
+    for (int d = 0; d < dim; ++d)
+      H += std::abs(scene.domain.max[d] - scene.domain.min[d]) * std::abs(g[d]) / g.head(dim).norm();
+  return first.kinetic + first.mass * g.head(dim).norm() * H;
+}
+
+/// Continues from the newest checkpoint in `dir` that reads, fits this solver and was written for
+/// this scene file (or any, with options.force), naming the ones refused; loads its state into
+/// `sim` (rebuilt by `rebuild` after a failed load), sets the run's figures in `summary` and its
+/// last frame, and drops the frames up to the checkpoint from `removed_frames`. Returns the
+/// first frame to simulate. Refuses frames or checkpoints beyond the run's last frame.
+int resume_from_checkpoint(const Scene& scene, const RunOptions& options, const fs::path& dir,
+                           const DirectoryState& before, const std::function<std::unique_ptr<Solver>()>& rebuild,
+                           std::unique_ptr<Solver>& sim, RunSummary& summary, int& frames,
+                           std::vector<fs::path>& removed_frames, const std::function<void(const std::string&)>& notice) {
+  if (before.checkpoints.empty())
+    throw IoError(dir.string() + ": no checkpoint to resume from (expected checkpoint_NNNN.slc files, written every "
+                  "output.checkpoint_every frames); run without --resume to start from frame 0");
+  std::vector<std::string> refused;
+  bool other_scene = false;
+  for (auto it = before.checkpoints.rbegin(); it != before.checkpoints.rend() && summary.resumed_from < 0; ++it) {
+    const fs::path& file = it->second;
+    try {
+      const detail::Checkpoint c = detail::read_checkpoint(file);
+      if (c.scene_hash != scene.source_hash && !options.force) {
+        other_scene = true;
+        refused.push_back(file.string() + ": written for another version of the scene file " + scene.source +
+                          " (its hash differs; pass --force to resume anyway)");
+        continue;
+      }
+      std::string_view state;
+      const RunSection run = parse_payload(c, state);
+      const int last = options.frames.value_or(run.last_frame >= 0 ? run.last_frame : scene.output.frames);
+      if (c.frame > last)  // resuming from an earlier checkpoint would remove frames it never writes again
+        throw SceneError(file.string() + ": frame " + std::to_string(c.frame) + " lies beyond the run's last frame " +
+                         std::to_string(last) + (options.frames ? " (--frames)" : "") +
+                         "; nothing was removed; expected --frames " + std::to_string(c.frame) + " or more");
+      std::vector<bool> present(std::size_t(c.frame) + 1, false);  // whole, or in parts (output.per_rank)
+      for (const auto& g : before.frames)
+        if (const int i = frame_index(g); i >= 0 && i <= c.frame) present[std::size_t(i)] = true;
+      for (int f = 0; f <= c.frame; ++f)
+        if (!present[std::size_t(f)])
+          throw IoError(file.string() + ": frame " + frame_file(dir, f).filename().string() + " before it is missing");
+      sim->load_state(state, file.string());
+      // The frame's time at the scene's frame rate must be the state's (a changed output.fps
+      // with --force would write every later frame at once, with no substep between them).
+      const double t_frame = c.frame * scene.frame_dt();
+      if (!(std::abs(sim->time() - t_frame) <= 1e-9 * std::max(1.0, t_frame)))
+        throw SceneError(file.string() + ": its state is at t = " + fmt(sim->time()) + " s but frame " +
+                         std::to_string(c.frame) + " lies at t = " + fmt(t_frame) + " s at output.fps " +
+                         fmt(scene.output.fps) + "; expected the output.fps the run was started with");
+      frames = last;
+      summary.resumed_from = c.frame;
+      summary.first = run.first;
+      summary.substeps = run.substeps;
+      summary.drift_warnings = run.drift_warnings;
+      summary.largest_cfl = run.largest_cfl;
+    } catch (const IoError& e) {
+      refused.push_back(e.what());
+      sim = rebuild();  // a failed load_state may have left part of the state
+    }
+  }
+  for (const auto& r : refused)
+    notice("refused checkpoint " + r + (summary.resumed_from >= 0 ? "; using an earlier one" : ""));
+  if (summary.resumed_from < 0) {
+    std::string why;
+    for (const auto& r : refused) why += "\n  " + r;
+    if (other_scene)
+      throw SceneError(scene.source + ": the scene file changed since its checkpoints in " + dir.string() +
+                       " were written; expected the same scene file, or pass --force to resume anyway:" + why);
+    throw IoError(dir.string() + ": no valid checkpoint to resume from:" + why);
+  }
+  notice("resuming from " + detail::checkpoint_file(dir, summary.resumed_from).string() + " (frame " +
+         std::to_string(summary.resumed_from) + ", t = " + fmt(sim->time()) + " s, step " +
+         std::to_string(sim->steps()) + ")");
+  summary.particles = sim->particle_count();
+  // Frames after the checkpoint are written again; none may lie beyond the run's last frame.
+  int beyond = -1;
+  for (const auto& f : before.frames) beyond = std::max(beyond, frame_index(f));
+  if (beyond > frames)
+    throw SceneError(dir.string() + ": holds frame " + std::to_string(beyond) + ", beyond the run's last frame " +
+                     std::to_string(frames) + (options.frames ? " (--frames)" : "") +
+                     "; nothing was removed; expected --frames " + std::to_string(beyond) + " or more");
+  removed_frames.erase(std::remove_if(removed_frames.begin(), removed_frames.end(),
+                                      [&](const fs::path& f) { return frame_index(f) <= summary.resumed_from; }),
+                       removed_frames.end());
+  return summary.resumed_from + 1;
+}
+
+/// Advances `sim` to frame f; on a SimulationError redoes the frame from the state at its start
+/// with the substep halved, up to solver.max_retries times (on_instability "retry"), telling each
+/// retry to `notice`. Returns the substeps of the attempt that succeeded.
+std::int64_t advance_with_retries(Solver* sim, const Scene& scene, int f, std::string& snapshot, RunSummary& summary,
+                                  const std::function<void(const std::string&)>& notice) {
+  const double t_end = f * scene.frame_dt();
+  std::int64_t substeps = 0;
+  snapshot.clear();
+  sim->save_state(snapshot);
+  for (int attempt = 0;; ++attempt) {
+    try {
+      substeps = sim->advance_to(t_end);
+      break;
+    } catch (const SimulationError& e) {
+      if (attempt == scene.solver.max_retries)
+        throw SimulationError(scene.source + ": frame " + std::to_string(f) + " is still unstable after " +
+                              std::to_string(attempt) + " retries with the substep halved (solver.max_retries): " +
+                              e.what());
+      sim->load_state(snapshot, "the retry snapshot");
+      sim->set_dt_scale(0.5 * sim->dt_scale());
+      ++summary.retries;
+      notice("retry " + std::to_string(attempt + 1) + " of " + std::to_string(scene.solver.max_retries) +
+             ": frame " + std::to_string(f) + " redone from t = " + fmt(sim->time()) + " s with the substep x " +
+             fmt(sim->dt_scale()) + " after: " + e.what());
+    }
+  }
+  sim->set_dt_scale(1);
+  return substeps;
+}
+
+}  // namespace
+
 RunSummary run_scene(const Scene& scene, const RunOptions& options,
                      const std::function<void(const FrameReport&)>& on_frame) {
   using Clock = std::chrono::steady_clock;
@@ -258,31 +407,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   const auto start = Clock::now();
   auto sim = make_simulation(limited, comm);
   std::ofstream csv;  // stats.csv, opened once frame 0 is written (the directory exists then)
-  DriftTolerances tol;
-  tol.mass = scene.output.mass_drift;
-  tol.volume = scene.output.volume_drift;
-  // Volume is conserved by liquids only; a solid's volume changes with its deformation (two
-  // jelly cubes colliding: -17% for a moment) and is reported in stats.csv without a warning.
-  bool liquid = scene.solver.type == SolverType::FLIP;
-  if (scene.solver.type == SolverType::MPM) {
-    liquid = !scene.materials.empty();
-    for (const auto& m : scene.materials) liquid = liquid && m.model == ElasticModel::Fluid;
-  }
-  if (!liquid) tol.volume = std::numeric_limits<double>::infinity();
-  tol.energy = scene.output.energy_growth;
-  tol.check_energy = scene.emitters.empty();
-  for (const auto& c : scene.colliders) tol.check_energy = tol.check_energy && c.velocity.isZero() && c.keyframes.empty();
-  // The energy the scene can release: its kinetic energy plus its mass falling the domain's
-  // extent along gravity.
-  const auto energy_scale_of = [&](const RunStats& first) {
-    const Eigen::Vector3d g = scene.solver.gravity;
-    const int dim = scene.solver.dimension;
-    double H = 0;
-    if (g.head(dim).norm() > 0)
-      for (int d = 0; d < dim; ++d)
-        H += std::abs(scene.domain.max[d] - scene.domain.min[d]) * std::abs(g[d]) / g.head(dim).norm();
-    return first.kinetic + first.mass * g.head(dim).norm() * H;
-  };
+  const DriftTolerances tol = drift_tolerances(scene);
   double energy_scale = 0;
   RunSummary summary;
   summary.directory = dir;
@@ -297,79 +422,9 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     throw SceneError(scene.source + ": resume: a run that writes no files (RunOptions::write_files = false) has no "
                      "checkpoints to resume from");
   if (options.resume) {
-    if (before.checkpoints.empty())
-      throw IoError(dir.string() + ": no checkpoint to resume from (expected checkpoint_NNNN.slc files, written every "
-                    "output.checkpoint_every frames); run without --resume to start from frame 0");
-    std::vector<std::string> refused;
-    bool other_scene = false;
-    for (auto it = before.checkpoints.rbegin(); it != before.checkpoints.rend() && summary.resumed_from < 0; ++it) {
-      const fs::path& file = it->second;
-      try {
-        const detail::Checkpoint c = detail::read_checkpoint(file);
-        if (c.scene_hash != scene.source_hash && !options.force) {
-          other_scene = true;
-          refused.push_back(file.string() + ": written for another version of the scene file " + scene.source +
-                            " (its hash differs; pass --force to resume anyway)");
-          continue;
-        }
-        std::string_view state;
-        const RunSection run = parse_payload(c, state);
-        const int last = options.frames.value_or(run.last_frame >= 0 ? run.last_frame : scene.output.frames);
-        if (c.frame > last)  // resuming from an earlier checkpoint would remove frames it never writes again
-          throw SceneError(file.string() + ": frame " + std::to_string(c.frame) + " lies beyond the run's last frame " +
-                           std::to_string(last) + (options.frames ? " (--frames)" : "") +
-                           "; nothing was removed; expected --frames " + std::to_string(c.frame) + " or more");
-        std::vector<bool> present(std::size_t(c.frame) + 1, false);  // whole, or in parts (output.per_rank)
-        for (const auto& g : before.frames)
-          if (const int i = frame_index(g); i >= 0 && i <= c.frame) present[std::size_t(i)] = true;
-        for (int f = 0; f <= c.frame; ++f)
-          if (!present[std::size_t(f)])
-            throw IoError(file.string() + ": frame " + frame_file(dir, f).filename().string() + " before it is missing");
-        sim->load_state(state, file.string());
-        // The frame's time at the scene's frame rate must be the state's (a changed output.fps
-        // with --force would write every later frame at once, with no substep between them).
-        const double t_frame = c.frame * scene.frame_dt();
-        if (!(std::abs(sim->time() - t_frame) <= 1e-9 * std::max(1.0, t_frame)))
-          throw SceneError(file.string() + ": its state is at t = " + fmt(sim->time()) + " s but frame " +
-                           std::to_string(c.frame) + " lies at t = " + fmt(t_frame) + " s at output.fps " +
-                           fmt(scene.output.fps) + "; expected the output.fps the run was started with");
-        frames = last;
-        summary.resumed_from = c.frame;
-        summary.first = run.first;
-        summary.substeps = run.substeps;
-        summary.drift_warnings = run.drift_warnings;
-        summary.largest_cfl = run.largest_cfl;
-        energy_scale = energy_scale_of(run.first);
-        first_frame = c.frame + 1;
-      } catch (const IoError& e) {
-        refused.push_back(e.what());
-        sim = make_simulation(limited, comm);  // a failed load_state may have left part of the state
-      }
-    }
-    for (const auto& r : refused)
-      notice("refused checkpoint " + r + (summary.resumed_from >= 0 ? "; using an earlier one" : ""));
-    if (summary.resumed_from < 0) {
-      std::string why;
-      for (const auto& r : refused) why += "\n  " + r;
-      if (other_scene)
-        throw SceneError(scene.source + ": the scene file changed since its checkpoints in " + dir.string() +
-                         " were written; expected the same scene file, or pass --force to resume anyway:" + why);
-      throw IoError(dir.string() + ": no valid checkpoint to resume from:" + why);
-    }
-    notice("resuming from " + detail::checkpoint_file(dir, summary.resumed_from).string() + " (frame " +
-           std::to_string(summary.resumed_from) + ", t = " + fmt(sim->time()) + " s, step " +
-           std::to_string(sim->steps()) + ")");
-    summary.particles = sim->particle_count();
-    // Frames after the checkpoint are written again; none may lie beyond the run's last frame.
-    int beyond = -1;
-    for (const auto& f : before.frames) beyond = std::max(beyond, frame_index(f));
-    if (beyond > frames)
-      throw SceneError(dir.string() + ": holds frame " + std::to_string(beyond) + ", beyond the run's last frame " +
-                       std::to_string(frames) + (options.frames ? " (--frames)" : "") +
-                       "; nothing was removed; expected --frames " + std::to_string(beyond) + " or more");
-    removed_frames.erase(std::remove_if(removed_frames.begin(), removed_frames.end(),
-                                        [&](const fs::path& f) { return frame_index(f) <= summary.resumed_from; }),
-                         removed_frames.end());
+    first_frame = resume_from_checkpoint(scene, options, dir, before, [&] { return make_simulation(limited, comm); }, sim,
+                                         summary, frames, removed_frames, notice);
+    energy_scale = energy_scale_of(scene, summary.first);
   }
   if (comm) comm->barrier();  // every rank has read the directory before rank 0 changes it
   if (writer) {
@@ -438,30 +493,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     std::int64_t substeps = 0;
     if (f > 0) {
       const double t_end = f * scene.frame_dt();
-      if (retry) {
-        snapshot.clear();
-        sim->save_state(snapshot);
-        for (int attempt = 0;; ++attempt) {
-          try {
-            substeps = sim->advance_to(t_end);
-            break;
-          } catch (const SimulationError& e) {
-            if (attempt == scene.solver.max_retries)
-              throw SimulationError(scene.source + ": frame " + std::to_string(f) + " is still unstable after " +
-                                    std::to_string(attempt) + " retries with the substep halved (solver.max_retries): " +
-                                    e.what());
-            sim->load_state(snapshot, "the retry snapshot");
-            sim->set_dt_scale(0.5 * sim->dt_scale());
-            ++summary.retries;
-            notice("retry " + std::to_string(attempt + 1) + " of " + std::to_string(scene.solver.max_retries) +
-                   ": frame " + std::to_string(f) + " redone from t = " + fmt(sim->time()) + " s with the substep x " +
-                   fmt(sim->dt_scale()) + " after: " + e.what());
-          }
-        }
-        sim->set_dt_scale(1);
-      } else {
-        substeps = sim->advance_to(t_end);
-      }
+      substeps = retry ? advance_with_retries(sim.get(), scene, f, snapshot, summary, notice) : sim->advance_to(t_end);
       sim_seconds += seconds_since(t0);
       particle_steps += double(sim->particle_count()) * double(substeps);  // emitters add particles
     }
@@ -486,7 +518,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     std::vector<std::string> warnings;
     if (f == 0) {
       summary.first = stats;
-      energy_scale = energy_scale_of(stats);
+      energy_scale = energy_scale_of(scene, stats);
       if (writer) csv.open(dir / "stats.csv");
       if (writer && !csv) throw IoError((dir / "stats.csv").string() + ": cannot write the run statistics");
       if (writer) csv << io::stats_csv_header() << '\n';
