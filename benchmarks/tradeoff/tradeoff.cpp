@@ -454,7 +454,7 @@ struct Check {
   bool production_beats_defaults;
 };
 constexpr Check kChecks[] = {
-    // measured (reduced, 2026-11-24): 6.9e-4; dx order 2.37 (1.94 over three levels)
+    // measured (reduced study, results/): 6.9e-4; dx order 2.37 (1.94 over three levels)
     {"bar_2d", 2e-3, NAN, 1.5, NAN, false},
     // 0.365; dx order 1.16 (1.38 over three levels); dt 0.87
     {"disks_2d", 0.45, NAN, 0.8, 0.5, false},

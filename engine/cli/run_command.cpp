@@ -130,6 +130,8 @@ int run_request(const Process& process, RunRequest q) {
   const int rank = process.rank, ranks = process.ranks;
   // The log, the summary and the pipeline outputs are rank 0's.
   if (rank != 0) q.quiet = true;
+  // What an out-of-memory error names: the scene, or the directory resumed until its scene is known.
+  if (q.scene_path.empty()) q.scene_path = q.resume_dir;
   return with_exit_codes(process, q.scene_path, [&]() -> int {
     if (!q.resume_dir.empty()) {
       q.scene_path = checkpoint_scene(q.resume_dir).string();

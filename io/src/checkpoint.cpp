@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <new>
 #include <regex>
 
 #include "fnv1a.h"
@@ -140,8 +141,9 @@ void write_checkpoint(const fs::path& file, std::uint64_t scene_hash, int frame,
   }
 }
 
-Checkpoint read_checkpoint(const fs::path& file) {
-  detail::require_memory_for(file, detail::regular_file_size(file, "a slurry checkpoint"));
+namespace {
+
+Checkpoint read_checkpoint_file(const fs::path& file) {
   std::ifstream in(file, std::ios::binary);
   if (!in) io_fail(file, "cannot open the checkpoint");
   std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
@@ -166,10 +168,25 @@ Checkpoint read_checkpoint(const fs::path& file) {
     io_fail(file, "truncated or padded: the header announces " + std::to_string(size) +
                       " payload bytes, the file holds " +
                       std::to_string(bytes.size() - kHeaderBytes));
-  c.payload = bytes.substr(kHeaderBytes);
+  bytes.erase(0, kHeaderBytes);  // the payload without a second copy of the file in memory
+  c.payload = std::move(bytes);
   if (fnv1a64(c.payload) != sum) io_fail(file, "checksum mismatch (the file is corrupt)");
   if (c.frame < 0) io_fail(file, "negative frame index " + std::to_string(c.frame));
   return c;
+}
+
+}  // namespace
+
+Checkpoint read_checkpoint(const fs::path& file) {
+  const std::uintmax_t size = detail::regular_file_size(file, "a slurry checkpoint");
+  detail::require_memory_for(file, size);
+  try {
+    return read_checkpoint_file(file);
+  } catch (const std::bad_alloc&) {
+    // The free-memory check passed (a sparse file, memory taken since), but it did not fit.
+    throw ResourceError(file.string() + ": out of memory reading the checkpoint (" + std::to_string(size) +
+                        " bytes); expected a checkpoint that fits in the available memory");
+  }
 }
 
 }  // namespace slurry::detail

@@ -14,6 +14,7 @@
 #include <cstring>
 #include <fstream>
 #include <limits>
+#include <new>
 #include <string>
 #include <system_error>
 #include <utility>
@@ -1042,7 +1043,13 @@ void write_ply(const fs::path& path, const PlyData& data, PlyFormat format) {
 }
 
 PlyData read_ply(const fs::path& path) {
-  return Reader(path, read_whole_file(path)).read();
+  try {
+    return Reader(path, read_whole_file(path)).read();
+  } catch (const std::bad_alloc&) {
+    // The size check before reading passed (a sparse file, memory taken since), but it did not fit.
+    throw ResourceError(path.string() + ": out of memory reading the PLY file; expected a file that fits in the "
+                        "available memory");
+  }
 }
 
 }  // namespace slurry::io

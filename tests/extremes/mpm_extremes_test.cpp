@@ -354,13 +354,13 @@ void transfer_kernel_pairs(int dim) {
         expect_runs(name, o, 5, 3.0);
       } else if (kernel == K::Linear && dim == 2 && o.stopped) {
         // Open: APIC with the linear kernel inverts a particle in the 2D impact (J < 0) and gains
-        // energy (x1.14 up to 2026-11-24): the cell-crossing error of the linear kernel, whose
+        // energy (x1.14 with the bins in storage order): the cell-crossing error of the linear kernel, whose
         // gradient jumps as a particle crosses a cell face (Bardenhagen and Kober 2004, "The
         // generalized interpolation material point method"). Whether the run then survives the
         // 5 frames, and which diagnosis stops it, depends on the last bits of the sums: with
         // bins ordered by id it stopped at step 201 with the CFL diagnosis (a particle at
-        // 135 m/s); with the closed-form 2D polar rotation (2026-11-26) at step 233 with a
-        // particle out of the domain. Either outcome is allowed, if the stop is the instability
+        // 135 m/s); with the closed-form 2D polar rotation at step 233 with a particle out of
+        // the domain. Either outcome is allowed, if the stop is the instability
         // diagnosis; a silent blow-up, an energy gain above the bound below, or another stop is
         // not.
         expect_stops(name, o, "simulation unstable at step");

@@ -92,9 +92,9 @@ TEST(MeshScene, CubeMeshSeedsItsBoxAtEveryPlacementAndScale) {
                                (dir / "scene.json").string());
   };
   int cases = 0;
-  for (const Eigen::Vector3d t : {Eigen::Vector3d(0.5, 0.5, 0.5), Eigen::Vector3d(0.37, 0.41, 0.53),
+  for (const Eigen::Vector3d& t : {Eigen::Vector3d(0.5, 0.5, 0.5), Eigen::Vector3d(0.37, 0.41, 0.53),
                                   Eigen::Vector3d(0.3125, 0.5, 0.6875), Eigen::Vector3d(0.45, 0.45, 0.45)}) {
-    for (const Eigen::Vector3d sc : {Eigen::Vector3d(1, 1, 1), Eigen::Vector3d(0.75, 0.75, 0.75),
+    for (const Eigen::Vector3d& sc : {Eigen::Vector3d(1, 1, 1), Eigen::Vector3d(0.75, 0.75, 0.75),
                                      Eigen::Vector3d(1.3, 0.6, 1), Eigen::Vector3d(-1, 1, 1),
                                      Eigen::Vector3d(-0.5, -0.5, -0.5)}) {
       const Eigen::Vector3d half = 0.2 * sc.cwiseAbs();
@@ -243,6 +243,40 @@ TEST(MeshScene, BadMeshesAndKeysAreRefusedNamingSceneKeyAndFile) {
 // mesh. Both hold it on top (the deepest particle over the bounces). The grid alone lets particles
 // sink up to about half a cell into a thick analytic box; a mesh collider also checks every
 // particle's path against its triangles, so its block rests on the surface itself.
+TEST(MeshScene, MeshBodyThinnerThanTheParticleSpacingIsRefusedAsABoxIs) {
+  // A 1 mm plate, a cube scaled to 1e-12 and a flat closed mesh (zero thickness) seeded a single
+  // row, one particle or zero-mass particles; a box body as thin is refused, and so are they.
+  const fs::path dir = temp_dir();
+  slurry::test::write_obj(dir / "unit.obj", slurry::test::box_mesh({-0.5, -0.5, -0.5}, {0.5, 0.5, 0.5}));
+  geometry_mesh flat;  // a closed, manifold, flat quad: two triangles up, two down
+  flat.vertices = {{0.3, 0.5, 0.3}, {0.7, 0.5, 0.3}, {0.7, 0.5, 0.7}, {0.3, 0.5, 0.7}};
+  flat.triangles = {{0, 2, 1}, {0, 3, 2}, {0, 1, 3}, {1, 2, 3}};
+  slurry::test::write_obj(dir / "flat.obj", flat);
+  const std::string s = (dir / "scene.json").string();
+  const auto run = [&](const std::string& body) {
+    return slurry::test::message_of([&] {
+      slurry::make_simulation(slurry::parse_scene(
+          R"({"domain": {"min": [0, 0, 0], "max": [1, 1, 1], "dx": 0.02}, "solver": {"dimension": 3},
+            "materials": [{"name": "m"}], "bodies": [)" + body + "]}",
+          s));
+    });
+  };
+  std::string m = run(R"({"shape": "mesh", "mesh": "unit.obj", "scale": [0.4, 0.001, 0.4], "translation": [0.5, 0.5, 0.5], "material": "m"})");
+  EXPECT_NE(m.find(s + ": bodies[0]: the placed mesh is 0.001 m across along axis 1, expected at least one particle spacing"),
+            std::string::npos) << m;
+  m = run(R"({"shape": "mesh", "mesh": "unit.obj", "scale": [1e-12, 1e-12, 1e-12], "translation": [0.5, 0.5, 0.5], "material": "m"})");
+  EXPECT_NE(m.find("bodies[0]: the placed mesh is "), std::string::npos) << m;
+  EXPECT_NE(m.find(" m across along axis 0, expected at least one particle spacing"), std::string::npos) << m;
+  m = run(R"({"shape": "mesh", "mesh": "flat.obj", "material": "m"})");
+  EXPECT_NE(m.find("bodies[0]"), std::string::npos) << m;
+  EXPECT_TRUE(m.find("m across along axis 1") != std::string::npos || m.find("the mesh encloses no volume") != std::string::npos) << m;
+  m = run(R"({"shape": "mesh", "mesh": "unit.obj", "scale": [0.4, 1e-9, 0.4], "translation": [0.5, 0.5, 0.5], "material": "m"})");
+  EXPECT_NE(m.find("m across along axis 1, expected at least one particle spacing"), std::string::npos) << m;
+  // The box body of the plate: refused with the same words.
+  m = run(R"({"shape": "box", "min": [0.3, 0.5, 0.3], "max": [0.7, 0.501, 0.7], "material": "m"})");
+  EXPECT_NE(m.find("across along axis 1, expected at least one particle spacing"), std::string::npos) << m;
+}
+
 TEST(MeshScene, StaticMeshColliderHoldsABlockOnItsSurface) {
   const fs::path dir = temp_dir();
   const double dx = 0.05;
@@ -280,6 +314,36 @@ TEST(MeshScene, StaticMeshColliderHoldsABlockOnItsSurface) {
 
 // A sticky platform raised through keyframes at 0.5 m/s from t = 0.1 s carries the block lying
 // on it at that speed (the collider's velocity at the contact point, not zero).
+TEST(MeshScene, StaticMeshColliderFarLargerThanTheDomainHoldsABlock) {
+  // A ground mesh of 1e8 m or 1e12 m: its distance field is sampled over the domain only (at
+  // 0.5 dx), where over its own extent the grid's spacing grew past the domain and the block
+  // fell through it.
+  const fs::path dir = temp_dir();
+  const double dx = 0.05;
+  slurry::test::write_obj(dir / "unit.obj", slurry::test::box_mesh({-0.5, -0.5, -0.5}, {0.5, 0.5, 0.5}));
+  for (const double scale : {1e8, 1e12}) {
+    char collider[512];
+    std::snprintf(collider, sizeof collider,
+                  R"({"shape": "mesh", "mesh": "unit.obj", "scale": [%.17g, %.17g, %.17g], "translation": [0.5, %.17g, 0.5], "condition": "separate", "friction": 0.5})",
+                  scale, scale, scale, 0.3 - 0.5 * scale);
+    const Scene s = slurry::parse_scene(
+        R"({"domain": {"min": [0, 0, 0], "max": [1, 1, 1], "dx": 0.05}, "solver": {"dimension": 3},
+      "materials": [{"name": "jelly", "E": 2e4}], "bodies": [{"shape": "box", "min": [0.35, 0.45, 0.35], "max": [0.65, 0.6, 0.65], "material": "jelly"}],
+      "colliders": [)" + std::string(collider) + "]}",
+        (dir / "scene.json").string());
+    const auto sim = slurry::make_simulation(s);
+    double rest = 1;
+    for (int f = 1; f <= 30; ++f) {
+      sim->advance_to(0.02 * f);
+      const auto y = column(*sim, "y");
+      rest = std::min(rest, *std::min_element(y.begin(), y.end()));
+    }
+    std::printf("ground mesh scaled %g: deepest particle over 0.6 s %.4f m (top 0.3 m)\n", scale, rest);
+    EXPECT_GE(rest, 0.3 - 1e-3) << "scale " << scale << ": the block fell into the ground";
+    EXPECT_LT(rest, 0.3 + 0.5 * dx) << "scale " << scale;
+  }
+}
+
 TEST(MeshScene, KeyframedStickyPlatformCarriesItsLoad) {
   const fs::path dir = temp_dir();
   slurry::test::write_obj(dir / "platform.obj",

@@ -75,7 +75,7 @@ const BadCase kBad[] = {
     {"zero_normal", R"({"colliders": [{"shape": "half_space", "point": [0, 0.1], "normal": [0, 0]}]})",
      "colliders[0].normal: expected a non-zero vector"},
     {"negative_fps", R"({"output": {"fps": -24}})", "output.fps: expected a number > 0, got -24"},
-    // Issue 11: integers range-checked instead of wrapped, the limits block, what a frame must hold.
+    // Integers range-checked instead of wrapped, the limits block, what a frame must hold.
     {"dimension_wraps", R"({"solver": {"dimension": 4294967298}})", "solver.dimension: expected 2 or 3, got 4294967298"},
     {"frames_wrap", R"({"output": {"frames": 4294967297}})", "output.frames: expected an integer in [0, 2147483647], got 4294967297"},
     {"thickness_wraps", R"({"boundaries": {"thickness": 4294967298}})",

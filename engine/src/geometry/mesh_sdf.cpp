@@ -48,7 +48,21 @@ bool owns_edge(double dx, double dy) {
 
 }  // namespace
 
-MeshSdf::MeshSdf(TriangleMesh mesh, double h, double margin, std::int64_t max_nodes, bool distances)
+namespace {
+
+/// floor(x) clamped to [lo, hi] before it becomes an int (a mesh far larger than its grid puts
+/// cell coordinates beyond the range of int).
+int clamped_floor(double x, int lo, int hi) {
+  x = std::floor(x);
+  if (!(x >= lo)) return lo;  // NaN too
+  if (x > hi) return hi;
+  return int(x);
+}
+
+}  // namespace
+
+MeshSdf::MeshSdf(TriangleMesh mesh, double h, double margin, std::int64_t max_nodes, bool distances,
+                 const Box* region)
     : mesh_(std::move(mesh)) {
   static std::atomic<std::uint64_t> serials{0};
   serial_ = ++serials;
@@ -64,9 +78,17 @@ MeshSdf::MeshSdf(TriangleMesh mesh, double h, double margin, std::int64_t max_no
   mesh_.bounds(lo, hi);
   lo.array() -= margin;
   hi.array() += margin;
+  if (region) {
+    for (int d = 0; d < 3; ++d) {
+      const double rlo = region->lo[d] - margin, rhi = region->hi[d] + margin;
+      lo[d] = std::max(lo[d], rlo);
+      hi[d] = std::min(hi[d], rhi);
+      if (!(hi[d] > lo[d])) lo[d] = rlo, hi[d] = rhi;  // the mesh lies beside the region: sample all of it
+    }
+  }
   h_ = h;
   for (int attempt = 0; attempt < 64; ++attempt) {
-    for (int d = 0; d < 3; ++d) n_[d] = std::max(2, int(std::ceil((hi[d] - lo[d]) / h_)) + 1);
+    for (int d = 0; d < 3; ++d) n_[d] = std::max(2, clamped_floor(std::ceil((hi[d] - lo[d]) / h_), 0, 1 << 30) + 1);
     const double nodes = double(n_[0]) * n_[1] * n_[2];
     if (nodes <= double(max_nodes)) break;
     h_ *= std::cbrt(nodes / double(max_nodes)) * 1.01;
@@ -86,8 +108,8 @@ MeshSdf::MeshSdf(TriangleMesh mesh, double h, double margin, std::int64_t max_no
     const Vec3 tlo = a.cwiseMin(b).cwiseMin(c), thi = a.cwiseMax(b).cwiseMax(c);
     Eigen::Vector3i i0, i1;
     for (int d = 0; d < 3; ++d) {
-      i0[d] = std::clamp(int(std::floor((tlo[d] - lo_[d]) / h_)) - band, 0, n_[d] - 1);
-      i1[d] = std::clamp(int(std::ceil((thi[d] - lo_[d]) / h_)) + band, 0, n_[d] - 1);
+      i0[d] = std::clamp(clamped_floor((tlo[d] - lo_[d]) / h_, -2 * band, n_[d] + band) - band, 0, n_[d] - 1);
+      i1[d] = std::clamp(clamped_floor(std::ceil((thi[d] - lo_[d]) / h_), -2 * band, n_[d] + band) + band, 0, n_[d] - 1);
     }
     for (int k = i0[2]; k <= i1[2]; ++k)
       for (int j = i0[1]; j <= i1[1]; ++j)
@@ -166,8 +188,8 @@ void MeshSdf::build_triangle_bins() {
     const Vec3 tlo = V[t[0]].cwiseMin(V[t[1]]).cwiseMin(V[t[2]]),
                thi = V[t[0]].cwiseMax(V[t[1]]).cwiseMax(V[t[2]]);
     for (int d = 0; d < 3; ++d) {
-      b0[d] = std::clamp(int(std::floor((tlo[d] - bin_lo_[d]) / bin_h_)), 0, bin_n_[d] - 1);
-      b1[d] = std::clamp(int(std::floor((thi[d] - bin_lo_[d]) / bin_h_)), 0, bin_n_[d] - 1);
+      b0[d] = clamped_floor((tlo[d] - bin_lo_[d]) / bin_h_, 0, bin_n_[d] - 1);
+      b1[d] = clamped_floor((thi[d] - bin_lo_[d]) / bin_h_, 0, bin_n_[d] - 1);
     }
   };
   bin_start_.assign(nb + 1, 0);
@@ -197,8 +219,8 @@ void MeshSdf::build_triangle_bins() {
 void MeshSdf::row_crossings(int axis, double b, double c, std::vector<Crossing>& out) const {
   out.clear();
   const int ab = (axis + 1) % 3, ac = (axis + 2) % 3;
-  const int jb = int(std::floor((b - bin_lo_[ab]) / bin_h_)),
-            jc = int(std::floor((c - bin_lo_[ac]) / bin_h_));
+  const int jb = clamped_floor((b - bin_lo_[ab]) / bin_h_, -2, bin_n_[ab] + 1),
+            jc = clamped_floor((c - bin_lo_[ac]) / bin_h_, -2, bin_n_[ac] + 1);
   // Rows just past the last bin still see its triangles (their boxes end inside it).
   const int kb = std::clamp(jb, 0, bin_n_[ab] - 1), kc = std::clamp(jc, 0, bin_n_[ac] - 1);
   if (jb < -1 || jc < -1 || jb > bin_n_[ab] || jc > bin_n_[ac]) return;
@@ -329,8 +351,8 @@ bool MeshSdf::first_entry(const Vec3& y0, const Vec3& y1, double& s, Vec3& n) co
   for (int d = 0; d < 3; ++d) {
     const double a = (lo[d] - bin_lo_[d]) / bin_h_, c = (hi[d] - bin_lo_[d]) / bin_h_;
     if (c < 0 || a >= bin_n_[d]) return false;
-    b0[d] = std::clamp(int(std::floor(a)), 0, bin_n_[d] - 1);
-    b1[d] = std::clamp(int(std::floor(c)), 0, bin_n_[d] - 1);
+    b0[d] = clamped_floor(a, 0, bin_n_[d] - 1);
+    b1[d] = clamped_floor(c, 0, bin_n_[d] - 1);
   }
   const Vec3 dir = y1 - y0;
   const auto& V = mesh_.vertices;

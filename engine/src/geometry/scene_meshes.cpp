@@ -1,6 +1,8 @@
 #include "geometry/scene_meshes.h"
 
 #include <cmath>
+#include <cstdio>
+#include <limits>
 #include <random>
 
 #include "slurry/engine/errors.h"
@@ -35,6 +37,18 @@ geometry::TriangleMesh placed_body_mesh(const Scene& scene, std::size_t body, Ei
                        std::to_string(lo[2]) + "] to [" + std::to_string(hi[0]) + ", " +
                        std::to_string(hi[1]) + ", " + std::to_string(hi[2]) +
                        "], expected it inside the domain (check scale, rotation and translation)");
+  // As for box bodies: a solid narrower than one particle spacing (a flat mesh, a plate thinner
+  // than the spacing, a mesh scaled far down) seeds a single row or no volume at all.
+  const double spacing = scene.domain.dx / std::cbrt(b.particles_per_cell);
+  for (int d = 0; d < 3; ++d)
+    if (!(hi[d] - lo[d] >= spacing)) {
+      char across[32], need[32];
+      std::snprintf(across, sizeof across, "%.12g", hi[d] - lo[d]);
+      std::snprintf(need, sizeof need, "%.12g", spacing);
+      throw SceneError(scene.source + ": " + where + ": the placed mesh is " + across + " m across along axis " +
+                       std::to_string(d) + ", expected at least one particle spacing (dx / particles_per_cell^(1/3) = " +
+                       need + " m; check scale)");
+    }
   return mesh;
 }
 }  // namespace
@@ -106,7 +120,25 @@ MeshColliderParts make_mesh_collider(const Scene& scene, std::size_t index) {
   // kernel's reach (two cells) around the solid and a band beyond it.
   const double dx = scene.domain.dx;
   MeshColliderParts parts;
-  parts.sdf = std::make_shared<const geometry::MeshSdf>(std::move(mesh), 0.5 * dx, 4 * dx);
+  // A collider that never moves is asked for its distance inside the domain only: its field is
+  // sampled there, so a ground mesh far larger than the domain keeps the resolution of a small
+  // one (over its whole extent the grid's spacing would grow to fit the node budget).
+  const bool moves = !c.keyframes.empty() || !c.velocity.isZero();
+  geometry::MeshSdf::Box region;
+  if (!moves) {
+    const Eigen::Matrix3d R = geometry::euler_degrees(c.rotation);
+    region.lo.setConstant(std::numeric_limits<double>::infinity());
+    region.hi.setConstant(-std::numeric_limits<double>::infinity());
+    for (int corner = 0; corner < 8; ++corner) {
+      Eigen::Vector3d x;
+      for (int d = 0; d < 3; ++d) x[d] = (corner >> d) & 1 ? scene.domain.max[d] : scene.domain.min[d];
+      const Eigen::Vector3d body = R.transpose() * (x - c.translation);  // the domain in the collider's frame
+      region.lo = region.lo.cwiseMin(body);
+      region.hi = region.hi.cwiseMax(body);
+    }
+  }
+  parts.sdf = std::make_shared<const geometry::MeshSdf>(std::move(mesh), 0.5 * dx, 4 * dx, std::int64_t(1) << 22, true,
+                                                        moves ? nullptr : &region);
   std::vector<geometry::RigidMotion::Key> keys;
   for (const auto& k : c.keyframes)
     keys.push_back({k.time, k.translation, geometry::euler_degrees(k.rotation)});

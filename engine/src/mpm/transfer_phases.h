@@ -15,7 +15,7 @@ void MpmSolver<T, Dim>::reorder_particles() {
   // The particles moved in a few substeps, so the cycles are short and local. Each walk is
   // serial, bound by memory latency; the channels are shared out between the threads, each
   // with a bitmap of its own (the parallel gather of one channel was slower on two threads than
-  // on one, RESULTS.md 2026-11-21). Channel k goes to task k mod tasks, one task per thread: in
+  // on one, benchmarks/RESULTS.md, "3D MPM throughput"). Channel k goes to task k mod tasks, one task per thread: in
   // the order of for_each_channel, two tasks pair x with F and v with C.
   auto& P = particles_;
   const std::uint32_t* order = bins_.order();

@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <fstream>
 #include <limits>
+#include <new>
 #include <map>
 #include <regex>
 #include <signal.h>
@@ -303,6 +304,10 @@ int resume_from_checkpoint(const Scene& scene, const RunOptions& options, const 
     } catch (const IoError& e) {
       refused.push_back(e.what());
       sim = rebuild();  // a failed load_state may have left part of the state
+    } catch (const std::bad_alloc&) {
+      refused.push_back(file.string() + ": out of memory loading its state");
+      sim.reset();
+      sim = rebuild();
     }
   }
   for (const auto& r : refused)

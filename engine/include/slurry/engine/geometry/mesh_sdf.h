@@ -33,11 +33,17 @@ namespace slurry::geometry {
 class MeshSdf {
  public:
   MeshSdf() = default;
+  /// A box (lower and upper corners) in the mesh's frame.
+  struct Box {
+    Eigen::Vector3d lo, hi;
+  };
   /// Samples the signed distance of `mesh` (closed, outward normals) with spacing h over its
-  /// bounding box grown by `margin` on every side; h grows if the grid would exceed max_nodes.
-  /// Without `distances` only the exact queries (first_entry, inside) are prepared.
+  /// bounding box grown by `margin` on every side, cut to `region` grown by `margin` if given
+  /// (the only place phi and normal are asked for: a static collider far larger than the domain
+  /// is sampled over the domain only, at full resolution); h grows if the grid would exceed
+  /// max_nodes. Without `distances` only the exact queries (first_entry, inside) are prepared.
   MeshSdf(TriangleMesh mesh, double h, double margin,
-          std::int64_t max_nodes = std::int64_t(1) << 22, bool distances = true);
+          std::int64_t max_nodes = std::int64_t(1) << 22, bool distances = true, const Box* region = nullptr);
 
   double phi(const Eigen::Vector3d& y) const;
   /// Unit outward normal: the normalized gradient of phi by central differences (h / 2); the
