@@ -165,20 +165,55 @@ class ObjectReader {
   std::set<std::string> seen_;
 };
 
-/// json::parse with the limits a scene file needs, checked while parsing (before a deep or huge
-/// value is built): nesting at most kMaxSceneDepth, no duplicate keys in an object, numbers in
-/// the range of double. Each error names the JSON path where it happened.
-json parse_json(std::string_view text, const std::string& source) {
+/// Builds the JSON value of a scene file through nlohmann's SAX interface, checking the limits
+/// a scene file needs while parsing (before a deep or huge value is built): nesting at most
+/// kMaxSceneDepth, no duplicate keys in an object, numbers in the range of double. Each error
+/// names the JSON path where it happened. (nlohmann's own callback parser scans the enclosing
+/// array at the end of every object, which made a file of 1e6 collider keyframes take minutes.)
+class SceneJsonBuilder {
+ public:
+  SceneJsonBuilder(json& root, const std::string& source) : root_(root), source_(source) {}
+
+  bool null() { return value(nullptr); }
+  bool boolean(bool v) { return value(v); }
+  bool number_integer(json::number_integer_t v) { return value(v); }
+  bool number_unsigned(json::number_unsigned_t v) { return value(v); }
+  bool number_float(json::number_float_t v, const json::string_t&) { return value(v); }
+  bool string(json::string_t& v) { return value(std::move(v)); }
+  bool binary(json::binary_t& v) { return value(json::binary(std::move(v))); }
+  bool start_object(std::size_t) { return start(json::object(), false); }
+  bool start_array(std::size_t) { return start(json::array(), true); }
+  bool key(json::string_t& k) {
+    Level& l = stack_.back();
+    l.key = k;
+    if (!l.keys.insert(l.key).second) fail(source_, path(), "duplicate key (expected each key once in an object)");
+    return true;
+  }
+  bool end_object() { return end(); }
+  bool end_array() { return end(); }
+  bool parse_error(std::size_t, const std::string&, const nlohmann::detail::exception& e) {
+    if (e.id == 406) {  // the parser's only out_of_range: a number beyond the range of double
+      const std::string what = e.what();
+      const auto q = what.find('\'');
+      const std::string number = q == std::string::npos ? what : what.substr(q);
+      fail(source_, path(), "number " + number +
+                                " is out of the range of double (expected a finite number, |x| < 1.8e308)");
+    }
+    throw SceneError(source_ + ": not valid JSON: " + e.what());
+  }
+
+ private:
   struct Level {
+    json* value = nullptr;
     bool array = false;
-    std::string key;  // the current key of an object
+    std::string key;        // the current key of an object
     std::size_t index = 0;  // the current element of an array
     std::set<std::string> keys;
   };
-  std::vector<Level> stack;
-  const auto path = [&] {
+
+  std::string path() const {
     std::string p;
-    for (const Level& l : stack) {
+    for (const Level& l : stack_) {
       if (l.array)
         p += "[" + std::to_string(l.index) + "]";
       else if (!l.key.empty())
@@ -186,42 +221,52 @@ json parse_json(std::string_view text, const std::string& source) {
       if (p.size() > 80) return p.substr(0, 77) + "...";
     }
     return p.empty() ? std::string("(top level)") : p;
-  };
-  const json::parser_callback_t check = [&](int, json::parse_event_t event, json& parsed) {
-    switch (event) {
-      case json::parse_event_t::object_start:
-      case json::parse_event_t::array_start:
-        if (int(stack.size()) >= kMaxSceneDepth)
-          fail(source, path(), "nested deeper than " + std::to_string(kMaxSceneDepth) +
-                                   " levels (expected a scene: objects and arrays a few levels deep)");
-        stack.push_back({event == json::parse_event_t::array_start, {}, 0, {}});
-        break;
-      case json::parse_event_t::key:
-        stack.back().key = parsed.get<std::string>();
-        if (!stack.back().keys.insert(stack.back().key).second)
-          fail(source, path(), "duplicate key (expected each key once in an object)");
-        break;
-      case json::parse_event_t::object_end:
-      case json::parse_event_t::array_end:
-        stack.pop_back();
-        [[fallthrough]];
-      case json::parse_event_t::value:
-        if (!stack.empty() && stack.back().array) ++stack.back().index;
-        break;
-    }
-    return true;
-  };
-  try {
-    return json::parse(text.begin(), text.end(), check);
-  } catch (const json::out_of_range& e) {
-    // The parser's only out_of_range: a number beyond the range of double (406).
-    std::string what = e.what();
-    const auto q = what.find('\'');
-    const std::string number = q == std::string::npos ? what : what.substr(q);
-    fail(source, path(), "number " + number + " is out of the range of double (expected a finite number, |x| < 1.8e308)");
-  } catch (const json::exception& e) {
-    throw SceneError(source + ": not valid JSON: " + e.what());
   }
+  /// Places v in the current array or object (or at the top) and returns where it went.
+  json* place(json&& v) {
+    if (stack_.empty()) {
+      root_ = std::move(v);
+      return &root_;
+    }
+    Level& l = stack_.back();
+    if (l.array) {
+      l.value->push_back(std::move(v));
+      return &l.value->back();
+    }
+    json& slot = (*l.value)[l.key];
+    slot = std::move(v);
+    return &slot;
+  }
+  /// A scalar value; the next element of an enclosing array follows it.
+  bool value(json&& v) {
+    place(std::move(v));
+    if (!stack_.empty() && stack_.back().array) ++stack_.back().index;
+    return true;
+  }
+  bool start(json&& empty, bool array) {
+    if (int(stack_.size()) >= kMaxSceneDepth)
+      fail(source_, path(), "nested deeper than " + std::to_string(kMaxSceneDepth) +
+                                " levels (expected a scene: objects and arrays a few levels deep)");
+    json* v = place(std::move(empty));
+    stack_.push_back({v, array, {}, 0, {}});
+    return true;
+  }
+  bool end() {
+    stack_.pop_back();
+    if (!stack_.empty() && stack_.back().array) ++stack_.back().index;
+    return true;
+  }
+
+  json& root_;
+  const std::string& source_;
+  std::vector<Level> stack_;
+};
+
+json parse_json(std::string_view text, const std::string& source) {
+  json root;
+  SceneJsonBuilder builder(root, source);
+  json::sax_parse(text.begin(), text.end(), &builder);
+  return root;
 }
 
 }  // namespace
