@@ -1,7 +1,7 @@
 // PLY reader and writer. The format facts (header grammar, type names and sizes, body layout)
 // follow Greg Turk, "The PLY Polygon File Format", as published by the Stanford 3D Scanning
 // Repository; see ply.h for a summary.
-// One file of about 1,050 lines: the reader and the writer share the type table, the byte-order
+// One file of about 1,060 lines: the reader and the writer share the type table, the byte-order
 // copies and the header grammar of one specification.
 #include "slurry/io/ply.h"
 
