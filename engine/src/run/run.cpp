@@ -9,6 +9,7 @@
 #include <limits>
 #include <new>
 #include <map>
+#include <random>
 #include <regex>
 #include <signal.h>
 #include <thread>
@@ -457,6 +458,16 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   if (writer) fs::create_directories(dir, ec);
   if (ec) throw IoError(dir.string() + ": cannot create the output directory: " + ec.message());
   if (per_rank) comm->barrier();  // every process writes into it
+  // The run's token in every part's comments ("slurry run T"): merge joins only parts of one run,
+  // not a part left by another run of the same scene. Every rank draws a number; all take the largest.
+  std::string run_token;
+  if (per_rank) {
+    double draw = double(std::random_device{}());
+    comm->max(&draw, 1);
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%08llx", static_cast<unsigned long long>(draw));
+    run_token = buf;
+  }
   if (first_frame > 0) summary.frames_written = first_frame;
   if (first_frame > 0 && writer) {
     io::truncate_stats_csv(dir / "stats.csv", first_frame - 1);
@@ -508,7 +519,9 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     Frame frame;
     try {
       if (per_rank) {
-        io::write_ply(rank_frame_file(dir, f, comm->rank()), sim->own_frame(scene.output.attributes), format);
+        Frame part = sim->own_frame(scene.output.attributes);
+        part.comments.push_back("slurry run " + run_token);
+        io::write_ply(rank_frame_file(dir, f, comm->rank()), part, format);
       } else if (files) {
         frame = sim->frame_view(scene.output.attributes);
         if (writer) io::write_ply(file, frame, format);
@@ -587,6 +600,13 @@ std::filesystem::path rank_frame_file(const std::filesystem::path& directory, in
 namespace {
 
 /// "slurry part R of N id=requested|added" of a per-rank frame, or false.
+/// The run token of a part ("slurry run T"), or "" for a part written without one.
+std::string part_run(const io::PlyData& d) {
+  for (const auto& c : d.comments)
+    if (c.rfind("slurry run ", 0) == 0) return c.substr(11);
+  return {};
+}
+
 bool parse_part(const io::PlyData& d, int& rank, int& ranks, bool& id_added) {
   for (const auto& c : d.comments) {
     char id[16] = {};
@@ -639,9 +659,10 @@ MergeSummary merge_rank_frames(const std::filesystem::path& directory, bool keep
         id_added = added;
         seen.assign(std::size_t(nr), false);
       }
-      if (nr != ranks || added != id_added || (!parts.empty() && d.comments.front() != parts.front().comments.front()))
+      if (nr != ranks || added != id_added ||
+          (!parts.empty() && (d.comments.front() != parts.front().comments.front() || part_run(d) != part_run(parts.front()))))
         throw IoError(file.string() + ": part of another run than " + files.front().string() +
-                      " (expected the same process count, time and id column)");
+                      " (expected the same process count, time, id column and run token)");
       if (seen[std::size_t(r)]) throw IoError(file.string() + ": a second part " + std::to_string(r) + " of frame " + std::to_string(f));
       seen[std::size_t(r)] = true;
       n += d.table("vertex").count;
