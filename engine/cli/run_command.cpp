@@ -97,9 +97,8 @@ void print_summary(const RunSummary& s) {
 }  // namespace
 
 void NumberOptions::parse(const CLI::App& app, RunRequest& r) const {
-  if (!frames.empty() || (app.get_option_no_throw("--frames") && app.count("--frames")))
-    r.frames = int(parse_integer("--frames", frames, 0, INT_MAX));
-  if (app.get_option_no_throw("--threads") && app.count("--threads"))
+  if (app.count("--frames")) r.frames = int(parse_integer("--frames", frames, 0, INT_MAX));
+  if (app.count("--threads"))
     r.threads = int(parse_integer("--threads", threads, 0, parallel::max_thread_count()));
   if (app.count("--memory-limit")) r.memory_gb = parse_positive("--memory-limit", memory);
 }

@@ -6,6 +6,7 @@
 #include <cstring>
 
 #include "slurry/engine/errors.h"
+#include "slurry/engine/quote_text.h"
 
 namespace slurry {
 namespace {
@@ -18,28 +19,17 @@ constexpr std::array<std::size_t, 8> kTypeSizes{1, 1, 2, 2, 4, 4, 4, 8};
   throw IoError((source.empty() ? std::string("<in-memory frame>") : source.string()) + ": " + what);
 }
 
-// Quotes a name for a message, so that binary garbage read from a file cannot wreck it.
-std::string show(std::string_view s) {
-  constexpr std::size_t kMax = 60;
-  std::string out = "'";
-  for (std::size_t i = 0; i < s.size() && i < kMax; ++i) {
-    const auto c = static_cast<unsigned char>(s[i]);
-    out += (c >= 0x20 && c < 0x7f) ? static_cast<char>(c) : '?';
-  }
-  if (s.size() > kMax) out += "...";
-  return out + "'";
-}
 
 std::string describe_columns(const Table& t) {
   if (t.columns.empty() && t.lists.empty()) return "it has no properties";
   std::string s = "it has";
   const char* sep = " ";
   for (const Column& c : t.columns) {
-    s += sep + show(c.name);
+    s += sep + quote_text(c.name);
     sep = ", ";
   }
   for (const ListColumn& l : t.lists) {
-    s += sep + ("list " + show(l.name));
+    s += sep + ("list " + quote_text(l.name));
     sep = ", ";
   }
   return s;
@@ -56,6 +46,22 @@ std::vector<Out> convert_column(const Column& c) {
       c.data);
 }
 
+/// Row values of a strided column of alternative `type`, converted to Out.
+template <class Out, std::size_t I = 0>
+std::vector<Out> convert_strided(std::size_t type, const unsigned char* first, std::size_t stride, std::size_t n) {
+  if constexpr (I + 1 < std::variant_size_v<ColumnData>) {
+    if (type != I) return convert_strided<Out, I + 1>(type, first, stride, n);
+  }
+  using T = typename std::variant_alternative_t<I, ColumnData>::value_type;
+  std::vector<Out> out(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    T v;
+    std::memcpy(&v, first + i * stride, sizeof(T));
+    out[i] = static_cast<Out>(v);
+  }
+  return out;
+}
+
 template <std::size_t I = 0>
 ColumnData copy_strided(std::size_t type, const unsigned char* first, std::size_t stride, std::size_t n) {
   if constexpr (I + 1 < std::variant_size_v<ColumnData>) {
@@ -68,6 +74,17 @@ ColumnData copy_strided(std::size_t type, const unsigned char* first, std::size_
 }
 
 }  // namespace
+
+std::string quote_text(std::string_view s) {
+  constexpr std::size_t kMax = 60;
+  std::string out = "'";
+  for (std::size_t i = 0; i < s.size() && i < kMax; ++i) {
+    const auto c = static_cast<unsigned char>(s[i]);
+    out += (c >= 0x20 && c < 0x7f) ? static_cast<char>(c) : '?';
+  }
+  if (s.size() > kMax) out += "...";
+  return out + "'";
+}
 
 std::string_view column_type_name(std::size_t type) { return type < kTypeNames.size() ? kTypeNames[type] : "?"; }
 std::size_t column_type_size(std::size_t type) { return type < kTypeSizes.size() ? kTypeSizes[type] : 0; }
@@ -87,17 +104,17 @@ const ListColumn* Table::find_list(std::string_view n) const {
 const Column& Table::column(std::string_view n) const {
   if (const Column* c = find(n)) return *c;
   if (find_list(n))
-    fail(source, "property " + show(n) + " of element " + show(name) +
+    fail(source, "property " + quote_text(n) + " of element " + quote_text(name) +
                      " is a list (expected a scalar property; use list())");
-  fail(source, "element " + show(name) + " has no property " + show(n) + " (" + describe_columns(*this) + ")");
+  fail(source, "element " + quote_text(name) + " has no property " + quote_text(n) + " (" + describe_columns(*this) + ")");
 }
 
 const ListColumn& Table::list(std::string_view n) const {
   if (const ListColumn* l = find_list(n)) return *l;
   if (find(n))
-    fail(source, "property " + show(n) + " of element " + show(name) +
+    fail(source, "property " + quote_text(n) + " of element " + quote_text(name) +
                      " is a scalar (expected a list property; use column())");
-  fail(source, "element " + show(name) + " has no list property " + show(n) + " (" + describe_columns(*this) + ")");
+  fail(source, "element " + quote_text(name) + " has no list property " + quote_text(n) + " (" + describe_columns(*this) + ")");
 }
 
 const ColumnRef* Table::find_ref(std::string_view n) const {
@@ -112,8 +129,7 @@ template <class Out>
 std::vector<Out> Table::column_as(std::string_view n) const {
   if (!find(n))
     if (const ColumnRef* c = find_ref(n); c && c->type < kTypeNames.size() && (count == 0 || c->first))
-      return convert_column<Out>(
-          Column{c->name, copy_strided(c->type, static_cast<const unsigned char*>(c->first), c->stride, count)});
+      return convert_strided<Out>(c->type, static_cast<const unsigned char*>(c->first), c->stride, count);
   return convert_column<Out>(column(n));
 }
 
@@ -122,7 +138,7 @@ std::vector<double> Table::column_as_double(std::string_view n) const { return c
 std::vector<float> Table::column_as_float(std::string_view n) const { return column_as<float>(n); }
 
 void Table::throw_wrong_type(const Column& c, std::string_view wanted) const {
-  fail(source, "property " + show(c.name) + " of element " + show(name) + " is stored as " +
+  fail(source, "property " + quote_text(c.name) + " of element " + quote_text(name) + " is stored as " +
                    std::string(column_type_name(c.data.index())) + ", not " + std::string(wanted) +
                    " (expected the stored type; column_as_double() converts)");
 }
@@ -130,7 +146,7 @@ void Table::throw_wrong_type(const Column& c, std::string_view wanted) const {
 void Table::own() {
   for (const ColumnRef& c : refs) {
     if (c.type >= kTypeNames.size() || (count > 0 && c.first == nullptr))
-      fail(source, "element " + show(name) + " borrowed column " + show(c.name) +
+      fail(source, "element " + quote_text(name) + " borrowed column " + quote_text(c.name) +
                        " has no valid type or address (expected one made by ColumnRef::of)");
     columns.push_back({c.name, copy_strided(c.type, static_cast<const unsigned char*>(c.first), c.stride, count)});
   }
@@ -152,8 +168,8 @@ Table* Frame::find(std::string_view name) { return const_cast<Table*>(static_cas
 const Table& Frame::table(std::string_view name) const {
   if (const Table* t = find(name)) return *t;
   std::string have;
-  for (const Table& t : tables) have += (have.empty() ? "" : ", ") + show(t.name);
-  fail(source, "no element " + show(name) + " (" +
+  for (const Table& t : tables) have += (have.empty() ? "" : ", ") + quote_text(t.name);
+  fail(source, "no element " + quote_text(name) + " (" +
                    (have.empty() ? std::string("the file has no elements") : "it has " + have) + ")");
 }
 

@@ -20,6 +20,7 @@
 #include <utility>
 
 #include "slurry/engine/errors.h"
+#include "slurry/engine/quote_text.h"
 
 #if defined(_WIN32)
 #include <process.h>
@@ -149,17 +150,6 @@ std::string display_name(const fs::path& file) {
   throw IoError(display_name(file) + ": " + what);
 }
 
-// Quotes text from a file for a message, so that binary garbage cannot wreck the message.
-std::string show(std::string_view s) {
-  constexpr std::size_t kMax = 60;
-  std::string out = "'";
-  for (std::size_t i = 0; i < s.size() && i < kMax; ++i) {
-    const auto c = static_cast<unsigned char>(s[i]);
-    out += (c >= 0x20 && c < 0x7f) ? static_cast<char>(c) : '?';
-  }
-  if (s.size() > kMax) out += "...";
-  return out + "'";
-}
 
 std::string expected_value(ScalarType t) {
   return visit_type(t, [t](auto tag) -> std::string {
@@ -280,30 +270,30 @@ std::vector<RawColumn> raw_columns(const Table& el) {
 void validate(const fs::path& path, const Frame& data, const std::vector<std::string>& obj_info) {
   for (std::size_t i = 0; i < data.comments.size(); ++i)
     if (has_line_break(data.comments[i]))
-      fail(path, "comment " + std::to_string(i) + " " + show(data.comments[i]) +
+      fail(path, "comment " + std::to_string(i) + " " + quote_text(data.comments[i]) +
                      " contains a line break (expected one header line per comment)");
   for (std::size_t i = 0; i < obj_info.size(); ++i)
     if (has_line_break(obj_info[i]))
-      fail(path, "obj_info " + std::to_string(i) + " " + show(obj_info[i]) +
+      fail(path, "obj_info " + std::to_string(i) + " " + quote_text(obj_info[i]) +
                      " contains a line break (expected one header line per obj_info)");
 
   for (std::size_t e = 0; e < data.tables.size(); ++e) {
     const Table& el = data.tables[e];
     if (!is_valid_name(el.name))
-      fail(path, "element " + std::to_string(e) + " has the name " + show(el.name) +
+      fail(path, "element " + std::to_string(e) + " has the name " + quote_text(el.name) +
                      " (expected a non-empty name without whitespace)");
     for (std::size_t k = 0; k < e; ++k)
       if (data.tables[k].name == el.name)
-        fail(path, "two elements are called " + show(el.name) + " (expected unique names)");
+        fail(path, "two elements are called " + quote_text(el.name) + " (expected unique names)");
 
-    const std::string where = "element " + show(el.name);
+    const std::string where = "element " + quote_text(el.name);
     std::vector<std::string_view> names;
     auto check_name = [&](const std::string& name) {
       if (!is_valid_name(name))
-        fail(path, where + " has a property called " + show(name) +
+        fail(path, where + " has a property called " + quote_text(name) +
                        " (expected a non-empty name without whitespace)");
       if (std::find(names.begin(), names.end(), name) != names.end())
-        fail(path, where + " has two properties called " + show(name) +
+        fail(path, where + " has two properties called " + quote_text(name) +
                        " (expected unique names within an element)");
       names.push_back(name);
     };
@@ -311,28 +301,28 @@ void validate(const fs::path& path, const Frame& data, const std::vector<std::st
       check_name(p.name);
       const std::size_t n = std::visit([](const auto& v) { return v.size(); }, p.data);
       if (n != el.count)
-        fail(path, where + " property " + show(p.name) + " has " + std::to_string(n) +
+        fail(path, where + " property " + quote_text(p.name) + " has " + std::to_string(n) +
                        " values but the element count is " + std::to_string(el.count) +
                        " (expected every column to have count values)");
     }
     for (const ColumnRef& c : el.refs) {
       check_name(c.name);
       if (c.type >= kTypes.size())
-        fail(path, where + " borrowed column " + show(c.name) + " has the type index " +
+        fail(path, where + " borrowed column " + quote_text(c.name) + " has the type index " +
                        std::to_string(c.type) + " (expected 0..7, as ColumnRef::of sets it)");
       if (el.count > 0 && c.first == nullptr)
-        fail(path, where + " borrowed column " + show(c.name) + " points nowhere (expected the " +
+        fail(path, where + " borrowed column " + quote_text(c.name) + " points nowhere (expected the " +
                        "address of its first value for " + std::to_string(el.count) + " rows)");
     }
     for (const ListColumn& l : el.lists) {
       check_name(l.name);
       if (l.data.size() != el.count)
-        fail(path, where + " list property " + show(l.name) + " has " +
+        fail(path, where + " list property " + quote_text(l.name) + " has " +
                        std::to_string(l.data.size()) + " rows but the element count is " +
                        std::to_string(el.count) + " (expected count rows)");
       for (std::size_t r = 0; r < l.data.size(); ++r)
         if (l.data[r].size() > std::numeric_limits<std::uint8_t>::max())
-          fail(path, where + " list property " + show(l.name) + " row " + std::to_string(r) +
+          fail(path, where + " list property " + quote_text(l.name) + " row " + std::to_string(r) +
                          " has " + std::to_string(l.data[r].size()) +
                          " items (expected at most 255: list lengths are written as uchar)");
     }
@@ -362,7 +352,7 @@ class AtomicFile {
   explicit AtomicFile(const fs::path& target) : target_(target), temp_(temp_name(target)) {
     out_.open(temp_, std::ios::binary | std::ios::trunc);
     if (!out_)
-      fail(target_, "cannot create the temporary file " + show(temp_.string()) +
+      fail(target_, "cannot create the temporary file " + quote_text(temp_.string()) +
                         " (expected a writable directory)");
   }
   AtomicFile(const AtomicFile&) = delete;
@@ -377,7 +367,7 @@ class AtomicFile {
   void write(const void* p, std::size_t n) {
     out_.write(static_cast<const char*>(p), static_cast<std::streamsize>(n));
     if (!out_)
-      fail(target_, "writing " + show(temp_.string()) +
+      fail(target_, "writing " + quote_text(temp_.string()) +
                         " failed (disk full or I/O error?); the target file was not changed");
   }
 
@@ -387,12 +377,12 @@ class AtomicFile {
     out_.flush();
     out_.close();
     if (out_.fail())
-      fail(target_, "flushing " + show(temp_.string()) +
+      fail(target_, "flushing " + quote_text(temp_.string()) +
                         " failed (disk full or I/O error?); the target file was not changed");
     std::error_code ec;
     fs::rename(temp_, target_, ec);
     if (ec)
-      fail(target_, "renaming the temporary file " + show(temp_.string()) +
+      fail(target_, "renaming the temporary file " + quote_text(temp_.string()) +
                         " onto it failed: " + ec.message());
     committed_ = true;
   }
@@ -656,7 +646,7 @@ class Reader {
       fail(path_, "the file is empty (expected a PLY header starting with 'ply')");
     next_line(line);
     if (line != "ply")
-      fail(path_, "bad magic: the first line is " + show(line) +
+      fail(path_, "bad magic: the first line is " + quote_text(line) +
                       " (expected 'ply'; this is not a PLY file)");
 
     bool have_format = false;
@@ -680,10 +670,10 @@ class Reader {
       } else if (kw == "property") {
         parse_property(t);
       } else if (kw == "end_header") {
-        if (t.size() != 1) fail_line("unexpected text after 'end_header': " + show(line));
+        if (t.size() != 1) fail_line("unexpected text after 'end_header': " + quote_text(line));
         ended = true;
       } else {
-        fail_line("unknown header keyword " + show(kw) +
+        fail_line("unknown header keyword " + quote_text(kw) +
                   " (expected comment, obj_info, format, element, property or end_header)");
       }
     }
@@ -709,22 +699,22 @@ class Reader {
     } else if (t[1] == "binary_big_endian") {
       encoding_ = Encoding::BinaryBigEndian;
     } else {
-      fail_line("unknown format " + show(t[1]) +
+      fail_line("unknown format " + quote_text(t[1]) +
                 " (expected ascii, binary_little_endian or binary_big_endian)");
     }
-    if (t[2] != "1.0") fail_line("unsupported PLY version " + show(t[2]) + " (expected 1.0)");
+    if (t[2] != "1.0") fail_line("unsupported PLY version " + quote_text(t[2]) + " (expected 1.0)");
     have_format = true;
   }
 
   void parse_element(const std::vector<std::string_view>& t) {
     if (t.size() != 3) fail_line("malformed element line (expected 'element <name> <count>')");
     if (find_element(t[1]))
-      fail_line("a second element called " + show(t[1]) + " (expected unique element names)");
+      fail_line("a second element called " + quote_text(t[1]) + " (expected unique element names)");
     unsigned long long count = 0;
     const auto r = std::from_chars(t[2].data(), t[2].data() + t[2].size(), count);
     if (r.ec != std::errc() || r.ptr != t[2].data() + t[2].size() ||
         count > std::numeric_limits<std::size_t>::max())
-      fail_line("element " + show(t[1]) + " has the count " + show(t[2]) +
+      fail_line("element " + quote_text(t[1]) + " has the count " + quote_text(t[2]) +
                 " (expected a non-negative integer)");
     Table& el = data_.tables.emplace_back();
     el.name = std::string(t[1]);
@@ -745,7 +735,7 @@ class Reader {
           "<count-type> <item-type> <name>')");
     const std::string_view name = t.back();
     if (el.find(name) || el.find_list(name))
-      fail_line("element " + show(el.name) + " has a second property called " + show(name) +
+      fail_line("element " + quote_text(el.name) + " has a second property called " + quote_text(name) +
                 " (expected unique property names)");
 
     Slot slot;
@@ -753,17 +743,17 @@ class Reader {
     auto type = [&](std::string_view s) {
       ScalarType st{};
       if (!parse_type_name(s, st))
-        fail_line("unknown property type " + show(s) + " (" + kExpectedTypes + ")");
+        fail_line("unknown property type " + quote_text(s) + " (" + kExpectedTypes + ")");
       return st;
     };
     if (is_list) {
       slot.count_type = type(t[2]);
       slot.type = type(t[3]);
       if (!info(slot.count_type).integer)
-        fail_line("list property " + show(name) + " has the count type " + show(t[2]) +
+        fail_line("list property " + quote_text(name) + " has the count type " + quote_text(t[2]) +
                   " (expected an integer type)");
       if (!info(slot.type).integer)
-        fail_line("list property " + show(name) + " has the item type " + show(t[3]) +
+        fail_line("list property " + quote_text(name) + " has the item type " + quote_text(t[3]) +
                   " (expected an integer type; lists are read as int32 indices)");
       slot.index = el.lists.size();
       el.lists.push_back({std::string(name), {}});
@@ -813,8 +803,8 @@ class Reader {
         }
         offset += info(s.type).size;
       }
-      fail(path_, "binary body truncated in element " + show(el.name) + ": data ran out at " +
-                      row_text(row, el.count) + ", property " + show(property) +
+      fail(path_, "binary body truncated in element " + quote_text(el.name) + ": data ran out at " +
+                      row_text(row, el.count) + ", property " + quote_text(property) +
                       " (the element needs " + std::to_string(el.count) + " rows x " +
                       std::to_string(stride) + " bytes, but only " + std::to_string(remaining) +
                       " bytes remain)");
@@ -855,9 +845,9 @@ class Reader {
       for (const Slot& s : slots) {
         auto need = [&](std::size_t n) {
           if (static_cast<std::size_t>(end - p) < n)
-            fail(path_, "binary body truncated in element " + show(el.name) + ": data ran out at " +
+            fail(path_, "binary body truncated in element " + quote_text(el.name) + ": data ran out at " +
                             row_text(r, el.count) + ", property " +
-                            show(s.is_list ? el.lists[s.index].name : el.columns[s.index].name));
+                            quote_text(s.is_list ? el.lists[s.index].name : el.columns[s.index].name));
         };
         if (!s.is_list) {
           need(info(s.type).size);
@@ -873,8 +863,8 @@ class Reader {
         p += info(s.count_type).size;
         const std::string& name = el.lists[s.index].name;
         if (n < 0)
-          fail(path_, "element " + show(el.name) + " " + row_text(r, el.count) + ": list " +
-                          show(name) + " has the length " + std::to_string(n) +
+          fail(path_, "element " + quote_text(el.name) + " " + row_text(r, el.count) + ": list " +
+                          quote_text(name) + " has the length " + std::to_string(n) +
                           " (expected a non-negative length)");
         const std::size_t item = info(s.type).size;
         need(static_cast<std::size_t>(n) * item);
@@ -885,8 +875,8 @@ class Reader {
             return static_cast<long long>(load<decltype(tag)>(p, swap));
           });
           if (v > std::numeric_limits<std::int32_t>::max())
-            fail(path_, "element " + show(el.name) + " " + row_text(r, el.count) + ": list " +
-                            show(name) + " item " + std::to_string(v) +
+            fail(path_, "element " + quote_text(el.name) + " " + row_text(r, el.count) + ": list " +
+                            quote_text(name) + " item " + std::to_string(v) +
                             " does not fit in int32 (expected indices below 2^31)");
           out[i] = static_cast<std::int32_t>(v);
         }
@@ -913,8 +903,8 @@ class Reader {
                 const std::string& property) {
     T v{};
     if (!parse_ascii(tok, v))
-      fail_line("element " + show(el.name) + " " + row_text(row, el.count) + ", property " +
-                show(property) + ": " + show(tok) + " is not a valid " + std::string(info(t).name) +
+      fail_line("element " + quote_text(el.name) + " " + row_text(row, el.count) + ", property " +
+                quote_text(property) + ": " + quote_text(tok) + " is not a valid " + std::string(info(t).name) +
                 " value (expected " + expected_value(t) + ")");
     return v;
   }
@@ -944,14 +934,14 @@ class Reader {
     }
     std::string_view line;
     if (next_data_line(line))
-      fail_line("unexpected data after the last element: " + show(line) +
+      fail_line("unexpected data after the last element: " + quote_text(line) +
                 " (is an element count in the header too small?)");
   }
 
   void read_ascii_row(Table& el, const std::vector<Slot>& slots, std::size_t r) {
     std::string_view line;
     if (!next_data_line(line))
-      fail(path_, "ascii body truncated in element " + show(el.name) + ": data ran out at " +
+      fail(path_, "ascii body truncated in element " + quote_text(el.name) + ": data ran out at " +
                       row_text(r, el.count) + " at the end of the file (line " +
                       std::to_string(line_) + ")");
     Tokens tokens(line);
@@ -959,11 +949,11 @@ class Reader {
     auto next = [&](const std::string& property) {
       if (tokens.next(tok)) return;
       if (only_whitespace_left())
-        fail(path_, "ascii body truncated in element " + show(el.name) + ": data ran out at " +
-                        row_text(r, el.count) + " before property " + show(property) +
+        fail(path_, "ascii body truncated in element " + quote_text(el.name) + ": data ran out at " +
+                        row_text(r, el.count) + " before property " + quote_text(property) +
                         " on the last line (line " + std::to_string(line_) + ")");
-      fail_line("element " + show(el.name) + " " + row_text(r, el.count) +
-                " ends before property " + show(property) +
+      fail_line("element " + quote_text(el.name) + " " + row_text(r, el.count) +
+                " ends before property " + quote_text(property) +
                 " (expected one line per row holding all its properties)");
     };
     for (const Slot& s : slots) {
@@ -979,8 +969,8 @@ class Reader {
       next(name);
       const long long n = parse_integer(tok, s.count_type, el, r, name);
       if (n < 0)
-        fail_line("element " + show(el.name) + " " + row_text(r, el.count) + ": list " +
-                  show(name) + " has the length " + std::to_string(n) +
+        fail_line("element " + quote_text(el.name) + " " + row_text(r, el.count) + ": list " +
+                  quote_text(name) + " has the length " + std::to_string(n) +
                   " (expected a non-negative length)");
       std::vector<std::int32_t>& out = el.lists[s.index].data[r];
       out.clear();
@@ -988,15 +978,15 @@ class Reader {
         next(name);
         const long long v = parse_integer(tok, s.type, el, r, name);
         if (v > std::numeric_limits<std::int32_t>::max())
-          fail_line("element " + show(el.name) + " " + row_text(r, el.count) + ": list " +
-                    show(name) + " item " + std::to_string(v) +
+          fail_line("element " + quote_text(el.name) + " " + row_text(r, el.count) + ": list " +
+                    quote_text(name) + " item " + std::to_string(v) +
                     " does not fit in int32 (expected indices below 2^31)");
         out.push_back(static_cast<std::int32_t>(v));
       }
     }
     if (tokens.next(tok))
-      fail_line("element " + show(el.name) + " " + row_text(r, el.count) + " has the extra value " +
-                show(tok) + " after its last property (expected one line per row)");
+      fail_line("element " + quote_text(el.name) + " " + row_text(r, el.count) + " has the extra value " +
+                quote_text(tok) + " after its last property (expected one line per row)");
   }
 
   fs::path path_;
@@ -1019,7 +1009,7 @@ void write_ply(const fs::path& path, const Frame& data, PlyFormat format, const 
   const fs::path dir = path.parent_path().empty() ? fs::path(".") : path.parent_path();
   std::error_code ec;
   if (!fs::is_directory(dir, ec))
-    fail(path, "the directory " + show(dir.string()) +
+    fail(path, "the directory " + quote_text(dir.string()) +
                    " does not exist (expected an existing directory; write_ply does not create "
                    "directories)");
   if (fs::is_directory(path, ec))
