@@ -5,7 +5,7 @@
 //   slurry resume DIR [--frames N] [--threads N] [--memory-limit GB] [--ascii] [--quiet] [--force]
 //                                                                                     resume_command.cpp
 //   slurry validate SCENE.json [--memory-limit GB]                                    validate_command.cpp
-//   slurry surface DIR [--scene S] [--voxel-size H] [--spacing S] [--smoothing N] [--formats vdb,ply,obj] [--points]
+//   slurry surface DIR [--scene S] [--voxel-size H] [--spacing S] [--method M] [--smoothing N] [--formats vdb,ply,obj] [--points]
 //                      (built with OpenVDB, SLURRY_WITH_OPENVDB=ON)                    pipeline.cpp
 //   slurry merge DIR [--keep-parts]   joins per-rank frames into frame_NNNN.ply       merge_command.cpp
 //   mpirun -np N slurry run SCENE.json ...   (built with slurry::mpi, SLURRY_BUILD_MPI=ON): the MPM

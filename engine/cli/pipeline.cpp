@@ -111,6 +111,10 @@ int run_surface_command(const SurfaceCommand& c) {
     if (voxel > 0) out.params.voxel_size = voxel;
     if (spacing > 0) out.params.spacing = spacing;
     if (smoothing >= 0) out.params.smoothing = smoothing;
+    if (c.method == "anisotropic") out.params.method = io::SurfaceMethod::Anisotropic;
+    else if (c.method == "spheres") out.params.method = io::SurfaceMethod::Spheres;
+    else if (!c.method.empty())
+      throw Usage("--method: expected anisotropic or spheres, got \"" + c.method + "\"");
     try {
       out.params.validate();
     } catch (const std::invalid_argument& e) {
@@ -120,10 +124,11 @@ int run_surface_command(const SurfaceCommand& c) {
     const bool tty = isatty(fileno(stderr)) != 0;
     if (!c.quiet)
       std::fprintf(stderr,
-                   "slurry: surfacing %zu frames in %s: voxel %.4g m, particle spacing %.4g m, "
-                   "radius %.4g m, %d smoothing passes\n",
-                   frames.size(), c.dir.c_str(), out.params.voxel_size, out.params.spacing,
-                   out.params.radius(), out.params.smoothing);
+                   "slurry: surfacing %zu frames in %s (%s): voxel %.4g m, particle spacing %.4g m, "
+                   "%d smoothing passes\n",
+                   frames.size(), c.dir.c_str(),
+                   out.params.method == io::SurfaceMethod::Anisotropic ? "anisotropic kernels" : "spheres",
+                   out.params.voxel_size, out.params.spacing, out.params.smoothing);
     const auto start = std::chrono::steady_clock::now();
     std::size_t files = 0;
     // OpenVDB (oneTBB) and Slurry loops in an arena of `threads` workers.

@@ -18,11 +18,11 @@
 
 namespace slurry::cli {
 
-/// `slurry surface DIR [--scene S] [--voxel-size H] [--spacing S] [--smoothing N] [--formats LIST]
+/// `slurry surface DIR [--scene S] [--voxel-size H] [--spacing S] [--method M] [--smoothing N] [--formats LIST]
 /// [--points] [--threads N] [--quiet]`: surfaces a PLY frame sequence already written.
 struct SurfaceCommand {
   CLI::App* app = nullptr;
-  std::string dir, scene, voxel_size, spacing, smoothing, formats = "vdb,ply,obj", threads;
+  std::string dir, scene, voxel_size, spacing, method, smoothing, formats = "vdb,ply,obj", threads;
   bool points = false, quiet = false;
 };
 void add_surface_command(CLI::App& app, SurfaceCommand& c);

@@ -30,8 +30,10 @@ void add_surface_command(CLI::App& app, SurfaceCommand& c) {
                     "Level-set voxel size in m (default: the scene's domain.dx)");
   c.app->add_option("--spacing", c.spacing,
                     "Particle spacing in m (default: dx / particles_per_cell^(1/3))");
+  c.app->add_option("--method", c.method,
+                    "Surfacing method: anisotropic or spheres (default: output.surface_method, anisotropic)");
   c.app->add_option("--smoothing", c.smoothing,
-                    "Gaussian smoothing passes (default: output.surface_smoothing, 2)");
+                    "Gaussian smoothing passes (default: output.surface_smoothing, 0)");
   c.app->add_option("--formats", c.formats,
                     "Comma-separated surface formats: vdb, ply, obj (default: all three)");
   c.app->add_flag("--points", c.points, "Also write OpenVDB points (points_NNNN.vdb)");

@@ -470,6 +470,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.strings("surface", s.output.surface);
     r.boolean("vdb_points", s.output.vdb_points);
     r.number("surface_voxel_size", s.output.surface_voxel_size);
+    r.string("surface_method", s.output.surface_method);
     r.integer("surface_smoothing", s.output.surface_smoothing, -1000000, 1000000);
     r.boolean("surface_per_material", s.output.surface_per_material);
   });

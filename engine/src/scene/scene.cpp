@@ -551,6 +551,8 @@ void Scene::validate_pipeline_outputs() const {
     fail(source, output.surface_voxel_size > 0 ? "output.surface_voxel_size" : "domain.dx",
          "the voxel of the OpenVDB outputs is " + fmt_num(vdb_voxel) +
              " m, below the " + fmt_num(kMinVoxelSize) + " m OpenVDB can represent; expected a larger output.surface_voxel_size, or the scene in larger units");
+  if (output.surface_method != "anisotropic" && output.surface_method != "spheres")
+    fail(source, "output.surface_method", "expected \"anisotropic\" or \"spheres\", got \"" + output.surface_method + "\"");
   if (output.surface_smoothing < 0 || output.surface_smoothing > 100)
     fail(source, "output.surface_smoothing", "expected an integer in [0, 100], got " + std::to_string(output.surface_smoothing));
   // An MPM surface of some of the materials selects particles by the frame's material column.

@@ -2,9 +2,11 @@
 // filtering, meshing, and .vdb grid files. Kept in one translation unit because OpenVDB's
 // headers are slow to compile.
 #include <openvdb/openvdb.h>
+#include <openvdb/tools/Filter.h>
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/LevelSetFilter.h>
 #include <openvdb/tools/LevelSetMeasure.h>
+#include <openvdb/tools/MeshToVolume.h>
 #include <openvdb/tools/ParticlesToLevelSet.h>
 #include <openvdb/tools/Prune.h>
 #include <openvdb/tools/VolumeToMesh.h>
@@ -19,6 +21,7 @@
 #include "slurry/engine/scene/scene.h"
 #include "slurry/io/surface.h"
 #include "slurry/transfer/parallel.h"
+#include "vdb/anisotropic.h"
 #include "vdb/vdb_common.h"
 
 namespace slurry::io {
@@ -278,10 +281,10 @@ LevelSet union_of_spheres(const PointCloud& points, double voxel_size, double ra
       LevelSet::Impl{union_grid(points, voxel_size, radius, openvdb_rasterizer)}));
 }
 
-LevelSet particles_to_level_set(const PointCloud& points, const SurfaceParams& params) {
-  params.validate();
-  if (points.size() == 0)
-    throw std::invalid_argument("particles_to_level_set: no particles to surface");
+namespace {
+
+/// The spheres method, steps 1-3 of surface.h.
+LevelSet spheres_level_set(const PointCloud& points, const SurfaceParams& params) {
   const double r = params.radius();
   // The inside of the union and two voxels beyond it: the closing erodes it at once, and
   // LevelSetFilter rebuilds the band as the surface moves in; half the voxel updates of the full
@@ -297,13 +300,22 @@ LevelSet particles_to_level_set(const PointCloud& points, const SurfaceParams& p
   return LevelSet(std::make_shared<const LevelSet::Impl>(LevelSet::Impl{grid}));
 }
 
-TriangleMesh level_set_to_mesh(const LevelSet& level_set, const PointCloud& points,
-                               const SurfaceParams& params) {
+void check_points(const PointCloud& points) {
+  if (points.size() == 0) throw std::invalid_argument("particles_to_level_set: no particles to surface");
+  for (std::size_t i = 0; i < points.size(); ++i)
+    for (int d = 0; d < 3; ++d)
+      if (!std::isfinite(points.position[i][d]))
+        throw std::invalid_argument("points: position " + std::to_string(i) +
+                                    " is not finite (expected finite positions)");
+}
+
+/// volumeToMesh of `grid` at `iso`, quads split along the shorter diagonal, oriented outward for
+/// a grid that is negative inside.
+TriangleMesh mesh_grid(const openvdb::FloatGrid& grid, double iso) {
   std::vector<openvdb::Vec3s> vertices;
   std::vector<openvdb::Vec3I> tris;
   std::vector<openvdb::Vec4I> quads;
-  openvdb::tools::volumeToMesh(*level_set.impl().grid, vertices, tris, quads, /*isovalue=*/0.0,
-                               /*adaptivity=*/0.0);
+  openvdb::tools::volumeToMesh(grid, vertices, tris, quads, iso, /*adaptivity=*/0.0);
   TriangleMesh mesh;
   mesh.vertices.resize(vertices.size());
   for (std::size_t i = 0; i < vertices.size(); ++i)
@@ -327,13 +339,160 @@ TriangleMesh level_set_to_mesh(const LevelSet& level_set, const PointCloud& poin
       tri(q[1], q[2], q[3]);
     }
   }
+  return mesh;
+}
+
+/// Appends to `mesh` a regular icosahedron of volume `volume` around each of the points
+/// `which` (outward triangles).
+void add_droplets(TriangleMesh& mesh, const PointCloud& points, const std::vector<std::size_t>& which,
+                  double volume) {
+  // Unit-circumradius icosahedron: (0, +-1, +-g), (+-1, +-g, 0), (+-g, 0, +-1), g the golden
+  // ratio, scaled by 1 / sqrt(1 + g^2); its volume is 2.5362 R^3 for circumradius R.
+  const double g = (1 + std::sqrt(5.0)) / 2, norm = 1 / std::sqrt(1 + g * g);
+  const double R = std::cbrt(volume / (5.0 / 12.0 * (3 + std::sqrt(5.0)) * std::pow(2 * norm, 3)));
+  static const int faces[20][3] = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
+                                   {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
+                                   {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
+                                   {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
+  const double v[12][3] = {{-1, g, 0}, {1, g, 0}, {-1, -g, 0}, {1, -g, 0}, {0, -1, g}, {0, 1, g},
+                           {0, -1, -g}, {0, 1, -g}, {g, 0, -1}, {g, 0, 1}, {-g, 0, -1}, {-g, 0, 1}};
+  for (std::size_t i : which) {
+    const auto base = std::int32_t(mesh.vertices.size());
+    const auto& p = points.position[i];
+    for (const auto& c : v)
+      mesh.vertices.push_back({float(p[0] + R * norm * c[0]), float(p[1] + R * norm * c[1]),
+                               float(p[2] + R * norm * c[2])});
+    for (const auto& f : faces) mesh.triangles.push_back({base + f[0], base + f[1], base + f[2]});
+  }
+}
+
+/// The anisotropic method (surface.h, steps A1-A6): the zero level of `iso - field` meshed, and
+/// the narrow-band level set of that mesh.
+Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& params) {
+  const double h = params.voxel_size, s = params.spacing;
+  const detail::FieldBlocks blocks = detail::anisotropic_field(points, h, s);
+  openvdb::FloatGrid::Ptr field = openvdb::FloatGrid::create(0.0f);
+  field->setTransform(openvdb::math::Transform::createLinearTransform(h));
+  {
+    using Leaf = openvdb::FloatTree::LeafNodeType;
+    auto& tree = field->tree();
+    for (std::size_t b = 0; b < blocks.origin.size(); ++b) {
+      const auto& o = blocks.origin[b];
+      auto* leaf = new Leaf(openvdb::Coord(o[0], o[1], o[2]), 0.0f, /*active=*/true);
+      std::copy_n(blocks.value.data() + b * Leaf::SIZE, Leaf::SIZE, leaf->buffer().data());
+      tree.addLeaf(leaf);
+    }
+  }
+  // A2: smoothing of the field, before the level is chosen (so it cannot change the volume).
+  if (params.smoothing > 0) {
+    openvdb::tools::Filter<openvdb::FloatGrid> filter(*field);
+    for (int i = 0; i < params.smoothing; ++i) filter.gaussian(1);
+  }
+  // A3: the level c whose inside holds the particles' volume. The volume inside c is estimated
+  // voxel by voxel as the linear fraction of the voxel on the inner side of the level,
+  // clamp(1/2 + (phi - c) / (h |grad phi|), 0, 1) (central differences): the volume the mesh of
+  // that level encloses, to second order. Bisection over [kMinIso, kMaxIso]. A flat cloud (a 2D
+  // frame) keeps the middle level, 1/2.
+  bool flat = points.size() > 1;
+  for (const auto& p : points.position) flat = flat && p[2] == points.position.front()[2];
+  std::vector<std::pair<float, float>> samples;  // (phi, 1 / (h |grad phi|))
+  if (!flat) {
+    samples.reserve(std::size_t(field->tree().activeVoxelCount()));
+    auto acc = field->getConstAccessor();
+    for (auto it = field->tree().cbeginLeaf(); it; ++it)
+      for (auto v = it->cbeginValueOn(); v; ++v) {
+        const openvdb::Coord c = v.getCoord();
+        const float gx = 0.5f * (acc.getValue(c.offsetBy(1, 0, 0)) - acc.getValue(c.offsetBy(-1, 0, 0)));
+        const float gy = 0.5f * (acc.getValue(c.offsetBy(0, 1, 0)) - acc.getValue(c.offsetBy(0, -1, 0)));
+        const float gz = 0.5f * (acc.getValue(c.offsetBy(0, 0, 1)) - acc.getValue(c.offsetBy(0, 0, -1)));
+        samples.emplace_back(*v, 1.0f / std::max(std::sqrt(gx * gx + gy * gy + gz * gz), 1e-6f));
+      }
+  }
+  const auto level_for = [&](double volume) {
+    if (flat) return 0.5;
+    const double wanted = volume / (h * h * h);
+    const auto inside = [&](double c) {
+      double sum = 0;
+      for (const auto& [phi, inv_g] : samples)
+        sum += std::clamp(0.5 + (double(phi) - c) * double(inv_g), 0.0, 1.0);
+      return sum;
+    };
+    double lo = kMinIso, hi = kMaxIso;
+    if (inside(lo) <= wanted) return lo;
+    if (inside(hi) >= wanted) return hi;
+    for (int i = 0; i < 40; ++i) {
+      const double mid = 0.5 * (lo + hi);
+      (inside(mid) > wanted ? lo : hi) = mid;
+    }
+    return 0.5 * (lo + hi);
+  };
+  // A4: droplets. A particle with few neighbours (A1) whose centre the level leaves outside
+  // (spray, a droplet smaller than the voxels can sample) becomes a closed icosahedron of its own volume spacing^3
+  // around its position, and the level is chosen for the other particles' volume.
+  const double particle_volume = s * s * s;
+  double iso = level_for(double(points.size()) * particle_volume);
+  std::vector<std::size_t> droplets;
+  if (!flat) {
+    const openvdb::tools::GridSampler<openvdb::FloatGrid, openvdb::tools::BoxSampler> sampler(*field);
+    for (std::size_t i = 0; i < points.size(); ++i) {
+      const auto& p = points.position[i];
+      if (blocks.sparse[i] && sampler.wsSample(openvdb::Vec3R(p[0], p[1], p[2])) < iso)
+        droplets.push_back(i);
+    }
+    if (!droplets.empty()) iso = level_for(double(points.size() - droplets.size()) * particle_volume);
+  }
+  // A5: iso - field, negative inside, meshed at 0; the droplets added.
+  for (auto it = field->tree().beginLeaf(); it; ++it)
+    for (auto v = it->beginValueAll(); v; ++v) v.setValue(float(iso) - *v);
+  field->tree().root().setBackground(float(iso), /*updateChildNodes=*/true);
+  field->setGridClass(openvdb::GRID_LEVEL_SET);
+  Surface out{LevelSet(nullptr), mesh_grid(*field, 0.0), iso};
+  add_droplets(out.mesh, points, droplets, particle_volume);
+  // A6: the level set of the mesh (OpenVDB's meshToLevelSet, half-width 3 voxels).
+  std::vector<openvdb::Vec3s> verts(out.mesh.vertices.size());
+  for (std::size_t i = 0; i < verts.size(); ++i)
+    verts[i] = openvdb::Vec3s(out.mesh.vertices[i][0], out.mesh.vertices[i][1], out.mesh.vertices[i][2]);
+  std::vector<openvdb::Vec3I> tris(out.mesh.triangles.size());
+  for (std::size_t i = 0; i < tris.size(); ++i)
+    tris[i] = openvdb::Vec3I(openvdb::Index32(out.mesh.triangles[i][0]), openvdb::Index32(out.mesh.triangles[i][1]),
+                             openvdb::Index32(out.mesh.triangles[i][2]));
+  openvdb::FloatGrid::Ptr ls = openvdb::tools::meshToLevelSet<openvdb::FloatGrid>(
+      *openvdb::math::Transform::createLinearTransform(h), verts, tris, kHalfWidth);
+  ls->setName("surface");
+  ls->setGridClass(openvdb::GRID_LEVEL_SET);
+  out.level_set = LevelSet(std::make_shared<const LevelSet::Impl>(LevelSet::Impl{ls}));
+  if (!points.velocity.empty()) out.mesh.velocities = sample_velocities(out.mesh.vertices, points, s);
+  return out;
+}
+
+}  // namespace
+
+LevelSet particles_to_level_set(const PointCloud& points, const SurfaceParams& params) {
+  params.validate();
+  check_points(points);
+  detail::initialize_openvdb();
+  if (params.method == SurfaceMethod::Anisotropic) {
+    PointCloud positions;
+    positions.position = points.position;
+    return anisotropic_surface(positions, params).level_set;
+  }
+  return spheres_level_set(points, params);
+}
+
+TriangleMesh level_set_to_mesh(const LevelSet& level_set, const PointCloud& points,
+                               const SurfaceParams& params) {
+  TriangleMesh mesh = mesh_grid(*level_set.impl().grid, 0.0);
   if (!points.velocity.empty())
     mesh.velocities = sample_velocities(mesh.vertices, points, params.spacing);
   return mesh;
 }
 
 Surface surface_particles(const PointCloud& points, const SurfaceParams& params) {
-  LevelSet ls = particles_to_level_set(points, params);
+  params.validate();
+  check_points(points);
+  detail::initialize_openvdb();
+  if (params.method == SurfaceMethod::Anisotropic) return anisotropic_surface(points, params);
+  LevelSet ls = spheres_level_set(points, params);
   TriangleMesh mesh = level_set_to_mesh(ls, points, params);
   return {std::move(ls), std::move(mesh)};
 }

@@ -35,6 +35,7 @@ FrameOutputs frame_outputs(const Scene& scene) {
   out.params.voxel_size = o.surface_voxel_size > 0 ? o.surface_voxel_size : dx;
   out.params.spacing = dx / std::pow(ppc, 1.0 / scene.solver.dimension);
   out.params.smoothing = o.surface_smoothing;
+  out.params.method = o.surface_method == "spheres" ? SurfaceMethod::Spheres : SurfaceMethod::Anisotropic;
 
   // The liquid: every particle of a FLIP scene; the "fluid" materials of an MPM scene (all of
   // them if it has none: a surface of snow or sand is asked for as well).

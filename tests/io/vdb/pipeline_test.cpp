@@ -200,3 +200,19 @@ TEST(Pipeline, CliWritesSurfacesPointsAndIdsAndResurfaces) {
   fs::remove_all(dir);
 }
 #endif
+
+TEST(PipelineOutputs, DocumentedDefaultsAreTheCode) {
+  // docs/pipeline-outputs.md's table of output keys, the scene's defaults and SurfaceParams agree.
+  std::ifstream in(std::string(SLURRY_SOURCE_DIR) + "/docs/pipeline-outputs.md");
+  ASSERT_TRUE(in) << "docs/pipeline-outputs.md";
+  const std::string doc((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const slurry::OutputParams defaults;
+  EXPECT_NE(doc.find("| `surface_smoothing` | " + std::to_string(defaults.surface_smoothing) + " |"),
+            std::string::npos);
+  EXPECT_NE(doc.find("| `surface_method` | `\"" + defaults.surface_method + "\"` |"), std::string::npos);
+  EXPECT_NE(doc.find("| `surface_voxel_size` | 0 |"), std::string::npos);
+  EXPECT_EQ(defaults.surface_voxel_size, 0.0);
+  const slurry::io::SurfaceParams params;
+  EXPECT_EQ(params.smoothing, defaults.surface_smoothing);
+  EXPECT_EQ(params.method == slurry::io::SurfaceMethod::Anisotropic, defaults.surface_method == "anisotropic");
+}

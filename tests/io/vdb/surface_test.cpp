@@ -68,7 +68,7 @@ struct SphereCase {
   static constexpr double R = 0.3, dx = 0.02, s = 0.01;
   static constexpr std::array<double, 3> c{0.5, 0.45, 0.55};
   PointCloud cloud = lattice_sphere(R, s, c);
-  SurfaceParams params{dx, s};  // default smoothing: one Gaussian pass
+  SurfaceParams params{dx, s, 1, slurry::io::SurfaceMethod::Spheres};  // one Gaussian pass
   slurry::io::Surface surface = [this] {
     // A rigid rotation about the z axis through c (omega = 2 rad/s) plus a translation.
     for (const auto& p : cloud.position)

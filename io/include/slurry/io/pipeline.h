@@ -38,7 +38,7 @@ struct FrameOutputs {
 };
 
 /// The outputs a scene asks for (output.surface, output.vdb_points, output.surface_voxel_size,
-/// output.surface_smoothing, output.surface_per_material): voxel size domain.dx unless set,
+/// output.surface_method, output.surface_smoothing, output.surface_per_material): voxel size domain.dx unless set,
 /// particle spacing dx / ppc^(1/dim) for the largest particles_per_cell of its bodies and
 /// emitters; groups: the scene's liquid (FLIP: every particle; MPM: the "fluid" materials, or
 /// every particle if it has none), or one group per such material with surface_per_material.

@@ -6,7 +6,26 @@
 /// OpenVDB stays behind this header: no OpenVDB type appears here, so a program including it
 /// needs no OpenVDB headers (only the slurry::io target links OpenVDB).
 ///
-/// Surfacing (surface_particles) follows the usual "union of spheres, then closing" recipe:
+/// Surfacing (surface_particles) has two methods.
+///
+/// SurfaceMethod::Anisotropic (the default) follows Yu & Turk 2013, "Reconstructing surfaces of
+/// particle-based fluids using anisotropic kernels" (ACM TOG 32(1)), the method splashsurf uses,
+/// and keeps the particles' volume:
+///  A1. each particle spreads its volume spacing^3 with a kernel shaped by its neighbourhood
+///      within 2 spacings: round of radius 2 spacings in the bulk, flattened across a flat
+///      surface, a disc in a sheet, at most 4:1; round and small (radius 1 spacing) for a lone
+///      particle; centred at its position moved half-way to its neighbours' weighted mean. The sum
+///      is the liquid's volume fraction, about 1 inside and 0 outside (src/vdb/anisotropic.h);
+///  A2. `smoothing` passes of a Gaussian filter (openvdb::tools::Filter::gaussian, width one
+///      voxel) smooth the field;
+///  A3. the level is chosen so that the voxels above it hold the particles' volume
+///      n spacing^3 (the k-th largest voxel value), within [kMinIso, kMaxIso]: smoothing and
+///      the kernels' shapes change where the surface lies, not how much liquid it encloses;
+///  A4. openvdb::tools::volumeToMesh meshes that level (adaptivity 0); a droplet of one particle
+///      is a small closed piece, none is dropped;
+///  A5. the level set is the narrow-band signed distance to that mesh (meshToLevelSet).
+///
+/// SurfaceMethod::Spheres follows the usual "union of spheres, then closing" recipe:
 ///  1. every particle is rasterized as a sphere of radius r = max(spacing, 1.5 voxels) into a
 ///     narrow-band signed distance field (what openvdb::tools::ParticlesToLevelSet computes,
 ///     1.5 voxels being its smallest radius; see union_of_spheres);
@@ -19,13 +38,15 @@
 ///     away the bumps the spheres leave. Like any smoothing it shrinks convex parts: a pass has
 ///     the variance 4 x 2h^2/3 of four 3-voxel box means (h the voxel size), and diffusing
 ///     phi = |x| - R for that variance moves a sphere's surface inward by (8 h^2 / 3) / R per pass
-///     (the Laplacian of |x| is 2/|x|), 0.18 voxel for R = 15 voxels;
+///     (the Laplacian of |x| is 2/|x|), 0.18 voxel for R = 15 voxels; thin sheets and droplets
+///     erode away;
 ///  4. openvdb::tools::volumeToMesh at isovalue 0 with adaptivity 0 meshes the zero level
-///     (quads split along the shorter diagonal); triangles are oriented with outward normals;
-///  5. each vertex takes the particles' velocity averaged with the poly6 weight
-///     (1 - d^2/h^2)^3 within h = 2 spacing (Mueller, Charypar & Gross 2003, "Particle-based
-///     fluid simulation for interactive applications", eq. 20), or the nearest particle's if
-///     none lies that close, for motion blur.
+///     (quads split along the shorter diagonal); triangles are oriented with outward normals.
+///
+/// Both: each vertex takes the particles' velocity averaged with the poly6 weight
+/// (1 - d^2/h^2)^3 within h = 2 spacing (Mueller, Charypar & Gross 2003, "Particle-based
+/// fluid simulation for interactive applications", eq. 20), or the nearest particle's if
+/// none lies that close, for motion blur.
 #include <array>
 #include <cstddef>
 #include <cstdint>
@@ -52,10 +73,16 @@ struct PointCloud {
 /// material's particles are taken. Throws IoError naming the file.
 PointCloud point_cloud(const Frame& frame, int material = -1);
 
+enum class SurfaceMethod { Anisotropic, Spheres };
+
+/// The range of the anisotropic method's level (A3): a volume fraction the field reaches.
+constexpr double kMinIso = 0.1, kMaxIso = 0.9;
+
 struct SurfaceParams {
   double voxel_size = 0;  ///< m, > 0: the level set's voxel size (the CLI uses domain.dx)
   double spacing = 0;     ///< m, > 0: the particle spacing, dx / particles_per_cell^(1/dim)
-  int smoothing = 1;      ///< Gaussian filter iterations, >= 0
+  int smoothing = 0;      ///< Gaussian filter iterations, >= 0 (A2 or step 3 below)
+  SurfaceMethod method = SurfaceMethod::Anisotropic;
   /// Throws std::invalid_argument naming the field, the value and the expected range.
   void validate() const;
   /// The radius the particles are rasterized with, max(spacing, 1.5 voxel_size).
@@ -94,6 +121,7 @@ class LevelSet {
 struct Surface {
   LevelSet level_set;
   TriangleMesh mesh;
+  double iso = 0;  ///< the anisotropic method's level (A3); 0 for the spheres method
 };
 
 /// Step 1 alone: the union of spheres of `radius` (>= 1.5 voxels) as a narrow-band level set of
@@ -103,12 +131,14 @@ struct Surface {
 /// exceed 2^28 voxels.
 LevelSet union_of_spheres(const PointCloud& points, double voxel_size, double radius,
                           bool openvdb_rasterizer = false);
-/// Steps 1-3 above. Throws std::invalid_argument for invalid parameters or no particles.
+/// The level set of surface_particles (A1-A5 or 1-3 above). Throws std::invalid_argument for
+/// invalid parameters, no particles or a non-finite position.
 LevelSet particles_to_level_set(const PointCloud& points, const SurfaceParams& params);
-/// Step 4 above, with velocities from `points` (step 5) when it has them.
+/// Meshes the zero level of a level set (step 4 above), with velocities from `points` when it
+/// has them.
 TriangleMesh level_set_to_mesh(const LevelSet& level_set, const PointCloud& points,
                                const SurfaceParams& params);
-/// Steps 1-5: the level set and its mesh.
+/// The level set and its mesh, by params.method.
 Surface surface_particles(const PointCloud& points, const SurfaceParams& params);
 
 /// Per-vertex velocities (step 5) at `vertices` from `points` (which must have velocities).

@@ -233,7 +233,10 @@ struct OutputParams {
   std::vector<std::string> surface;
   bool vdb_points = false;
   double surface_voxel_size = 0;      ///< m; 0 = domain.dx; at least kMinVoxelSize
-  int surface_smoothing = 1;          ///< Gaussian filter passes of the level set, [0, 100]
+  /// "anisotropic" (Yu & Turk 2013 kernels, volume kept) or "spheres" (union of spheres, then a
+  /// closing); slurry/io/surface.h
+  std::string surface_method = "anisotropic";
+  int surface_smoothing = 0;          ///< Gaussian filter passes (of the field, or of the level set), [0, 100]
   bool surface_per_material = false;  ///< one surface per liquid material instead of one for all
   /// Drift warnings (stats.h): relative change of the total mass, of the volume, and growth of
   /// the total energy relative to the energy available, beyond which a frame is reported.

@@ -1,0 +1,278 @@
+// The anisotropic-kernel field (anisotropic.h), after Yu & Turk 2013, section 3:
+//  - neighbourhood of particle i: the particles j within R (2 spacings), weighted
+//    w_ij = 1 - (|x_j - x_i| / R)^3 (their eq. 11);
+//  - smoothed centre x_i + lambda (m_i - x_i), m_i the weighted mean (eq. 6);
+//  - weighted covariance C_i about m_i (eq. 7-8), eigenvalues s_1 >= s_2 >= s_3, clamped below at
+//    s_1 / k_r^2 so that no axis is shorter than 1/k_r of the longest (eq. 10, with k_r on axis
+//    lengths here); axis lengths a_k = H sqrt(s_k / s_bulk), where s_bulk = 0.15 R^2 is the
+//    variance of this weighting over a uniformly filled ball of radius R (int_0^R w r^4 dr /
+//    (3 int_0^R w r^2 dr) = (3 R^5 / 40) / (3 R^3 / 6)): a kernel in the bulk is the round one of
+//    radius H, one at a flat surface keeps H along the surface and is shorter across it;
+//  - fewer than N_eps neighbours: a round kernel, of radius `droplet_support` spacings for a lone
+//    particle, growing linearly to H at N_eps (Yu & Turk use a fixed radius there);
+//  - kernel W(x) = K P(|A^-1 V^T (x - c)|) / (a_1 a_2 a_3) with P(q) = (1 - q^2)^3 on q < 1 and
+//    K = 315 / (64 pi), so that it integrates to 1 (Mueller et al. 2003's poly6 with unit support).
+#include "vdb/anisotropic.h"
+
+#include <Eigen/Dense>
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+#include "slurry/transfer/parallel.h"
+
+namespace slurry::io::detail {
+
+namespace {
+
+constexpr int kBits = 21;
+constexpr std::int64_t kRange = std::int64_t(1) << kBits;
+
+std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
+  return (std::uint64_t(z) << (2 * kBits)) | (std::uint64_t(y) << kBits) | std::uint64_t(x);
+}
+
+/// Integer cells of side `side` (m) holding `pos`, packed into sortable keys with x fastest, so
+/// that a row of cells along x is a contiguous key range. Coordinates are offset so that the
+/// lowest cell minus `pad` is 0.
+struct CellGrid {
+  double side = 1;
+  std::array<std::int64_t, 3> lo{};
+  CellGrid(const std::vector<std::array<float, 3>>& pos, double side_, std::int64_t pad,
+           const char* what)
+      : side(side_) {
+    std::array<std::int64_t, 3> mn{INT64_MAX, INT64_MAX, INT64_MAX}, mx{INT64_MIN, INT64_MIN, INT64_MIN};
+    for (const auto& p : pos)
+      for (int d = 0; d < 3; ++d) {
+        const std::int64_t c = std::int64_t(std::floor(double(p[d]) / side));
+        mn[d] = std::min(mn[d], c);
+        mx[d] = std::max(mx[d], c);
+      }
+    for (int d = 0; d < 3; ++d) {
+      lo[d] = mn[d] - pad;
+      if (mx[d] + pad - lo[d] >= kRange - 1)
+        throw std::invalid_argument(std::string("points: they span more than 2^20 ") + what +
+                                    " along axis " + std::to_string(d) +
+                                    " (expected the particles of one liquid; a particle far from "
+                                    "the others?)");
+    }
+  }
+  std::array<std::int64_t, 3> cell(const std::array<float, 3>& p) const {
+    std::array<std::int64_t, 3> c;
+    for (int d = 0; d < 3; ++d) c[d] = std::int64_t(std::floor(double(p[d]) / side)) - lo[d];
+    return c;
+  }
+  static std::uint64_t key(const std::array<std::int64_t, 3>& c) { return pack(c[0], c[1], c[2]); }
+  static std::array<std::int64_t, 3> unpack(std::uint64_t k) {
+    return {std::int64_t(k & (kRange - 1)), std::int64_t((k >> kBits) & (kRange - 1)),
+            std::int64_t(k >> (2 * kBits))};
+  }
+};
+
+/// Indices of `pos` sorted by key (ties by index), and the sorted keys.
+void sort_by_cell(const std::vector<std::array<float, 3>>& pos, const CellGrid& grid,
+                  std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& order) {
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> kv(pos.size());
+  parallel::parallel_for(0, std::int64_t(pos.size()), [&](std::int64_t i) {
+    kv[std::size_t(i)] = {CellGrid::key(grid.cell(pos[std::size_t(i)])), std::uint32_t(i)};
+  });
+  std::sort(kv.begin(), kv.end());
+  keys.resize(pos.size());
+  order.resize(pos.size());
+  for (std::size_t i = 0; i < kv.size(); ++i) keys[i] = kv[i].first, order[i] = kv[i].second;
+}
+
+/// Starts of the runs of equal keys in `keys`, with keys.size() appended.
+std::vector<std::uint32_t> runs(const std::vector<std::uint64_t>& keys) {
+  std::vector<std::uint32_t> start;
+  for (std::size_t i = 0; i < keys.size(); ++i)
+    if (i == 0 || keys[i] != keys[i - 1]) start.push_back(std::uint32_t(i));
+  start.push_back(std::uint32_t(keys.size()));
+  return start;
+}
+
+struct Kernel {
+  std::array<float, 3> centre;
+  std::array<float, 9> map;  ///< row-major A^-1 V^T: world offset to the unit ball
+  float weight;              ///< V K / (a_1 a_2 a_3)
+  float reach;               ///< the longest axis (m)
+};
+
+}  // namespace
+
+FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, double spacing,
+                              const AnisotropyConstants& k) {
+  const std::size_t n = points.size();
+  FieldBlocks out;
+  if (n == 0) return out;
+  const double s = spacing, R = k.neighbourhood * s, H = k.support * s, h = voxel_size;
+  const double volume = s * s * s, K = 315.0 / (64.0 * M_PI), s_bulk = 0.15 * R * R;
+
+  // 1. Kernels, from each particle's neighbourhood (cells of side R: neighbours lie in the 3 x 3
+  //    rows of 3 cells around a particle's cell). One task per cell of particles.
+  std::vector<Kernel> kernel(n);
+  out.sparse.assign(n, 0);
+  {
+    const CellGrid grid(points.position, R, 1, "neighbourhoods");
+    std::vector<std::uint64_t> keys;
+    std::vector<std::uint32_t> order;
+    sort_by_cell(points.position, grid, keys, order);
+    const std::vector<std::uint32_t> cells = runs(keys);
+    parallel::parallel_for_grain(0, std::int64_t(cells.size()) - 1, 16, [&](std::int64_t c) {
+      const auto cc = CellGrid::unpack(keys[cells[std::size_t(c)]]);
+      std::array<std::pair<std::uint32_t, std::uint32_t>, 9> rows;
+      for (int dy = -1, r = 0; dy <= 1; ++dy)
+        for (int dz = -1; dz <= 1; ++dz, ++r) {
+          const auto lo = std::lower_bound(keys.begin(), keys.end(),
+                                           pack(cc[0] - 1, cc[1] + dy, cc[2] + dz));
+          const auto hi = std::lower_bound(lo, keys.end(), pack(cc[0] + 2, cc[1] + dy, cc[2] + dz));
+          rows[std::size_t(r)] = {std::uint32_t(lo - keys.begin()), std::uint32_t(hi - keys.begin())};
+        }
+      for (std::uint32_t a = cells[std::size_t(c)]; a < cells[std::size_t(c) + 1]; ++a) {
+        const std::uint32_t i = order[a];
+        const auto& xi = points.position[i];
+        double W = 0, mean[3] = {0, 0, 0}, second[6] = {0, 0, 0, 0, 0, 0};
+        int count = 0;
+        for (const auto& [b, e] : rows)
+          for (std::uint32_t q = b; q < e; ++q) {
+            const std::uint32_t j = order[q];
+            const auto& xj = points.position[j];
+            const double d[3] = {double(xj[0]) - xi[0], double(xj[1]) - xi[1], double(xj[2]) - xi[2]};
+            const double r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+            if (r2 >= R * R) continue;
+            const double r = std::sqrt(r2) / R, w = 1 - r * r * r;
+            W += w;
+            for (int m = 0; m < 3; ++m) mean[m] += w * d[m];
+            second[0] += w * d[0] * d[0], second[1] += w * d[1] * d[1], second[2] += w * d[2] * d[2];
+            second[3] += w * d[0] * d[1], second[4] += w * d[0] * d[2], second[5] += w * d[1] * d[2];
+            if (j != i) ++count;
+          }
+        for (int m = 0; m < 3; ++m) mean[m] /= W;  // W >= 1: the particle itself
+        Kernel& ker = kernel[i];
+        for (int m = 0; m < 3; ++m) ker.centre[m] = float(xi[m] + k.smoothing * mean[m]);
+        std::array<double, 3> axis;
+        Eigen::Matrix3d V = Eigen::Matrix3d::Identity();
+        if (count >= k.min_neighbours) {
+          Eigen::Matrix3d C;
+          C(0, 0) = second[0] / W - mean[0] * mean[0];
+          C(1, 1) = second[1] / W - mean[1] * mean[1];
+          C(2, 2) = second[2] / W - mean[2] * mean[2];
+          C(0, 1) = C(1, 0) = second[3] / W - mean[0] * mean[1];
+          C(0, 2) = C(2, 0) = second[4] / W - mean[0] * mean[2];
+          C(1, 2) = C(2, 1) = second[5] / W - mean[1] * mean[2];
+          Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+          es.computeDirect(C);
+          V = es.eigenvectors();
+          const Eigen::Vector3d ev = es.eigenvalues();  // ascending
+          const double largest = std::max(ev[2], 1e-30);
+          for (int m = 0; m < 3; ++m) {
+            const double sk = std::max(ev[m], largest / (k.max_stretch * k.max_stretch));
+            axis[std::size_t(m)] = std::min(H * std::sqrt(sk / s_bulk), k.max_stretch * H);
+          }
+        } else {
+          out.sparse[i] = 1;
+          const double r = s * (k.droplet_support +
+                                (k.support - k.droplet_support) * double(count) / k.min_neighbours);
+          axis = {r, r, r};
+        }
+        double reach = 0;
+        for (int row = 0; row < 3; ++row) {
+          for (int col = 0; col < 3; ++col)
+            ker.map[std::size_t(3 * row + col)] = float(V(col, row) / axis[std::size_t(row)]);
+          reach = std::max(reach, axis[std::size_t(row)]);
+        }
+        ker.weight = float(volume * K / (axis[0] * axis[1] * axis[2]));
+        ker.reach = float(reach);
+      }
+    });
+  }
+
+  // 2. The field on blocks of 8^3 voxels: kernels sorted by the block of their centre; a block
+  //    sums the kernels of the blocks within `rb` of it, in their sorted order.
+  constexpr int B = FieldBlocks::kSize;
+  float reach_max = 0;
+  for (const auto& ker : kernel) reach_max = std::max(reach_max, ker.reach);
+  const std::int64_t rb = std::int64_t(std::ceil(double(reach_max) / h / B + 1e-9));
+  std::vector<std::array<float, 3>> centres(n);
+  for (std::size_t i = 0; i < n; ++i) centres[i] = kernel[i].centre;
+  const CellGrid blocks(centres, B * h, rb + 1, "blocks of 8 voxels");
+  std::vector<std::uint64_t> keys;
+  std::vector<std::uint32_t> order;
+  sort_by_cell(centres, blocks, keys, order);
+  const std::vector<std::uint32_t> filled = runs(keys);
+  std::vector<std::uint64_t> candidates;
+  for (std::size_t f = 0; f + 1 < filled.size(); ++f) {
+    const auto c = CellGrid::unpack(keys[filled[f]]);
+    for (std::int64_t dz = -rb; dz <= rb; ++dz)
+      for (std::int64_t dy = -rb; dy <= rb; ++dy)
+        for (std::int64_t dx = -rb; dx <= rb; ++dx)
+          candidates.push_back(pack(c[0] + dx, c[1] + dy, c[2] + dz));
+  }
+  std::sort(candidates.begin(), candidates.end());
+  candidates.erase(std::unique(candidates.begin(), candidates.end()), candidates.end());
+  std::vector<float> value(candidates.size() * B * B * B, 0.0f);
+  std::vector<std::uint8_t> touched(candidates.size(), 0);
+  const float inv_h = float(1.0 / h);
+  parallel::parallel_tasks(0, std::int64_t(candidates.size()), [&](std::int64_t bi) {
+    const auto bc = CellGrid::unpack(candidates[std::size_t(bi)]);
+    // Index-space origin of the block.
+    const std::int64_t o[3] = {(bc[0] + blocks.lo[0]) * B, (bc[1] + blocks.lo[1]) * B,
+                               (bc[2] + blocks.lo[2]) * B};
+    float* v = value.data() + std::size_t(bi) * B * B * B;
+    bool any = false;
+    for (std::int64_t dz = -rb; dz <= rb; ++dz)
+      for (std::int64_t dy = -rb; dy <= rb; ++dy) {
+        const auto lo = std::lower_bound(keys.begin(), keys.end(), pack(bc[0] - rb, bc[1] + dy, bc[2] + dz));
+        const auto hi = std::lower_bound(lo, keys.end(), pack(bc[0] + rb + 1, bc[1] + dy, bc[2] + dz));
+        for (auto it = lo; it != hi; ++it) {
+          const Kernel& ker = kernel[order[std::size_t(it - keys.begin())]];
+          const float P[3] = {ker.centre[0] * inv_h, ker.centre[1] * inv_h, ker.centre[2] * inv_h};
+          const float r = ker.reach * inv_h;
+          std::int64_t lo_i[3], hi_i[3];
+          bool empty = false;
+          for (int d = 0; d < 3; ++d) {
+            lo_i[d] = std::max<std::int64_t>(o[d], std::int64_t(std::ceil(P[d] - r)));
+            hi_i[d] = std::min<std::int64_t>(o[d] + B - 1, std::int64_t(std::floor(P[d] + r)));
+            empty = empty || lo_i[d] > hi_i[d];
+          }
+          if (empty) continue;
+          any = true;
+          // Map scaled to index space: q = M h (i - P).
+          float M[9];
+          for (int m = 0; m < 9; ++m) M[m] = ker.map[std::size_t(m)] * float(h);
+          for (std::int64_t x = lo_i[0]; x <= hi_i[0]; ++x) {
+            const float dxv = float(x) - P[0];
+            for (std::int64_t y = lo_i[1]; y <= hi_i[1]; ++y) {
+              const float dyv = float(y) - P[1];
+              const float a0 = M[0] * dxv + M[1] * dyv, a1 = M[3] * dxv + M[4] * dyv,
+                          a2 = M[6] * dxv + M[7] * dyv;
+              float* row = v + ((x - o[0]) * B + (y - o[1])) * B;
+              for (std::int64_t z = lo_i[2]; z <= hi_i[2]; ++z) {
+                const float dzv = float(z) - P[2];
+                const float q0 = a0 + M[2] * dzv, q1 = a1 + M[5] * dzv, q2 = a2 + M[8] * dzv;
+                const float q = q0 * q0 + q1 * q1 + q2 * q2;
+                if (q < 1.0f) {
+                  const float t = 1.0f - q;
+                  row[z - o[2]] += ker.weight * t * t * t;
+                }
+              }
+            }
+          }
+        }
+      }
+    touched[std::size_t(bi)] = any ? 1 : 0;
+  });
+  for (std::size_t b = 0; b < candidates.size(); ++b) {
+    if (!touched[b]) continue;
+    const auto bc = CellGrid::unpack(candidates[b]);
+    out.origin.push_back({std::int32_t((bc[0] + blocks.lo[0]) * B), std::int32_t((bc[1] + blocks.lo[1]) * B),
+                          std::int32_t((bc[2] + blocks.lo[2]) * B)});
+    out.value.insert(out.value.end(), value.begin() + std::ptrdiff_t(b * B * B * B),
+                     value.begin() + std::ptrdiff_t((b + 1) * B * B * B));
+  }
+  return out;
+}
+
+}  // namespace slurry::io::detail
