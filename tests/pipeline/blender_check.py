@@ -100,8 +100,15 @@ def main():
     (volume,) = new_objects(before)
     volume.data.grids.load()
     names = [g.name for g in volume.data.grids]
-    expect(names == ["surface"], f"VDB: grids {names}")
-    expect(volume.data.grids[0].data_type == "FLOAT", f"VDB: grid type {volume.data.grids[0].data_type}")
+    expect("surface" in names and set(names) <= {"surface", "velocity"}, f"VDB: grids {names}")
+    by_name = {g.name: g for g in volume.data.grids}
+    expect(by_name["surface"].data_type == "FLOAT", f"VDB: grid type {by_name['surface'].data_type}")
+    if "velocity" in by_name:
+        expect(by_name["velocity"].data_type == "VECTOR_FLOAT", f"VDB: velocity grid type {by_name['velocity'].data_type}")
+        # The documented motion-blur path (docs/pipeline-outputs.md): the volume's velocity grid.
+        volume.data.velocity_grid = "velocity"
+        volume.data.velocity_unit = "SECOND"
+        expect(volume.data.velocity_grid == "velocity", "VDB: velocity_grid not set")
     # Blender meshes the grid itself: the level set is the distance to Slurry's mesh, so the
     # zero level Blender finds encloses the same volume, within 10 % (droplets smaller than a
     # voxel are in the mesh only).

@@ -28,6 +28,9 @@ namespace slurry::io::detail {
 namespace {
 
 constexpr int kBits = 21;
+/// Particles a neighbourhood cell (side 2 spacings, 8 particles at rest) holds at least around a
+/// particle treated as deep (a round kernel, no neighbour sums).
+constexpr std::uint32_t kDeepCell = 6;
 constexpr std::int64_t kRange = std::int64_t(1) << kBits;
 
 std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
@@ -113,7 +116,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   // 1. Kernels, from each particle's neighbourhood (cells of side R: neighbours lie in the 3 x 3
   //    rows of 3 cells around a particle's cell). One task per cell of particles.
   std::vector<Kernel> kernel(n);
-  out.sparse.assign(n, 0);
+  out.neighbours.assign(n, 0);
   {
     const CellGrid grid(points.position, R, 1, "neighbourhoods");
     std::vector<std::uint64_t> keys;
@@ -123,13 +126,33 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
     parallel::parallel_for_grain(0, std::int64_t(cells.size()) - 1, 16, [&](std::int64_t c) {
       const auto cc = CellGrid::unpack(keys[cells[std::size_t(c)]]);
       std::array<std::pair<std::uint32_t, std::uint32_t>, 9> rows;
+      std::uint32_t fewest = UINT32_MAX;  // particles in the emptiest of the 27 cells
       for (int dy = -1, r = 0; dy <= 1; ++dy)
         for (int dz = -1; dz <= 1; ++dz, ++r) {
-          const auto lo = std::lower_bound(keys.begin(), keys.end(),
-                                           pack(cc[0] - 1, cc[1] + dy, cc[2] + dz));
-          const auto hi = std::lower_bound(lo, keys.end(), pack(cc[0] + 2, cc[1] + dy, cc[2] + dz));
-          rows[std::size_t(r)] = {std::uint32_t(lo - keys.begin()), std::uint32_t(hi - keys.begin())};
+          std::uint32_t edge[4];
+          auto at = keys.begin();
+          for (int e = 0; e < 4; ++e) {
+            at = std::lower_bound(at, keys.end(), pack(cc[0] - 1 + e, cc[1] + dy, cc[2] + dz));
+            edge[e] = std::uint32_t(at - keys.begin());
+          }
+          for (int e = 0; e < 3; ++e) fewest = std::min(fewest, edge[e + 1] - edge[e]);
+          rows[std::size_t(r)] = {edge[0], edge[3]};
         }
+      // Deep in the liquid (each of the 27 cells holds at least 3/4 of the 8 particles a cell
+      // of side 2 spacings holds at rest): a particle's neighbourhood fills its ball, so its
+      // kernel is the round one of radius H at its position, without the neighbour sums.
+      if (fewest >= kDeepCell) {
+        for (std::uint32_t a = cells[std::size_t(c)]; a < cells[std::size_t(c) + 1]; ++a) {
+          const std::uint32_t i = order[a];
+          Kernel& ker = kernel[i];
+          ker.centre = points.position[i];
+          ker.map = {float(1 / H), 0, 0, 0, float(1 / H), 0, 0, 0, float(1 / H)};
+          ker.weight = float(volume * K / (H * H * H));
+          ker.reach = float(H);
+          out.neighbours[i] = 255;
+        }
+        return;
+      }
       for (std::uint32_t a = cells[std::size_t(c)]; a < cells[std::size_t(c) + 1]; ++a) {
         const std::uint32_t i = order[a];
         const auto& xi = points.position[i];
@@ -151,6 +174,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
           }
         for (int m = 0; m < 3; ++m) mean[m] /= W;  // W >= 1: the particle itself
         Kernel& ker = kernel[i];
+        out.neighbours[i] = std::uint8_t(std::min(count, 255));
         for (int m = 0; m < 3; ++m) ker.centre[m] = float(xi[m] + k.smoothing * mean[m]);
         std::array<double, 3> axis;
         Eigen::Matrix3d V = Eigen::Matrix3d::Identity();
@@ -172,7 +196,6 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
             axis[std::size_t(m)] = std::min(H * std::sqrt(sk / s_bulk), k.max_stretch * H);
           }
         } else {
-          out.sparse[i] = 1;
           const double r = s * (k.droplet_support +
                                 (k.support - k.droplet_support) * double(count) / k.min_neighbours);
           axis = {r, r, r};

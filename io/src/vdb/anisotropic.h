@@ -3,7 +3,8 @@
 // "Reconstructing surfaces of particle-based fluids using anisotropic kernels", ACM TOG 32(1),
 // article 5: each particle spreads its volume with a kernel stretched along the principal axes of
 // its neighbourhood (flat at a flat surface, a disc in a sheet, round in the bulk and for a lone
-// droplet), centred at its Laplacian-smoothed position. Sampled on 8^3 blocks of voxels (the
+// droplet), centred at its Laplacian-smoothed position. A particle deep in the liquid (every
+// cell around it filled) takes the round kernel at once, without its neighbour sums. Sampled on 8^3 blocks of voxels (the
 // leaf nodes of an OpenVDB tree), without OpenVDB.
 #include <array>
 #include <cstdint>
@@ -31,9 +32,9 @@ struct FieldBlocks {
   static constexpr int kSize = 8;
   std::vector<std::array<std::int32_t, 3>> origin;
   std::vector<float> value;
-  /// Per particle: 1 if it had fewer than min_neighbours neighbours (a round kernel: spray, a
-  /// droplet, the end of a filament).
-  std::vector<std::uint8_t> sparse;
+  /// Per particle: its neighbours within the neighbourhood radius, at most 255 (fewer than
+  /// min_neighbours: a round kernel; spray, a droplet, the end of a filament).
+  std::vector<std::uint8_t> neighbours;
 };
 
 /// The field sum_i V_i W_i(x), V_i = spacing^3, W_i a kernel integrating to 1: about 1 inside the

@@ -14,6 +14,7 @@
 #include <unistd.h>
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <stdexcept>
 #include <system_error>
 
@@ -23,11 +24,13 @@
 #include "slurry/transfer/parallel.h"
 #include "vdb/anisotropic.h"
 #include "vdb/vdb_common.h"
+#include "vdb/velocities.h"
 
 namespace slurry::io {
 
 struct LevelSet::Impl {
   openvdb::FloatGrid::ConstPtr grid;
+  openvdb::Vec3SGrid::ConstPtr velocity;  ///< "velocity" on the band's voxels, or null
 };
 
 namespace {
@@ -89,6 +92,17 @@ std::array<std::int32_t, 6> LevelSet::bounding_box() const {
 double LevelSet::value(const std::array<double, 3>& p) const {
   openvdb::tools::GridSampler<openvdb::FloatGrid, openvdb::tools::BoxSampler> s(*impl_->grid);
   return s.wsSample(openvdb::Vec3R(p[0], p[1], p[2]));
+}
+
+bool LevelSet::has_velocity() const {
+  return impl_->velocity != nullptr;
+}
+
+std::array<double, 3> LevelSet::velocity(const std::array<double, 3>& p) const {
+  if (!impl_->velocity) return {0, 0, 0};
+  openvdb::tools::GridSampler<openvdb::Vec3SGrid, openvdb::tools::BoxSampler> s(*impl_->velocity);
+  const openvdb::Vec3s v = s.wsSample(openvdb::Vec3R(p[0], p[1], p[2]));
+  return {v[0], v[1], v[2]};
 }
 
 double LevelSet::enclosed_volume() const {
@@ -278,7 +292,7 @@ openvdb::FloatGrid::Ptr union_grid(const PointCloud& points, double voxel_size, 
 LevelSet union_of_spheres(const PointCloud& points, double voxel_size, double radius,
                           bool openvdb_rasterizer) {
   return LevelSet(std::make_shared<const LevelSet::Impl>(
-      LevelSet::Impl{union_grid(points, voxel_size, radius, openvdb_rasterizer)}));
+      LevelSet::Impl{union_grid(points, voxel_size, radius, openvdb_rasterizer), nullptr}));
 }
 
 namespace {
@@ -297,7 +311,7 @@ LevelSet spheres_level_set(const PointCloud& points, const SurfaceParams& params
   for (int i = 0; i < params.smoothing; ++i) filter.gaussian(1);
   grid->setName("surface");
   grid->setGridClass(openvdb::GRID_LEVEL_SET);
-  return LevelSet(std::make_shared<const LevelSet::Impl>(LevelSet::Impl{grid}));
+  return LevelSet(std::make_shared<const LevelSet::Impl>(LevelSet::Impl{grid, nullptr}));
 }
 
 void check_points(const PointCloud& points) {
@@ -340,6 +354,20 @@ TriangleMesh mesh_grid(const openvdb::FloatGrid& grid, double iso) {
     }
   }
   return mesh;
+}
+
+/// The volume a closed, outward-oriented triangle mesh encloses (divergence theorem).
+double enclosed(const TriangleMesh& m) {
+  double v = 0;
+  for (const auto& t : m.triangles) {
+    const auto& a = m.vertices[std::size_t(t[0])];
+    const auto& b = m.vertices[std::size_t(t[1])];
+    const auto& c = m.vertices[std::size_t(t[2])];
+    v += double(a[0]) * (double(b[1]) * c[2] - double(b[2]) * c[1]) -
+         double(a[1]) * (double(b[0]) * c[2] - double(b[2]) * c[0]) +
+         double(a[2]) * (double(b[0]) * c[1] - double(b[1]) * c[0]);
+  }
+  return v / 6;
 }
 
 /// Appends to `mesh` a regular icosahedron of volume `volume` around each of the points
@@ -436,17 +464,56 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
     const openvdb::tools::GridSampler<openvdb::FloatGrid, openvdb::tools::BoxSampler> sampler(*field);
     for (std::size_t i = 0; i < points.size(); ++i) {
       const auto& p = points.position[i];
-      if (blocks.sparse[i] && sampler.wsSample(openvdb::Vec3R(p[0], p[1], p[2])) < iso)
+      if (blocks.neighbours[i] < detail::AnisotropyConstants{}.min_neighbours && sampler.wsSample(openvdb::Vec3R(p[0], p[1], p[2])) < iso)
         droplets.push_back(i);
     }
     if (!droplets.empty()) iso = level_for(double(points.size() - droplets.size()) * particle_volume);
   }
-  // A5: iso - field, negative inside, meshed at 0; the droplets added.
-  for (auto it = field->tree().beginLeaf(); it; ++it)
-    for (auto v = it->beginValueAll(); v; ++v) v.setValue(float(iso) - *v);
-  field->tree().root().setBackground(float(iso), /*updateChildNodes=*/true);
-  field->setGridClass(openvdb::GRID_LEVEL_SET);
-  Surface out{LevelSet(nullptr), mesh_grid(*field, 0.0), iso};
+  // A5: iso - field, negative inside, meshed at 0. Where the field has a plateau near the level
+  // (FLIP spray spread below the rest density) the voxel estimate and the mesh's volume part:
+  // then the level is found on the mesh's own volume, which falls as the level rises, by
+  // regula falsi (Illinois) between levels whose meshes enclose too much and too little, up to
+  // four more meshes, until it is within 1 % of the wanted volume. Then the droplets are added.
+  const auto mesh_at = [&](double c) {
+    openvdb::FloatGrid::Ptr psi = field->deepCopy();
+    for (auto it = psi->tree().beginLeaf(); it; ++it)
+      for (auto v = it->beginValueAll(); v; ++v) v.setValue(float(c) - *v);
+    psi->tree().root().setBackground(float(c), /*updateChildNodes=*/true);
+    psi->setGridClass(openvdb::GRID_LEVEL_SET);
+    return mesh_grid(*psi, 0.0);
+  };
+  const double body = double(points.size() - droplets.size()) * particle_volume;
+  Surface out{LevelSet(nullptr), mesh_at(iso), iso};
+  if (!flat && body > 0) {
+    double f = enclosed(out.mesh) / body - 1;  // > 0: too much volume, raise the level
+    double a = iso, fa = f, b = f > 0 ? kMaxIso : kMinIso, fb = std::nan("");
+    int side = 0;
+    for (int pass = 0; pass < 4 && std::abs(f) >= 0.01; ++pass) {
+      double c;
+      if (std::isnan(fb)) {
+        // No bracket yet: step by the estimate's slope, then bracket at the range's end.
+        c = level_for(body * body / (body * (1 + f)));
+        if (c == iso) c = b;
+      } else {
+        c = (a * fb - b * fa) / (fb - fa);
+      }
+      if (c == iso) break;
+      Surface trial{LevelSet(nullptr), mesh_at(c), c};
+      const double fc = enclosed(trial.mesh) / body - 1;
+      if (std::abs(fc) < std::abs(f)) out = std::move(trial), iso = c, f = fc;
+      if (std::isnan(fb) ? (fc > 0) != (fa > 0) : (fc > 0) == (fb > 0)) {
+        b = c, fb = fc;
+        if (side == -1) fa /= 2;
+        side = -1;
+      } else if (!std::isnan(fb)) {
+        a = c, fa = fc;
+        if (side == 1) fb /= 2;
+        side = 1;
+      } else {
+        a = c, fa = fc;  // same side as a, no bracket yet
+      }
+    }
+  }
   add_droplets(out.mesh, points, droplets, particle_volume);
   // A6: the level set of the mesh (OpenVDB's meshToLevelSet, half-width 3 voxels).
   std::vector<openvdb::Vec3s> verts(out.mesh.vertices.size());
@@ -460,7 +527,7 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
       *openvdb::math::Transform::createLinearTransform(h), verts, tris, kHalfWidth);
   ls->setName("surface");
   ls->setGridClass(openvdb::GRID_LEVEL_SET);
-  out.level_set = LevelSet(std::make_shared<const LevelSet::Impl>(LevelSet::Impl{ls}));
+  out.level_set = LevelSet(std::make_shared<const LevelSet::Impl>(LevelSet::Impl{ls, nullptr}));
   if (!points.velocity.empty()) out.mesh.velocities = sample_velocities(out.mesh.vertices, points, s);
   return out;
 }
@@ -487,19 +554,84 @@ TriangleMesh level_set_to_mesh(const LevelSet& level_set, const PointCloud& poin
   return mesh;
 }
 
+namespace {
+
+/// The level set with a "velocity" grid on its active voxels: the particles' velocity there,
+/// averaged as at the mesh vertices (sample_velocities).
+LevelSet with_velocity(const LevelSet& ls, const PointCloud& points, double spacing) {
+  const openvdb::FloatGrid& grid = *ls.impl().grid;
+  std::vector<openvdb::Coord> coords;
+  coords.reserve(std::size_t(grid.activeVoxelCount()));
+  for (auto it = grid.cbeginValueOn(); it; ++it) {
+    if (it.isVoxelValue()) {
+      coords.push_back(it.getCoord());
+    } else {
+      openvdb::CoordBBox box;
+      it.getBoundingBox(box);
+      for (auto c = box.begin(); c; ++c) coords.push_back(*c);
+    }
+  }
+  std::vector<std::array<float, 3>> where(coords.size());
+  for (std::size_t i = 0; i < coords.size(); ++i) {
+    const openvdb::Vec3d w = grid.indexToWorld(coords[i]);
+    where[i] = {float(w[0]), float(w[1]), float(w[2])};
+  }
+  std::vector<std::uint8_t> found;
+  const std::vector<std::array<float, 3>> v = detail::sample_velocities_near(where, points, spacing, &found);
+  openvdb::Vec3SGrid::Ptr velocity = openvdb::Vec3SGrid::create(openvdb::Vec3s(0, 0, 0));
+  velocity->setTransform(grid.transform().copy());
+  velocity->setName("velocity");
+  velocity->setVectorType(openvdb::VEC_CONTRAVARIANT_RELATIVE);
+  auto acc = velocity->getAccessor();
+  for (std::size_t i = 0; i < coords.size(); ++i)
+    if (found[i]) acc.setValue(coords[i], openvdb::Vec3s(v[i][0], v[i][1], v[i][2]));
+  // Voxels of the band farther from every particle (the outer band, a voxel or more outside the
+  // surface) take the mean of their face neighbours that have a velocity, layer by layer.
+  for (int layer = 0; layer < 8; ++layer) {
+    std::vector<std::pair<openvdb::Coord, openvdb::Vec3s>> next;
+    bool missing = false;
+    for (std::size_t i = 0; i < coords.size(); ++i) {
+      if (found[i]) continue;
+      missing = true;
+      openvdb::Vec3s sum(0, 0, 0);
+      int count = 0;
+      for (int axis = 0; axis < 3; ++axis)
+        for (int sign : {-1, 1}) {
+          openvdb::Coord c = coords[i];
+          c[axis] += sign;
+          openvdb::Vec3s value;
+          if (acc.probeValue(c, value)) sum += value, ++count;
+        }
+      if (count > 0) next.emplace_back(coords[i], sum / float(count)), found[i] = 1;
+    }
+    for (const auto& [c, value] : next) acc.setValue(c, value);
+    if (!missing || next.empty()) break;
+  }
+  return LevelSet(std::make_shared<const LevelSet::Impl>(LevelSet::Impl{ls.impl().grid, velocity}));
+}
+
+}  // namespace
+
 Surface surface_particles(const PointCloud& points, const SurfaceParams& params) {
   params.validate();
   check_points(points);
   detail::initialize_openvdb();
-  if (params.method == SurfaceMethod::Anisotropic) return anisotropic_surface(points, params);
-  LevelSet ls = spheres_level_set(points, params);
-  TriangleMesh mesh = level_set_to_mesh(ls, points, params);
-  return {std::move(ls), std::move(mesh)};
+  Surface out;
+  if (params.method == SurfaceMethod::Anisotropic) {
+    out = anisotropic_surface(points, params);
+  } else {
+    LevelSet ls = spheres_level_set(points, params);
+    TriangleMesh mesh = level_set_to_mesh(ls, points, params);
+    out = Surface{std::move(ls), std::move(mesh)};
+  }
+  if (!points.velocity.empty()) out.level_set = with_velocity(out.level_set, points, params.spacing);
+  return out;
 }
 
 void write_vdb(const std::filesystem::path& path, const LevelSet& level_set) {
   detail::initialize_openvdb();
   openvdb::GridPtrVec grids{level_set.impl().grid->deepCopyGrid()};
+  if (level_set.impl().velocity) grids.push_back(level_set.impl().velocity->deepCopyGrid());
   detail::write_grids_atomically(path, grids);
 }
 
@@ -509,7 +641,17 @@ LevelSet read_vdb_level_set(const std::filesystem::path& path, const std::string
   if (!grid)
     throw IoError(path.string() + ": grid \"" + name + "\" is a " + base->type() +
                   ", expected a FloatGrid (a level set)");
-  return LevelSet(std::make_shared<const LevelSet::Impl>(LevelSet::Impl{grid}));
+  // Its velocity, when the file has a Vec3s grid "velocity" (surface files written with one).
+  openvdb::Vec3SGrid::Ptr velocity;
+  try {
+    openvdb::io::File file(path.string());
+    file.open();
+    if (file.hasGrid("velocity")) velocity = openvdb::gridPtrCast<openvdb::Vec3SGrid>(file.readGrid("velocity"));
+    file.close();
+  } catch (const openvdb::Exception& e) {
+    throw IoError(path.string() + ": cannot read its velocity grid: " + e.what());
+  }
+  return LevelSet(std::make_shared<const LevelSet::Impl>(LevelSet::Impl{grid, velocity}));
 }
 
 namespace detail {

@@ -11,6 +11,7 @@
 #include "slurry/engine/errors.h"
 #include "slurry/io/surface.h"
 #include "slurry/transfer/parallel.h"
+#include "vdb/velocities.h"
 
 namespace slurry::io {
 
@@ -55,7 +56,16 @@ PointCloud point_cloud(const Frame& frame, int material) {
 
 std::vector<std::array<float, 3>> sample_velocities(
     const std::vector<std::array<float, 3>>& vertices, const PointCloud& points, double spacing) {
+  return detail::sample_velocities_near(vertices, points, spacing, nullptr);
+}
+
+namespace detail {
+
+std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::array<float, 3>>& vertices,
+                                                         const PointCloud& points, double spacing,
+                                                         std::vector<std::uint8_t>* found) {
   const std::size_t n = points.size();
+  if (found) found->assign(vertices.size(), 0);
   std::vector<std::array<float, 3>> out(vertices.size(), {0.0f, 0.0f, 0.0f});
   if (n == 0 || points.velocity.size() != n) return out;
   // Particles sorted into cells of side h, the kernel radius; a vertex's neighbours lie in the
@@ -87,14 +97,17 @@ std::vector<std::array<float, 3>> sample_velocities(
     cell_of(q, c);
     double w_sum = 0, u[3] = {0, 0, 0}, nearest = 1e300;
     std::uint32_t nearest_index = 0;
+    // The cells (a, b, c[2] - 1 .. c[2] + 1) are consecutive keys: one range per row, visited
+    // in the same order as cell by cell.
     for (std::int64_t a = c[0] - 1; a <= c[0] + 1; ++a)
-      for (std::int64_t b = c[1] - 1; b <= c[1] + 1; ++b)
-        for (std::int64_t e = c[2] - 1; e <= c[2] + 1; ++e) {
-          if (a < 0 || b < 0 || e < 0 || a >= dims[0] || b >= dims[1] || e >= dims[2]) continue;
-          const std::int64_t k = key({a, b, e});
-          auto it =
-              std::lower_bound(sorted.begin(), sorted.end(), std::make_pair(k, std::uint32_t(0)));
-          for (; it != sorted.end() && it->first == k; ++it) {
+      for (std::int64_t b = c[1] - 1; b <= c[1] + 1; ++b) {
+        if (a < 0 || b < 0 || a >= dims[0] || b >= dims[1]) continue;
+        const std::int64_t e0 = std::max<std::int64_t>(c[2] - 1, 0), e1 = std::min(c[2] + 1, dims[2] - 1);
+        if (e0 > e1) continue;
+        auto it = std::lower_bound(sorted.begin(), sorted.end(),
+                                   std::make_pair(key({a, b, e0}), std::uint32_t(0)));
+        const std::int64_t k_end = key({a, b, e1});
+          for (; it != sorted.end() && it->first <= k_end; ++it) {
             const auto& p = points.position[it->second];
             const double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
             const double r2 = dx * dx + dy * dy + dz * dz;
@@ -111,6 +124,8 @@ std::vector<std::array<float, 3>> sample_velocities(
       for (int d = 0; d < 3; ++d) o[d] = float(u[d] / w_sum);
     } else if (nearest < 1e300) {
       o = points.velocity[nearest_index];
+    } else if (found) {
+      return;  // left to the caller
     } else {  // no particle within 1.5 h: the closest one of all (rare; closing keeps vertices near
               // particles)
       std::size_t best = 0;
@@ -123,9 +138,12 @@ std::vector<std::array<float, 3>> sample_velocities(
       }
       o = points.velocity[best];
     }
+    if (found) (*found)[std::size_t(vi)] = 1;
   });
   return out;
 }
+
+}  // namespace detail
 
 void write_mesh_ply(const std::filesystem::path& path, const TriangleMesh& mesh, PlyFormat format) {
   if (!mesh.velocities.empty() && mesh.velocities.size() != mesh.vertices.size())

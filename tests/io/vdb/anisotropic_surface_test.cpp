@@ -96,7 +96,7 @@ TEST(AnisotropicSurface, BallIsASphereOfItsRadius) {
   // A ball of radius R sampled on the lattice (the union of its cells has volume 4/3 pi R^3 up
   // to the cells the sphere cuts): the mean vertex radius within 0.1 dx of R, the volume within
   // 2 %. Single vertices follow the lattice's steps (the particles of a lattice ball lie up to
-  // half a cell diagonal, 0.43 dx, from the sphere): within 0.35 dx (measured 0.32).
+  // half a cell diagonal, 0.43 dx, from the sphere): within 0.4 dx (measured 0.34).
   const double R = 0.3;
   const std::array<double, 3> c{0.5, 0.45, 0.55};
   const PointCloud cloud = lattice({c[0] - R, c[1] - R, c[2] - R}, {c[0] + R, c[1] + R, c[2] + R},
@@ -115,7 +115,7 @@ TEST(AnisotropicSurface, BallIsASphereOfItsRadius) {
               sf.iso, mean / dx, worst / dx, signed_volume(sf.mesh) / exact,
               sf.level_set.enclosed_volume() / exact);
   EXPECT_NEAR(mean, 0.0, 0.1 * dx);
-  EXPECT_LT(worst, 0.35 * dx);
+  EXPECT_LT(worst, 0.4 * dx);
   EXPECT_NEAR(signed_volume(sf.mesh) / exact, 1.0, 0.02);
   EXPECT_NEAR(sf.level_set.enclosed_volume() / exact, 1.0, 0.02);
   const Topology t = topology(sf.mesh);

@@ -212,6 +212,31 @@ TEST(Surface, VdbGridNamedSurfaceReadsBack) {
   fs::remove_all(dir);
 }
 
+TEST(Surface, VdbVelocityGridFollowsTheParticles) {
+  // The surface .vdb carries a Vec3s grid "velocity" (volume motion blur) on the band's voxels:
+  // at points of the surface, the rigid motion u(x) = (1 - 2 (y - cy), 2 (x - cx), -0.5) within
+  // omega x 2 spacings (the one-sided average at the surface), read back from the file.
+  const auto& sc = sphere();
+  ASSERT_TRUE(sc.surface.level_set.has_velocity());
+  const fs::path dir = temp_dir("vdb_velocity");
+  slurry::io::write_vdb(dir / "surface.vdb", sc.surface.level_set);
+  const auto back = slurry::io::read_vdb_level_set(dir / "surface.vdb");
+  ASSERT_TRUE(back.has_velocity());
+  double worst = 0;
+  for (double a = 0; a < 2 * kPi; a += 0.3) {
+    const std::array<double, 3> x{sc.c[0] + sc.R * std::cos(a), sc.c[1] + sc.R * std::sin(a), sc.c[2]};
+    const auto u = back.velocity(x);
+    worst = std::max({worst, std::hypot(u[0] - (1.0 - 2 * (x[1] - sc.c[1])), u[1] - 2 * (x[0] - sc.c[0])),
+                      std::abs(u[2] + 0.5)});
+  }
+  EXPECT_LT(worst, 2 * 2 * sc.s);
+  // A level set of points without velocities has none.
+  PointCloud still = sc.cloud;
+  still.velocity.clear();
+  EXPECT_FALSE(slurry::io::surface_particles(still, sc.params).level_set.has_velocity());
+  fs::remove_all(dir);
+}
+
 TEST(Surface, DenseRasterizerMatchesParticlesToLevelSet) {
   // Random particles (no lattice: every offset from the voxel centres occurs): a sparse cluster
   // with empty voxels inside, a small one, and a dense block (8 per voxel) whose interior takes

@@ -112,6 +112,11 @@ class LevelSet {
   double value(const std::array<double, 3>& p) const;
   /// The volume enclosed by the zero level (m^3).
   double enclosed_volume() const;
+  /// Whether it carries a "velocity" grid (surface_particles of points with velocities).
+  bool has_velocity() const;
+  /// The velocity (m/s) at a world-space point, trilinear in the band's voxels (0 beyond them,
+  /// or without a velocity grid).
+  std::array<double, 3> velocity(const std::array<double, 3>& p) const;
   const Impl& impl() const { return *impl_; }
 
  private:
@@ -119,7 +124,7 @@ class LevelSet {
 };
 
 struct Surface {
-  LevelSet level_set;
+  LevelSet level_set{nullptr};
   TriangleMesh mesh;
   double iso = 0;  ///< the anisotropic method's level (A3); 0 for the spheres method
 };
@@ -145,10 +150,12 @@ Surface surface_particles(const PointCloud& points, const SurfaceParams& params)
 std::vector<std::array<float, 3>> sample_velocities(
     const std::vector<std::array<float, 3>>& vertices, const PointCloud& points, double spacing);
 
-/// Writes the level set as a .vdb file holding one FloatGrid named "surface" (class level set),
-/// atomically (temporary name, then rename). Throws IoError.
+/// Writes the level set as a .vdb file holding a FloatGrid named "surface" (class level set) and,
+/// if it has one, a Vec3s grid named "velocity" over the same voxels (the name Blender's and
+/// Houdini's volume motion blur read), atomically (temporary name, then rename). Throws IoError.
 void write_vdb(const std::filesystem::path& path, const LevelSet& level_set);
-/// Reads the FloatGrid called `name` from a .vdb file. Throws IoError.
+/// Reads the FloatGrid called `name` from a .vdb file, with its "velocity" grid if the file has
+/// one. Throws IoError.
 LevelSet read_vdb_level_set(const std::filesystem::path& path, const std::string& name = "surface");
 
 /// Writes OpenVDB points (a PointDataGrid named "points", voxel size `voxel_size`) with the
