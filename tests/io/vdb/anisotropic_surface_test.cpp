@@ -10,11 +10,13 @@
 #include <random>
 
 #include "slurry/io/surface.h"
+#include "mesh_volume.h"
 #include "slurry/transfer/parallel.h"
 
 using slurry::io::PointCloud;
 using slurry::io::SurfaceParams;
 using slurry::io::TriangleMesh;
+using slurry_test::signed_volume;
 
 namespace {
 
@@ -36,19 +38,6 @@ PointCloud box(std::array<double, 3> lo, std::array<double, 3> hi) {
   return lattice(lo, hi, [](double, double, double) { return true; });
 }
 
-double signed_volume(const TriangleMesh& m) {
-  double v = 0;
-  for (const auto& t : m.triangles) {
-    const auto& a = m.vertices[std::size_t(t[0])];
-    const auto& b = m.vertices[std::size_t(t[1])];
-    const auto& c = m.vertices[std::size_t(t[2])];
-    v += (double(a[0]) * (double(b[1]) * c[2] - double(b[2]) * c[1]) -
-          double(a[1]) * (double(b[0]) * c[2] - double(b[2]) * c[0]) +
-          double(a[2]) * (double(b[0]) * c[1] - double(b[1]) * c[0])) /
-         6;
-  }
-  return v;
-}
 
 /// What a mesh is made of: edges that are not shared by exactly two opposite triangles, its
 /// connected pieces and each piece's Euler characteristic (2 for a closed piece without holes

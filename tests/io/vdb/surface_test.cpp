@@ -12,11 +12,13 @@
 
 #include "slurry/engine/errors.h"
 #include "slurry/io/surface.h"
+#include "mesh_volume.h"
 
 namespace fs = std::filesystem;
 using slurry::io::PointCloud;
 using slurry::io::SurfaceParams;
 using slurry::io::TriangleMesh;
+using slurry_test::signed_volume;
 
 namespace {
 
@@ -38,21 +40,6 @@ PointCloud lattice_sphere(double R, double s, std::array<double, 3> c) {
   return cloud;
 }
 
-/// Volume enclosed by a closed triangle mesh (divergence theorem): positive when the triangles
-/// are counter-clockwise seen from outside.
-double signed_volume(const TriangleMesh& m) {
-  double v = 0;
-  for (const auto& t : m.triangles) {
-    const auto& a = m.vertices[std::size_t(t[0])];
-    const auto& b = m.vertices[std::size_t(t[1])];
-    const auto& c = m.vertices[std::size_t(t[2])];
-    v += (double(a[0]) * (double(b[1]) * c[2] - double(b[2]) * c[1]) -
-          double(a[1]) * (double(b[0]) * c[2] - double(b[2]) * c[0]) +
-          double(a[2]) * (double(b[0]) * c[1] - double(b[1]) * c[0])) /
-         6;
-  }
-  return v;
-}
 
 fs::path temp_dir(const std::string& name) {
   const fs::path d =

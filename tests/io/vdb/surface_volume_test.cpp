@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <filesystem>
 
+#include "mesh_volume.h"
 #include "slurry/io/pipeline.h"
 #include "slurry/slurry.h"
 
@@ -33,15 +34,7 @@ Worst surface_volumes(const std::string& name, bool coarse) {
   slurry::run_scene(scene, options, [&](const slurry::FrameReport& r) {
     const slurry::io::PointCloud cloud = slurry::io::point_cloud(*r.frame_data);
     const slurry::io::Surface sf = slurry::io::surface_particles(cloud, outputs.params);
-    double volume = 0;
-    for (const auto& t : sf.mesh.triangles) {
-      const auto& a = sf.mesh.vertices[std::size_t(t[0])];
-      const auto& b = sf.mesh.vertices[std::size_t(t[1])];
-      const auto& c = sf.mesh.vertices[std::size_t(t[2])];
-      volume += (double(a[0]) * (double(b[1]) * c[2] - double(b[2]) * c[1]) -
-                 double(a[1]) * (double(b[0]) * c[2] - double(b[2]) * c[0]) +
-                 double(a[2]) * (double(b[0]) * c[1] - double(b[1]) * c[0])) / 6;
-    }
+    const double volume = slurry_test::signed_volume(sf.mesh);
     const double share = volume / (double(cloud.size()) * s * s * s);
     std::size_t outside = 0;
     for (const auto& p : cloud.position)
