@@ -462,6 +462,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.integer("frames", s.output.frames, 0, std::numeric_limits<int>::max());
     r.strings("attributes", s.output.attributes);
     r.choice("format", kEncoding, s.output.format);
+    r.string("up_axis", s.output.up_axis);
     r.number("mass_drift", s.output.mass_drift);
     r.number("volume_drift", s.output.volume_drift);
     r.number("energy_growth", s.output.energy_growth);

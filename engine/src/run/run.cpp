@@ -12,7 +12,10 @@
 #include <random>
 #include <regex>
 #include <signal.h>
+#include <string_view>
 #include <thread>
+#include <type_traits>
+#include <variant>
 
 #include "geometry/scene_meshes.h"
 #include "slurry/engine/mpm/mpm_solver.h"
@@ -25,6 +28,42 @@
 
 namespace slurry {
 namespace fs = std::filesystem;
+namespace {
+
+/// output.up_axis "z": the particle table in Z-up axes, (x, y, z) -> (x, -z, y) and
+/// (vx, vy, vz) -> (vx, -vz, vy), the rotation by +90 degrees about x that takes the
+/// simulation's up (+y) to +z. Borrowed columns are copied first.
+void to_z_up(Frame& frame) {
+  Table* v = frame.find("vertex");
+  if (!v) return;
+  v->own();
+  const auto rotate = [&](std::string_view a, std::string_view b) {  // (a, b) -> (-b, a)
+    Column* ca = nullptr;
+    Column* cb = nullptr;
+    for (Column& c : v->columns) {
+      if (c.name == a) ca = &c;
+      if (c.name == b) cb = &c;
+    }
+    if (!ca || !cb) return;
+    std::visit(
+        [&](auto& first) {
+          using V = std::decay_t<decltype(first)>;
+          auto* second = std::get_if<V>(&cb->data);
+          if (!second) return;
+          for (std::size_t i = 0; i < first.size(); ++i) {
+            const auto t = first[i];
+            first[i] = static_cast<typename V::value_type>(-(*second)[i]);
+            (*second)[i] = t;
+          }
+        },
+        ca->data);
+  };
+  rotate("y", "z");
+  rotate("vy", "vz");
+}
+
+}  // namespace
+
 namespace {
 
 std::string fmt(double x) {
@@ -520,10 +559,12 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     try {
       if (per_rank) {
         Frame part = sim->own_frame(scene.output.attributes);
+        if (scene.output.up_axis == "z") to_z_up(part);
         part.comments.push_back("slurry run " + run_token);
         io::write_ply(rank_frame_file(dir, f, comm->rank()), part, format);
       } else if (files) {
         frame = sim->frame_view(scene.output.attributes);
+        if (scene.output.up_axis == "z") to_z_up(frame);
         if (writer) io::write_ply(file, frame, format);
       }
     } catch (...) {

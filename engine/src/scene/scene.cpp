@@ -551,6 +551,10 @@ void Scene::validate_pipeline_outputs() const {
     fail(source, output.surface_voxel_size > 0 ? "output.surface_voxel_size" : "domain.dx",
          "the voxel of the OpenVDB outputs is " + fmt_num(vdb_voxel) +
              " m, below the " + fmt_num(kMinVoxelSize) + " m OpenVDB can represent; expected a larger output.surface_voxel_size, or the scene in larger units");
+  if (output.up_axis != "y" && output.up_axis != "z")
+    fail(source, "output.up_axis", "expected \"y\" (the simulation's axes) or \"z\", got \"" + output.up_axis + "\"");
+  if (output.up_axis == "z" && solver.dimension != 3)
+    fail(source, "output.up_axis", "\"z\" needs a 3D scene (2D frames have no z column); expected \"y\"");
   if (output.surface_method != "anisotropic" && output.surface_method != "spheres")
     fail(source, "output.surface_method", "expected \"anisotropic\" or \"spheres\", got \"" + output.surface_method + "\"");
   if (output.surface_smoothing < 0 || output.surface_smoothing > 100)

@@ -227,6 +227,11 @@ struct OutputParams {
   int frames = 24;  ///< frames written after the initial one (frame 0)
   std::vector<std::string> attributes{"position"};  ///< position, velocity, material, J, plastic, id
   PlyEncoding format = PlyEncoding::Binary;
+  /// The axis that is up in every file written (frames, surfaces, points): "y", the simulation's
+  /// own axes (gravity along -y in the shipped scenes), or "z" for Z-up tools, the rotation by
+  /// +90 degrees about x, (x, y, z) -> (x, -z, y), velocities alike; 3D scenes only. Checkpoints
+  /// and stats.csv stay in the simulation's axes.
+  std::string up_axis = "y";
   /// Effects-pipeline outputs beside each frame (written by the CLI built with slurry::io; the
   /// engine only validates them): the liquid's surface as any of "vdb" (a level set grid named
   /// "surface"), "ply" and "obj" (its triangle mesh); OpenVDB points with v, id and pscale.
