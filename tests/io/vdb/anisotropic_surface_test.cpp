@@ -128,6 +128,7 @@ TEST(AnisotropicSurface, PoolAtRestIsFlat) {
               signed_volume(sf.mesh) / (0.6 * 0.2 * 0.6));
   ASSERT_GT(n, 100u);
   EXPECT_LT(hi - lo, 0.05 * dx);
+  EXPECT_EQ(topology(sf.mesh).euler.size(), 1u) << "one piece: no edge particle is a droplet";
   EXPECT_NEAR(0.5 * (lo + hi), 0.2, 0.1 * dx);
 }
 
@@ -155,6 +156,8 @@ TEST(AnisotropicSurface, BoxKeepsItsEdges) {
               worst / dx, signed_volume(sf.mesh) / exact);
   EXPECT_LT(worst, 0.7 * dx);
   EXPECT_NEAR(signed_volume(sf.mesh) / exact, 1.0, 0.02);
+  const Topology t = topology(sf.mesh);
+  EXPECT_EQ(t.euler.size(), 1u) << "one piece: no corner particle is a droplet";
 }
 
 TEST(AnisotropicSurface, SheetsOneAndTwoSpacingsThickAreOneClosedPieceWithoutHoles) {

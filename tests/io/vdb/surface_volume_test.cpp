@@ -69,8 +69,6 @@ constexpr bool kCoarse = true;
 
 }  // namespace
 
-// The shipped scene (28 k particles) in CI too. Up to 3.4 % of its particles lie outside the
-// level set by more than half a voxel in the splash, where FLIP particles spread below the rest
-// density with six or more neighbours each (not droplets): 2 % is not met there yet, 5 % is held.
-TEST(SurfaceVolume, MeshDamBreak3d) { check("mesh_dam_break_3d", false, 0.05); }
+// The shipped scene (28 k particles) in CI too.
+TEST(SurfaceVolume, MeshDamBreak3d) { check("mesh_dam_break_3d", false, 0.02); }
 TEST(SurfaceVolume, FlipDrop3d) { check("flip_drop_3d", kCoarse, 0.02); }
