@@ -54,7 +54,9 @@ TEST(UpAxis, ZUpFramesAreTheSimulationsRotatedAboutX) {
       ASSERT_EQ(bvz[i], avy[i]) << f << " particle " << i;
     }
     // Up is +z: the block falls along -z in the Z-up frames.
-    if (std::string(f) == "frame_0002.ply") EXPECT_LT(bvz[0], 0.2);
+    if (std::string(f) == "frame_0002.ply") {
+      EXPECT_LT(bvz[0], 0.2);
+    }
   }
   fs::remove_all(root);
 }
@@ -76,4 +78,27 @@ TEST(UpAxis, ZIsRefusedForA2dSceneAndOtherValuesNamed) {
   std::string x_up = two_d;
   x_up.replace(x_up.find("\"z\""), 3, "\"x\"");
   EXPECT_NE(message(x_up).find("output.up_axis"), std::string::npos) << message(x_up);
+}
+
+TEST(OutputDirectory, TooLongIsRefusedBeforeAnyFolderIsCreated) {
+  // A path of about 4080 bytes (folders of 200 bytes) leaves no room for the files' names
+  // within PATH_MAX; a folder name of 300 bytes exceeds NAME_MAX. Both are refused with an
+  // IoError naming output.directory's limit, and no folder of the path is left behind.
+  const fs::path root = fs::temp_directory_path() / ("slurry_long_out_" + std::to_string(::getpid()));
+  fs::remove_all(root);
+  fs::path deep = root;
+  while (deep.native().size() < 4080) deep /= std::string(200, 'd');
+  for (const fs::path& dir : {deep, root / std::string(300, 'n') / "frames"}) {
+    slurry::RunOptions opt;
+    opt.directory = dir;
+    try {
+      slurry::run_scene(falling_block("y"), opt);
+      FAIL() << "expected IoError for a path of " << dir.native().size() << " bytes";
+    } catch (const slurry::IoError& e) {
+      const std::string m = e.what();
+      EXPECT_TRUE(m.find("PATH_MAX") != std::string::npos || m.find("NAME_MAX") != std::string::npos) << m;
+      EXPECT_NE(m.find("output directory"), std::string::npos) << m;
+    }
+    EXPECT_FALSE(fs::exists(root)) << "a folder was left behind";
+  }
 }

@@ -30,6 +30,26 @@ namespace slurry {
 namespace fs = std::filesystem;
 namespace {
 
+/// Refuses an output directory whose files could not be created: a folder name longer than the
+/// file system's NAME_MAX (255 bytes), or a path that leaves fewer than 64 bytes of the
+/// system's PATH_MAX (4096) for the longest file name the run writes
+/// (frame_NNNN.rankR.ply.tmp-PID-N, checkpoint_NNNN.slc.tmp-PID-N). Checked before anything is
+/// created, so a refused run leaves no folder behind.
+void check_output_path(const fs::path& dir, const std::string& source) {
+  constexpr std::size_t kNameMax = 255, kPathMax = 4096, kLongestFile = 64;
+  std::error_code ec;
+  const fs::path full = fs::absolute(dir, ec);
+  for (const auto& part : full)
+    if (part.native().size() > kNameMax)
+      throw IoError(source + ": output directory: one of its folder names is " + std::to_string(part.native().size()) +
+                    " bytes; expected at most " + std::to_string(kNameMax) + " (NAME_MAX)");
+  if (full.native().size() + 1 + kLongestFile > kPathMax)
+    throw IoError(source + ": output directory: its path is " + std::to_string(full.native().size()) +
+                  " bytes; expected at most " + std::to_string(kPathMax - 1 - kLongestFile) + " so that its files (" +
+                  std::to_string(kLongestFile) + " bytes of name) stay within the system's " + std::to_string(kPathMax) +
+                  " (PATH_MAX)");
+}
+
 /// output.up_axis "z": the particle table in Z-up axes, (x, y, z) -> (x, -z, y) and
 /// (vx, vy, vz) -> (vx, -vz, vy), the rotation by +90 degrees about x that takes the
 /// simulation's up (+y) to +z. Borrowed columns are copied first.
@@ -429,6 +449,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
   // output.per_rank: every process writes its own particles (frame_NNNN.rankR.ply), nothing is gathered.
   const bool per_rank = files && comm && comm->size() > 1 && scene.output.per_rank;
   if (files && dir.empty()) throw SceneError(scene.source + ": output directory: expected a non-empty path");
+  if (files) check_output_path(dir, scene.source);
   // The run's last frame: --frames, else (resuming) the one the run was started with, which the
   // checkpoint records, else the scene's.
   int frames = options.frames.value_or(scene.output.frames);
@@ -494,8 +515,19 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
 
   std::error_code ec;
   const bool created = writer && !fs::exists(dir, ec);
+  // The outermost folder this call creates: removed again if creating the rest fails.
+  fs::path first_new;
+  if (writer)
+    for (fs::path p = fs::absolute(dir, ec); !p.empty() && !fs::exists(p, ec); p = p.parent_path()) {
+      first_new = p;
+      if (p == p.parent_path()) break;
+    }
   if (writer) fs::create_directories(dir, ec);
-  if (ec) throw IoError(dir.string() + ": cannot create the output directory: " + ec.message());
+  if (ec) {
+    const std::string why = ec.message();
+    if (!first_new.empty()) fs::remove_all(first_new, ec);
+    throw IoError(dir.string() + ": cannot create the output directory: " + why);
+  }
   if (per_rank) comm->barrier();  // every process writes into it
   // The run's token in every part's comments ("slurry run T"): merge joins only parts of one run,
   // not a part left by another run of the same scene. Every rank draws a number; all take the largest.
