@@ -82,10 +82,6 @@ void to_z_up(Frame& frame) {
   rotate("vy", "vz");
 }
 
-}  // namespace
-
-namespace {
-
 std::string fmt(double x) {
   char buf[32];
   std::snprintf(buf, sizeof buf, "%.3g", x);
