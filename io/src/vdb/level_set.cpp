@@ -401,8 +401,9 @@ void add_droplets(TriangleMesh& mesh, const PointCloud& points, const std::vecto
 }
 
 /// The anisotropic method (surface.h, steps A1-A6): the zero level of `iso - field` meshed, and
-/// the narrow-band level set of that mesh.
-Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& params) {
+/// the narrow-band level set of that mesh; the vertices take the particles' velocities when
+/// `vertex_velocities` (particles_to_level_set wants the level set alone).
+Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& params, bool vertex_velocities) {
   const double h = params.voxel_size, s = params.spacing;
   const detail::FieldBlocks blocks = detail::anisotropic_field(points, h, s);
   openvdb::FloatGrid::Ptr field = openvdb::FloatGrid::create(0.0f);
@@ -538,7 +539,8 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
   ls->setName("surface");
   ls->setGridClass(openvdb::GRID_LEVEL_SET);
   out.level_set = LevelSet(std::make_shared<const LevelSet::Impl>(LevelSet::Impl{ls, nullptr}));
-  if (!points.velocity.empty()) out.mesh.velocities = sample_velocities(out.mesh.vertices, points, s);
+  if (vertex_velocities && !points.velocity.empty())
+    out.mesh.velocities = sample_velocities(out.mesh.vertices, points, s);
   return out;
 }
 
@@ -549,9 +551,7 @@ LevelSet particles_to_level_set(const PointCloud& points, const SurfaceParams& p
   check_points(points);
   detail::initialize_openvdb();
   if (params.method == SurfaceMethod::Anisotropic) {
-    PointCloud positions;
-    positions.position = points.position;
-    return anisotropic_surface(positions, params).level_set;
+    return anisotropic_surface(points, params, /*vertex_velocities=*/false).level_set;
   }
   return spheres_level_set(points, params);
 }
@@ -628,7 +628,7 @@ Surface surface_particles(const PointCloud& points, const SurfaceParams& params)
   detail::initialize_openvdb();
   Surface out;
   if (params.method == SurfaceMethod::Anisotropic) {
-    out = anisotropic_surface(points, params);
+    out = anisotropic_surface(points, params, /*vertex_velocities=*/true);
   } else {
     LevelSet ls = spheres_level_set(points, params);
     TriangleMesh mesh = level_set_to_mesh(ls, points, params);
