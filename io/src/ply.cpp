@@ -615,6 +615,26 @@ class Reader {
     return std::move(data_);
   }
 
+  /// For check_ply: parses the header of bytes_ (the file's first bytes) and returns the size the
+  /// whole file must have, or 0 when the body's size cannot be known from the header (an ascii
+  /// body, or binary rows with list properties).
+  std::uintmax_t expected_size() {
+    parse_header();
+    if (encoding_ == Encoding::Ascii) return 0;
+    std::uintmax_t size = pos_;
+    for (std::size_t e = 0; e < data_.tables.size(); ++e) {
+      if (!data_.tables[e].lists.empty()) return 0;
+      std::uintmax_t stride = 0;
+      for (const Slot& s : slots_[e]) stride += info(s.type).size;
+      const std::uintmax_t count = data_.tables[e].count;
+      if (stride > 0 && count > (std::numeric_limits<std::uintmax_t>::max() - size) / stride)
+        fail(path_, "element " + quote_text(data_.tables[e].name) + " has " + std::to_string(count) +
+                        " rows, more than any file can hold");
+      size += count * stride;
+    }
+    return size;
+  }
+
  private:
   [[noreturn]] void fail_line(const std::string& what) const {
     fail(path_, "line " + std::to_string(line_) + ": " + what);
@@ -1030,6 +1050,32 @@ void write_ply(const fs::path& path, const Frame& data, PlyFormat format, const 
 
 void write_ply(const fs::path& path, const PlyData& data, PlyFormat format) {
   write_ply(path, static_cast<const Frame&>(data), format, data.obj_info);
+}
+
+void check_ply(const fs::path& path) {
+  const std::uintmax_t size = slurry::detail::regular_file_size(path, "a PLY file");
+  std::string head;
+  {
+    // The header: up to 1 MiB (a Slurry frame's header is a few hundred bytes).
+    std::ifstream in(path, std::ios::binary);
+    if (!in) fail(path, "cannot open the file for reading (permission denied?)");
+    head.resize(std::size_t(std::min<std::uintmax_t>(size, std::uintmax_t(1) << 20)));
+    in.read(head.data(), std::streamsize(head.size()));
+    if (in.gcount() != std::streamsize(head.size())) fail(path, "reading the file failed (I/O error?)");
+    const std::size_t end = head.find("end_header");
+    const std::size_t eol = end == std::string::npos ? end : head.find('\n', end);
+    if (eol != std::string::npos) head.resize(eol + 1);
+  }
+  const std::uintmax_t expected = Reader(path, std::move(head)).expected_size();
+  if (expected == 0) {
+    (void)read_ply(path);
+    return;
+  }
+  if (size != expected)
+    fail(path, std::string(size < expected ? "truncated" : "too long") + ": the file has " + std::to_string(size) +
+                   " bytes, its header and element counts give " + std::to_string(expected) + " bytes" +
+                   (size < expected ? " (expected a whole file; was it cut off while being written or copied?)"
+                                    : " (expected the body to end after the last element)"));
 }
 
 PlyData read_ply(const fs::path& path) {

@@ -629,6 +629,42 @@ TEST(CheckpointCli, ResumeKeepsTheRunsFrameCountAndNeverRemovesFrames) {
   EXPECT_FALSE(fs::exists(slurry::frame_file(frames, 8)));
 }
 
+// A frame before the checkpoint that was cut off (a copy interrupted, a disk filled by another
+// program) is kept by a resume, so it refuses that checkpoint; with none left, the resume stops
+// with the damaged frame named and nothing removed.
+TEST(CheckpointCli, DamagedFrameBeforeTheCheckpointRefusesIt) {
+  const fs::path dir = scratch("cli_damaged");
+  auto j = mpm_scene();
+  j["output"]["checkpoint_every"] = 2;
+  std::ofstream(dir / "a.json") << j.dump(2);
+  ASSERT_EQ(cli(dir, "run -q a.json --frames 6 --threads 1").code, 0);
+  const fs::path frames = dir / "frames";
+  ASSERT_TRUE(fs::exists(checkpoint(frames, 4)));
+  ASSERT_TRUE(fs::exists(checkpoint(frames, 6)));
+  // Frame 5 cut off: checkpoint 6 is refused, checkpoint 4 used, frames 5 and 6 written again.
+  std::vector<std::string> before;
+  for (int f = 0; f <= 6; ++f) before.push_back(slurp(slurry::frame_file(frames, f)));
+  fs::resize_file(slurry::frame_file(frames, 5), before[5].size() - 7);
+  Result r = cli(dir, "resume -q frames --threads 1");
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("frame_0005.ply before it is damaged"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("truncated: the file has " + std::to_string(before[5].size() - 7) + " bytes"), std::string::npos)
+      << r.err;
+  EXPECT_NE(r.err.find("resuming from frames/checkpoint_0004.slc"), std::string::npos) << r.err;
+  for (int f = 0; f <= 6; ++f) EXPECT_EQ(slurp(slurry::frame_file(frames, f)), before[std::size_t(f)]) << f;
+  // Frame 1 cut off, before both checkpoints: no checkpoint left, an error naming the frame, and
+  // every file kept.
+  fs::resize_file(slurry::frame_file(frames, 1), before[1].size() / 2);
+  std::vector<fs::path> files;
+  for (const auto& e : fs::directory_iterator(frames)) files.push_back(e.path());
+  r = cli(dir, "resume -q frames --threads 1");
+  EXPECT_EQ(r.code, 3) << r.err;
+  EXPECT_NE(r.err.find("no valid checkpoint to resume from"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("frame_0001.ply before it is damaged"), std::string::npos) << r.err;
+  for (const auto& file : files) EXPECT_TRUE(fs::exists(file)) << file;
+  EXPECT_EQ(fs::file_size(slurry::frame_file(frames, 1)), before[1].size() / 2);
+}
+
 // Resuming a finished run does nothing and says so; its summary compares the last frame with
 // the first (not an empty state: "mass -100%").
 TEST(CheckpointCli, ResumingAFinishedRunSaysItIsComplete) {

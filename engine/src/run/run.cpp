@@ -256,6 +256,7 @@ Scene checked_scene(const Scene& scene, double memory_gb) {
   Scene read = scene;
   if (!read.files) io::read_scene_files(read);
   detail::check_scene_meshes(read);
+  check_resources(read, memory_gb);  // with the mesh bodies' volumes
   return read;
 }
 
@@ -339,7 +340,17 @@ int resume_from_checkpoint(const Scene& scene, const RunOptions& options, const 
                          "; nothing was removed; expected --frames " + std::to_string(c.frame) + " or more");
       std::vector<bool> present(std::size_t(c.frame) + 1, false);  // whole, or in parts (output.per_rank)
       for (const auto& g : before.frames)
-        if (const int i = frame_index(g); i >= 0 && i <= c.frame) present[std::size_t(i)] = true;
+        if (const int i = frame_index(g); i >= 0 && i <= c.frame) {
+          present[std::size_t(i)] = true;
+          // Frames up to the checkpoint are kept as they are, so each must be whole (a copy cut
+          // off, a disk that filled up under another program): a damaged one refuses the checkpoint.
+          try {
+            io::check_ply(g);
+          } catch (const IoError& e) {
+            throw IoError(file.string() + ": frame " + g.filename().string() + " before it is damaged (" + e.what() +
+                          "); expected it whole, or a run from the start with --overwrite");
+          }
+        }
       for (int f = 0; f <= c.frame; ++f)
         if (!present[std::size_t(f)])
           throw IoError(file.string() + ": frame " + frame_file(dir, f).filename().string() + " before it is missing");

@@ -67,4 +67,10 @@ void write_ply(const std::filesystem::path& path, const PlyData& data,
 /// data left over after the last element.
 PlyData read_ply(const std::filesystem::path& path);
 
+/// Checks that the PLY file at `path` is whole without reading its body where the header
+/// allows: a binary body of scalar properties must make the file exactly the header plus each
+/// element's count x row size. An ascii body, or one with list properties, is read as read_ply
+/// reads it. Throws IoError as read_ply does, or naming the size found and the size expected.
+void check_ply(const std::filesystem::path& path);
+
 }  // namespace slurry::io
