@@ -157,7 +157,7 @@ std::vector<Case> cases() {
        patched(
            R"({"bodies": [{"shape": "box", "min": [0.1, 0.1], "max": [0.9, 0.9], "material": "jelly", "particles_per_cell": 512}],
                                    "domain": {"dx": 0.0001}})"),
-       "run scene.json", 3, "scene.json: bodies: the bodies would seed"},
+       "run scene.json", 3, "scene.json: bodies[0]: the bodies would seed"},
       {"fps_1e-300", patched(R"({"output": {"fps": 1e-300}})"), "run scene.json", 2,
        "scene.json: output.fps: expected a number in [1e-06, 1000000], got 1e-300"},
       {"max_dt_1e-300", patched(R"({"solver": {"max_dt": 1e-300}})"), "run scene.json", 2,
@@ -319,7 +319,7 @@ TEST(Limits, MemoryLimitFromTheSceneOrTheCommandLine) {
   const fs::path dir = scratch("memory");
   std::ofstream(dir / "a.json") << patched(R"({"limits": {"memory_gb": 1e-6}})");
   Result r = cli(dir, "validate a.json");
-  expect_exit(r, 3, "a.json: bodies: the run would need about");
+  expect_exit(r, 3, "a.json: bodies[0]: the run would need about");
   EXPECT_NE(r.err.find("(limits.memory_gb)"), std::string::npos) << r.err;
   r = cli(dir, "validate a.json --memory-limit 1");
   EXPECT_EQ(r.code, 0) << r.err;

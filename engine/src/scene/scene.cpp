@@ -3,6 +3,7 @@
 #include "slurry/engine/scene/scene.h"
 #include "slurry/engine/scene/quality.h"
 #include "slurry/engine/scene/names.h"
+#include "slurry/engine/scene/scene_files.h"
 
 #include <algorithm>
 #include <cmath>
@@ -586,23 +587,46 @@ double Scene::elastic_dt() const {
   return c > 0 ? kernel_factor * solver.elastic_cfl * domain.dx / c : std::numeric_limits<double>::infinity();
 }
 
+namespace {
+/// The particles (or, FEM, elements) body `b` of `scene` seeds, estimated before any is made. A
+/// mesh body's count is its enclosed volume over the lattice cell once the mesh file is read
+/// (Scene::files), 0 before: the file's size bounds what reading it allocates.
+double body_items(const Scene& scene, const BodyParams& b) {
+  const int dim = scene.solver.dimension;
+  const bool fem = scene.solver.type == SolverType::FEM;
+  if (!b.mesh.empty()) {
+    if (fem || !scene.files) return 0;
+    const auto it = scene.files->triangle_meshes.find(b.mesh);
+    if (it == scene.files->triangle_meshes.end()) return 0;
+    const double h = scene.domain.dx / std::cbrt(b.particles_per_cell);
+    return std::abs(it->second.signed_volume() * b.scale.prod()) / (h * h * h);
+  }
+  Eigen::Vector3d lo, hi;
+  double fill, lattice = 1;
+  body_extent(b, dim, lo, hi, fill);
+  const double h = fem ? scene.domain.dx : scene.domain.dx / std::pow(b.particles_per_cell, 1.0 / dim);
+  for (int d = 0; d < dim; ++d) lattice *= std::max(1.0, std::round((hi[d] - lo[d]) / h));
+  return fem ? lattice * (dim == 3 ? 6 : 2)  // box_mesh: 6 tetrahedra per cube, 2 triangles per square
+             : lattice * fill;
+}
+
+/// The scene path of the body that seeds the most: "bodies[i]", or "bodies[i].mesh".
+std::string largest_body(const Scene& scene) {
+  std::size_t best = 0;
+  double most = -1;
+  for (std::size_t i = 0; i < scene.bodies.size(); ++i)
+    if (const double n = body_items(scene, scene.bodies[i]); n > most) most = n, best = i;
+  if (scene.bodies.empty()) return "bodies";
+  return "bodies[" + std::to_string(best) + "]" + (scene.bodies[best].mesh.empty() ? "" : ".mesh");
+}
+}  // namespace
+
 ResourceEstimate Scene::estimate() const {
   const int dim = solver.dimension;
   const bool fem = solver.type == SolverType::FEM, flip = solver.type == SolverType::FLIP;
   const double real = solver.precision == Precision::Double ? 8 : 4;
   ResourceEstimate e;
-  for (const auto& b : bodies) {
-    if (!b.mesh.empty()) continue;  // a mesh file's size bounds what reading it allocates
-    Eigen::Vector3d lo, hi;
-    double fill, lattice = 1;
-    body_extent(b, dim, lo, hi, fill);
-    const double h = fem ? domain.dx : domain.dx / std::pow(b.particles_per_cell, 1.0 / dim);
-    for (int d = 0; d < dim; ++d) lattice *= std::max(1.0, std::round((hi[d] - lo[d]) / h));
-    if (fem)
-      e.elements += lattice * (dim == 3 ? 6 : 2);  // box_mesh: 6 tetrahedra per cube, 2 triangles per square
-    else
-      e.particles += lattice * fill;
-  }
+  for (const auto& b : bodies) (fem ? e.elements : e.particles) += body_items(*this, b);
   double cells = 1, nodes = 1;
   for (int d = 0; d < dim; ++d) {
     const double n = std::ceil((domain.max[d] - domain.min[d]) / domain.dx - 1e-9);
@@ -633,8 +657,8 @@ void check_resources(const Scene& scene, double memory_gb) {
     throw ResourceError(scene.source + ": " + path + ": " + what);
   };
   // Particle, vertex and element indices are 32-bit.
-  if (e.particles > 2e9) error("bodies", "the bodies would seed " + fmt_num(e.particles) + " particles (limit 2e9); expected fewer or larger particles (particles_per_cell, domain.dx)");
-  if (e.elements > 2e9) error("bodies", "the bodies would mesh " + fmt_num(e.elements) + " elements (limit 2e9); expected a larger domain.dx");
+  if (e.particles > 2e9) error(largest_body(scene), "the bodies would seed " + fmt_num(e.particles) + " particles (limit 2e9); expected fewer or larger particles (particles_per_cell, domain.dx)");
+  if (e.elements > 2e9) error(largest_body(scene), "the bodies would mesh " + fmt_num(e.elements) + " elements (limit 2e9); expected a larger domain.dx");
   std::string limit_name = "limits.memory_gb";
   double gb = memory_gb > 0 ? memory_gb : scene.limits.memory_gb;
   if (memory_gb > 0) limit_name = "--memory-limit";
@@ -649,7 +673,7 @@ void check_resources(const Scene& scene, double memory_gb) {
                                             : fmt_num(m) + " mesh elements";
   char size[64];
   std::snprintf(size, sizeof size, "%.3g GiB, more than %.3g GiB (", e.bytes / double(1 << 30), gb);
-  error(p >= g && p >= m ? "bodies" : g >= m ? "domain.dx" : "bodies",
+  error(p >= g && p >= m ? largest_body(scene) : g >= m ? "domain.dx" : largest_body(scene),
         "the run would need about " + std::string(size) + limit_name + ") for " + what +
             "; expected a smaller scene, or raise the limit with limits.memory_gb or --memory-limit");
 }
