@@ -1,5 +1,7 @@
-// Deterministic mutation fuzzing of the three readers of untrusted files: the scene parser
-// (parse_scene, then estimate and check_resources), the PLY reader and the TetGen reader. Each
+// Deterministic mutation fuzzing of the readers of untrusted files: the scene parser (parse_scene,
+// then estimate and check_resources; the example scenes, and a mesh collider's keyframes), the
+// PLY reader, the TetGen reader and the triangle mesh reader (OBJ and PLY, then the closed-mesh
+// check and placement). Each
 // input is a seed file with 1-4 mutations (byte flips, insertions of tokens that once broke a
 // reader, deletions, duplications, truncations); every reader must either accept it or throw
 // slurry::Error, never anything else. Crashes, hangs and undefined behaviour show up as a failed
@@ -22,6 +24,7 @@
 #include "slurry/io/ply.h"
 #include "slurry/engine/scene/scene.h"
 #include "slurry/io/scene_file.h"
+#include "slurry/io/triangle_mesh_file.h"
 
 namespace {
 
@@ -190,6 +193,87 @@ TEST(Fuzz, TetgenReader) {
     expect_clean(input, [&] { slurry::io::read_tetgen<3>(dir / "in"); });
     expect_clean(input, [&] { slurry::io::read_tetgen<2>(dir / "in"); });
   }
+  fs::remove_all(dir);
+}
+
+// A mesh collider's keyframes (times, translations, rotations): the mutations fall inside the
+// keyframe list of a scene that is otherwise valid.
+TEST(Fuzz, ColliderKeyframes) {
+  std::string keys;
+  for (int k = 0; k < 8; ++k)
+    keys += std::string(k ? ", " : "") + R"({"time": )" + std::to_string(0.25 * k) + R"(, "translation": [0.5, )" +
+            std::to_string(0.3 + 0.01 * k) + R"(, 0.5], "rotation": [0, 0, )" + std::to_string(45 * k) + "]}";
+  const std::string head = R"({"domain": {"min": [0, 0, 0], "max": [1, 1, 1], "dx": 0.1}, "solver": {"dimension": 3},
+    "materials": [{"name": "m"}], "bodies": [{"shape": "box", "min": [0.2, 0.5, 0.2], "max": [0.4, 0.7, 0.4], "material": "m"}],
+    "colliders": [{"shape": "mesh", "mesh": "paddle.obj", "keyframes": [)";
+  const std::string tail = "]}]}";
+  ASSERT_NO_THROW(slurry::parse_scene(head + keys + tail, "keys.json"));
+  std::mt19937_64 rng(14);
+  int accepted = 0;
+  const int n = iterations(5000);
+  for (int i = 0; i < n; ++i) {
+    const std::string input = head + mutate(keys, rng) + tail;
+    expect_clean(input, [&] {
+      const slurry::Scene s = slurry::parse_scene(input, "keys.json");
+      slurry::check_resources(s, 1e6);
+      ++accepted;
+    });
+  }
+  // Some mutations leave valid keys (a changed digit), so the checks after the syntax ran too.
+  EXPECT_GT(accepted, n / 200);
+  EXPECT_LT(accepted, n);
+}
+
+// Triangle meshes of mesh bodies and colliders, OBJ (with the i/t/n and negative index forms) and
+// PLY (ascii and binary), read, then checked for a closed surface and placed.
+TEST(Fuzz, TriangleMeshReader) {
+  const fs::path dir = scratch("mesh");
+  const std::string obj =
+      "# cube\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\nvt 0 0\nvn 0 0 1\n"
+      "f 1/1/1 4/1/1 3/1/1 2/1/1\nf 5 6 7 8\nf -8 -7 -3 -4\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n";
+  slurry::io::PlyData ply;
+  slurry::Table v;
+  v.name = "vertex";
+  v.count = 8;
+  std::vector<float> x, y, z;
+  for (int c = 0; c < 8; ++c) x.push_back(float(c & 1)), y.push_back(float((c >> 1) & 1)), z.push_back(float(c >> 2));
+  v.columns = {{"x", x}, {"y", y}, {"z", z}};
+  slurry::Table f;
+  f.name = "face";
+  f.count = 6;
+  f.lists.push_back({"vertex_indices", {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}}});
+  ply.tables = {v, f};
+  struct Seed {
+    std::string name, bytes;
+  };
+  std::vector<Seed> seeds = {{"in.obj", obj}};
+  for (auto format : {slurry::io::PlyFormat::Ascii, slurry::io::PlyFormat::BinaryLittleEndian}) {
+    slurry::io::write_ply(dir / "seed.ply", ply, format);
+    seeds.push_back({"in.ply", read_file(dir / "seed.ply")});
+  }
+  for (const Seed& seed : seeds) {  // every seed is a closed cube
+    write_file(dir / seed.name, seed.bytes);
+    ASSERT_NO_THROW(slurry::geometry::place_closed_mesh(slurry::io::read_triangle_mesh(dir / seed.name),
+                                                        Eigen::Vector3d::Ones(), Eigen::Matrix3d::Identity(),
+                                                        Eigen::Vector3d::Zero(), seed.name));
+  }
+  std::mt19937_64 rng(15);
+  int closed = 0;
+  const int n = iterations(3000);
+  for (int i = 0; i < n; ++i) {
+    const Seed& seed = seeds[std::size_t(i) % seeds.size()];
+    const std::string input = mutate(seed.bytes, rng);
+    write_file(dir / seed.name, input);
+    expect_clean(input, [&] {
+      slurry::geometry::TriangleMesh m = slurry::io::read_triangle_mesh(dir / seed.name);
+      slurry::geometry::place_closed_mesh(std::move(m), Eigen::Vector3d(2, 1, 0.5),
+                                          slurry::geometry::euler_degrees(Eigen::Vector3d(10, 20, 30)),
+                                          Eigen::Vector3d(0.1, 0.2, 0.3), seed.name);
+      ++closed;
+    });
+  }
+  EXPECT_GT(closed, 0);
+  EXPECT_LT(closed, n);
   fs::remove_all(dir);
 }
 
