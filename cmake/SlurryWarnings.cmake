@@ -2,7 +2,7 @@
 # projects embedding Slurry do not inherit our flags.
 add_library(slurry_warnings INTERFACE)
 target_compile_options(slurry_warnings INTERFACE
-  $<$<CXX_COMPILER_ID:GNU,Clang>:-Wall -Wextra -Wpedantic -Wno-maybe-uninitialized>)
+  $<$<CXX_COMPILER_ID:GNU,Clang>:-Wall -Wextra -Wpedantic> $<$<CXX_COMPILER_ID:GNU>:-Wno-maybe-uninitialized>)
 add_library(slurry_native INTERFACE)
 if(SLURRY_NATIVE)
   include(CheckCXXCompilerFlag)

@@ -117,7 +117,9 @@ int tetgen_dimension(const std::filesystem::path& path) {
 
 template <int Dim>
 Mesh<Dim> read_tetgen(const std::filesystem::path& path) {
-  const auto [node_path, ele_path] = tetgen_files(path);
+  // Named variables, not a structured binding: lambdas below capture them (C++17, clang 14).
+  const auto files = tetgen_files(path);
+  const std::filesystem::path &node_path = files.first, &ele_path = files.second;
   Mesh<Dim> mesh;
   int base = 0;
   std::vector<int> lines;  // line of each element in the .ele file, for messages
