@@ -5,6 +5,7 @@
 // copies and the header grammar of one specification.
 #include "slurry/io/ply.h"
 
+#include "atomic_file.h"
 #include "input_file.h"
 
 #include <algorithm>
@@ -346,65 +347,8 @@ std::string make_header(const Frame& data, const std::vector<std::string>& obj_i
   return h;
 }
 
-// Writes to a temporary file and removes it again unless commit() renamed it into place.
-class AtomicFile {
- public:
-  explicit AtomicFile(const fs::path& target) : target_(target), temp_(temp_name(target)) {
-    out_.open(temp_, std::ios::binary | std::ios::trunc);
-    if (!out_)
-      fail(target_, "cannot create the temporary file " + quote_text(temp_.string()) +
-                        " (expected a writable directory)");
-  }
-  AtomicFile(const AtomicFile&) = delete;
-  AtomicFile& operator=(const AtomicFile&) = delete;
-  ~AtomicFile() {
-    if (committed_) return;
-    if (out_.is_open()) out_.close();
-    std::error_code ignored;
-    fs::remove(temp_, ignored);
-  }
 
-  void write(const void* p, std::size_t n) {
-    out_.write(static_cast<const char*>(p), static_cast<std::streamsize>(n));
-    if (!out_)
-      fail(target_, "writing " + quote_text(temp_.string()) +
-                        " failed (disk full or I/O error?); the target file was not changed");
-  }
-
-  // Process-kill safe (the final name only ever names a complete file); we do not fsync, so a
-  // power cut may still lose the most recent frame.
-  void commit() {
-    out_.flush();
-    out_.close();
-    if (out_.fail())
-      fail(target_, "flushing " + quote_text(temp_.string()) +
-                        " failed (disk full or I/O error?); the target file was not changed");
-    std::error_code ec;
-    fs::rename(temp_, target_, ec);
-    if (ec)
-      fail(target_, "renaming the temporary file " + quote_text(temp_.string()) +
-                        " onto it failed: " + ec.message());
-    committed_ = true;
-  }
-
- private:
-  static fs::path temp_name(const fs::path& target) {
-    static std::atomic<unsigned long> counter{0};
-#if defined(_WIN32)
-    const long pid = _getpid();
-#else
-    const long pid = static_cast<long>(::getpid());
-#endif
-    fs::path p = target;
-    p += ".tmp-" + std::to_string(pid) + "-" + std::to_string(counter++);
-    return p;
-  }
-
-  fs::path target_;
-  fs::path temp_;
-  std::ofstream out_;
-  bool committed_ = false;
-};
+using detail::AtomicFile;
 
 void write_binary_element(AtomicFile& file, const Table& el) {
   const std::vector<RawColumn> cols = raw_columns(el);

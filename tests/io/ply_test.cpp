@@ -623,6 +623,34 @@ TEST_F(PlyTest, TruncatedBinaryBodyIsAnError) {
   EXPECT_CONTAINS(msg, "row 1 of 4000000000000");
 }
 
+// check_ply: a binary file's size against its header, without reading the body; ascii and list
+// bodies read whole.
+TEST_F(PlyTest, CheckPlyFindsCutAndLongFilesFromTheHeader) {
+  const fs::path path = dir_ / "check.ply";
+  write_ply(path, xyz_data(10));
+  const std::string full = read_bytes(path);
+  EXPECT_NO_THROW(slurry::io::check_ply(path));
+  write_bytes(path, full.substr(0, full.size() - 6));
+  std::string msg = io_error_of([&] { slurry::io::check_ply(path); });
+  EXPECT_CONTAINS(msg, path.string());
+  EXPECT_CONTAINS(msg, "truncated: the file has " + std::to_string(full.size() - 6) + " bytes, its header and element "
+                       "counts give " + std::to_string(full.size()) + " bytes");
+  write_bytes(path, full + "xy");
+  EXPECT_CONTAINS(io_error_of([&] { slurry::io::check_ply(path); }), "too long: the file has");
+  write_bytes(path, full.substr(0, full.find("end_header")));  // the header cut before its end
+  EXPECT_CONTAINS(io_error_of([&] { slurry::io::check_ply(path); }), "no 'end_header' line");
+  write_ply(path, mesh_data());  // lists: read whole
+  EXPECT_NO_THROW(slurry::io::check_ply(path));
+  const std::string mesh = read_bytes(path);
+  write_bytes(path, mesh.substr(0, mesh.size() - 3));
+  EXPECT_CONTAINS(io_error_of([&] { slurry::io::check_ply(path); }), "binary body truncated");
+  write_ply(path, xyz_data(5), PlyFormat::Ascii);
+  EXPECT_NO_THROW(slurry::io::check_ply(path));
+  const std::string text = read_bytes(path);
+  write_bytes(path, text.substr(0, text.size() - 4));
+  EXPECT_FALSE(io_error_of([&] { slurry::io::check_ply(path); }).empty());
+}
+
 TEST_F(PlyTest, TrailingDataAfterBodyIsAnError) {
   const fs::path path = dir_ / "long.ply";
   write_ply(path, xyz_data(3));

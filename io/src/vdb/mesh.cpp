@@ -9,6 +9,7 @@
 #include <numeric>
 
 #include "slurry/engine/errors.h"
+#include "slurry/io/obj.h"
 #include "slurry/io/surface.h"
 #include "slurry/transfer/parallel.h"
 #include "vdb/velocities.h"
@@ -145,10 +146,9 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
 
 }  // namespace detail
 
-void write_mesh_ply(const std::filesystem::path& path, const TriangleMesh& mesh, PlyFormat format) {
-  if (!mesh.velocities.empty() && mesh.velocities.size() != mesh.vertices.size())
-    throw IoError(path.string() + ": " + std::to_string(mesh.velocities.size()) +
-                  " velocities for " + std::to_string(mesh.vertices.size()) + " vertices");
+namespace {
+/// The mesh as a frame (vertex x y z and, with `velocities`, vx vy vz; face vertex_indices).
+PlyData mesh_frame(const TriangleMesh& mesh, bool velocities) {
   PlyData data;
   data.comments.push_back("slurry surface mesh");
   Table& v = data.tables.emplace_back();
@@ -162,7 +162,7 @@ void write_mesh_ply(const std::filesystem::path& path, const TriangleMesh& mesh,
   v.columns.push_back({"x", column(mesh.vertices, 0)});
   v.columns.push_back({"y", column(mesh.vertices, 1)});
   v.columns.push_back({"z", column(mesh.vertices, 2)});
-  if (!mesh.velocities.empty()) {
+  if (velocities && !mesh.velocities.empty()) {
     v.columns.push_back({"vx", column(mesh.velocities, 0)});
     v.columns.push_back({"vy", column(mesh.velocities, 1)});
     v.columns.push_back({"vz", column(mesh.velocities, 2)});
@@ -174,35 +174,21 @@ void write_mesh_ply(const std::filesystem::path& path, const TriangleMesh& mesh,
   list.data.reserve(mesh.triangles.size());
   for (const auto& t : mesh.triangles) list.data.push_back({t[0], t[1], t[2]});
   f.lists.push_back(std::move(list));
-  write_ply(path, data, format);
+  return data;
+}
+}  // namespace
+
+void write_mesh_ply(const std::filesystem::path& path, const TriangleMesh& mesh, PlyFormat format) {
+  if (!mesh.velocities.empty() && mesh.velocities.size() != mesh.vertices.size())
+    throw IoError(path.string() + ": " + std::to_string(mesh.velocities.size()) +
+                  " velocities for " + std::to_string(mesh.vertices.size()) + " vertices");
+  write_ply(path, mesh_frame(mesh, true), format);
 }
 
 void write_mesh_obj(const std::filesystem::path& path, const TriangleMesh& mesh) {
-  static int counter = 0;
-  std::filesystem::path tmp = path;
-  tmp += ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(counter++);
-  {
-    std::FILE* f = std::fopen(tmp.c_str(), "wb");
-    if (!f) throw IoError(path.string() + ": cannot create the temporary file " + tmp.string());
-    std::fprintf(f, "# slurry surface mesh: %zu vertices, %zu triangles\n", mesh.vertices.size(),
-                 mesh.triangles.size());
-    // %.9g prints a float with enough digits to read back to the same bits.
-    for (const auto& p : mesh.vertices) std::fprintf(f, "v %.9g %.9g %.9g\n", p[0], p[1], p[2]);
-    for (const auto& t : mesh.triangles)
-      std::fprintf(f, "f %d %d %d\n", t[0] + 1, t[1] + 1, t[2] + 1);
-    const bool ok = std::ferror(f) == 0;
-    if (std::fclose(f) != 0 || !ok) {
-      std::error_code ec;
-      std::filesystem::remove(tmp, ec);
-      throw IoError(path.string() + ": cannot write the OBJ file (disk full?)");
-    }
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, path, ec);
-  if (ec) {
-    std::filesystem::remove(tmp, ec);
-    throw IoError(path.string() + ": cannot rename the temporary file onto it: " + ec.message());
-  }
+  write_obj(path, mesh_frame(mesh, false),
+            "slurry surface mesh: " + std::to_string(mesh.vertices.size()) + " vertices, " +
+                std::to_string(mesh.triangles.size()) + " triangles");
 }
 
 }  // namespace slurry::io
