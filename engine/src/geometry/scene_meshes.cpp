@@ -139,12 +139,15 @@ MeshColliderParts make_mesh_collider(const Scene& scene, std::size_t index) {
   }
   parts.sdf = std::make_shared<const geometry::MeshSdf>(std::move(mesh), 0.5 * dx, 4 * dx, std::int64_t(1) << 22, true,
                                                         moves ? nullptr : &region);
+  parts.motion = std::make_shared<const geometry::RigidMotion>(collider_motion(c));
+  return parts;
+}
+
+geometry::RigidMotion collider_motion(const ColliderParams& c) {
   std::vector<geometry::RigidMotion::Key> keys;
   for (const auto& k : c.keyframes)
     keys.push_back({k.time, k.translation, geometry::euler_degrees(k.rotation)});
-  parts.motion = std::make_shared<const geometry::RigidMotion>(
-      geometry::euler_degrees(c.rotation), c.translation, c.velocity, std::move(keys));
-  return parts;
+  return geometry::RigidMotion(geometry::euler_degrees(c.rotation), c.translation, c.velocity, std::move(keys));
 }
 
 }  // namespace slurry::detail

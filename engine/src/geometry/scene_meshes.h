@@ -41,6 +41,10 @@ struct MeshColliderParts {
 };
 MeshColliderParts make_mesh_collider(const Scene& scene, std::size_t index);
 
+/// The motion of a mesh collider's frame: rotation and translation, or its keyframes, and its
+/// velocity.
+geometry::RigidMotion collider_motion(const ColliderParams& c);
+
 /// Every collider of the scene, mesh colliders with their distance fields.
 template <class T, int Dim>
 std::vector<Collider<T, Dim>> make_colliders(const Scene& scene) {

@@ -17,9 +17,11 @@
 #include <type_traits>
 #include <variant>
 
+#include "geometry/collider_surfaces.h"
 #include "geometry/scene_meshes.h"
 #include "slurry/engine/mpm/mpm_solver.h"
 #include "slurry/io/checkpoint.h"
+#include "slurry/io/obj.h"
 #include "slurry/io/ply.h"
 #include "slurry/io/scene_file.h"
 #include "slurry/io/stats_csv.h"
@@ -248,6 +250,13 @@ std::filesystem::path frame_file(const std::filesystem::path& directory, int fra
 }
 
 namespace {
+
+/// colliders_NNNN.<extension>.
+std::filesystem::path collider_file(const std::filesystem::path& directory, int frame, const char* extension) {
+  char name[40];
+  std::snprintf(name, sizeof name, "colliders_%04d.%s", frame, extension);
+  return directory / name;
+}
 
 /// check_scene's checks; returns the scene with its mesh files read.
 Scene checked_scene(const Scene& scene, double memory_gb) {
@@ -554,6 +563,16 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     if (!csv) throw IoError((dir / "stats.csv").string() + ": cannot write the run statistics");
     if (!had) csv << io::stats_csv_header() << '\n';
   }
+  // The colliders beside the surface meshes, in their formats (3D): colliders_NNNN.ply, .obj.
+  const auto asks = [&](const char* format) {
+    return std::find(scene.output.surface.begin(), scene.output.surface.end(), format) != scene.output.surface.end();
+  };
+  const bool collider_ply = asks("ply"), collider_obj = asks("obj");
+  std::unique_ptr<detail::ColliderSurfaces> colliders;
+  if (writer && (collider_ply || collider_obj)) {
+    colliders = std::make_unique<detail::ColliderSurfaces>(limited);
+    if (colliders->empty()) colliders.reset();
+  }
   const int every = scene.output.checkpoint_every;
   const bool retry = scene.solver.on_instability == OnInstability::Retry;
   std::string snapshot;  // on_instability "retry": the state at the start of the frame
@@ -605,6 +624,15 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
         frame = sim->frame_view(scene.output.attributes);
         if (scene.output.up_axis == "z") to_z_up(frame);
         if (writer) io::write_ply(file, frame, format);
+      }
+      if (colliders) {
+        Frame surfaces = colliders->at(f * scene.frame_dt());
+        if (scene.output.up_axis == "z") to_z_up(surfaces);
+        if (collider_ply) io::write_ply(collider_file(dir, f, "ply"), surfaces, format);
+        if (collider_obj)
+          io::write_obj(collider_file(dir, f, "obj"), surfaces,
+                        "slurry colliders at t = " + fmt(f * scene.frame_dt()) + " s: one object per collider", "collider",
+                        "collider_");
       }
     } catch (...) {
       if (f == 0 && created) fs::remove(dir, ec);  // nothing is left of a run without a frame
