@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -393,14 +394,25 @@ Result taylor_green_run_t(const Scene& s) {
 // column of width a and height 2a (n^2 = 2) released at the left wall; surge front Z = x / a
 // against T = t sqrt(2 g / a). The points are the commonly quoted tabulation of their n^2 = 2,
 // a = 2.25 in series (as used, e.g., by the Lethe project's dam-break example, which cites the
-// paper's tables 2 and 6); they were not checked against the paper itself. Error: mean of
-// |Z_sim / Z_exp - 1| over the points; the front is the 99.9th percentile of the particles' x
-// plus half a particle spacing.
+// paper's tables 2 and 6); they were not checked against the paper itself. The front is the
+// 99.9th percentile of the particles' x plus half a particle spacing.
+//
+// The experiment's clock started with the release of a gate (a membrane burst, in their set-up)
+// that did not free the column at once: the measured front lags an instantaneous release by a
+// delay the paper does not report. The error therefore compares the simulated front, shifted
+// later in time by the delay tau that fits it best, with the measured one: tau in [0, 0.6] (in
+// units of T; 0.6 is 0.061 s at a = 0.2 m) minimising the mean of |Z_sim(T_i - tau) / Z_i - 1|
+// over the points, the front sampled every 0.025 in T and interpolated linearly (Z = 1 before
+// T = 0). Error: that minimum; `value` and `aux`: tau. A solver whose front runs too fast or too
+// slow keeps its error, since one delay cannot fit the front's speed at every T; the delay
+// removes only the start-up that the experiment and an instantaneous release do not share.
 constexpr double kDamA = 0.2;
 constexpr double kMartinMoyceT[] = {0.41, 0.84, 1.19, 1.43, 1.63, 1.83, 1.98, 2.20,
                                     2.32, 2.51, 2.65, 2.83, 2.98, 3.11, 3.33};
 constexpr double kMartinMoyceZ[] = {1.11, 1.22, 1.44, 1.67, 1.89, 2.11, 2.33, 2.56,
                                     2.78, 3.00, 3.22, 3.44, 3.67, 3.89, 4.11};
+constexpr double kDamSampleT = 0.025;  ///< front sampling interval, units of T
+constexpr double kDamMaxDelay = 0.6;   ///< largest gate delay fitted, units of T
 
 inline Scene dam_break_scene(double dx) {
   Scene s = liquid_scene(2, {5 * kDamA, 2.5 * kDamA, 0}, dx);
@@ -408,26 +420,44 @@ inline Scene dam_break_scene(double dx) {
   return s;
 }
 
+/// The mean relative front error against Martin & Moyce of a front `z` sampled every
+/// kDamSampleT from T = 0, the simulation delayed by `tau`.
+inline double dam_break_deviation(const std::vector<double>& z, double tau) {
+  double sum = 0;
+  const int n = int(std::size(kMartinMoyceT));
+  for (int i = 0; i < n; ++i) {
+    const double T = kMartinMoyceT[i] - tau;
+    double zs = 1;
+    if (T > 0) {
+      const double u = T / kDamSampleT;
+      const std::size_t k = std::min(std::size_t(u), z.size() - 2);
+      zs = z[k] + (u - double(k)) * (z[k + 1] - z[k]);
+    }
+    sum += std::abs(zs / kMartinMoyceZ[i] - 1);
+  }
+  return sum / n;
+}
+
 template <class T>
 Result dam_break_run_t(const Scene& s) {
   slurry::flip::FlipSolver<T, 2> sim(s);
   const double g = 9.81, spacing = s.domain.dx / std::sqrt(s.bodies[0].particles_per_cell);
-  double sum = 0, abs_sum = 0;
-  const int n = int(std::size(kMartinMoyceT));
-  for (int i = 0; i < n; ++i) {
-    sim.advance_to(kMartinMoyceT[i] / std::sqrt(2 * g / kDamA));
+  const double t_unit = 1 / std::sqrt(2 * g / kDamA);
+  const int samples = int(std::ceil(kMartinMoyceT[std::size(kMartinMoyceT) - 1] / kDamSampleT)) + 2;
+  std::vector<double> z;  // the front, Z, every kDamSampleT from T = 0
+  for (int i = 0; i < samples; ++i) {
+    if (i > 0) sim.advance_to(i * kDamSampleT * t_unit);
     std::vector<double> x;
     x.reserve(sim.particle_count());
     for (const auto& p : sim.particles().x) x.push_back(double(p[0]));
     const std::size_t k = std::size_t(0.999 * double(x.size()));
     std::nth_element(x.begin(), x.begin() + std::ptrdiff_t(k), x.end());
-    const double dev = (x[k] + 0.5 * spacing) / kDamA / kMartinMoyceZ[i] - 1;
-    sum += dev;
-    abs_sum += std::abs(dev);
+    z.push_back((x[k] + 0.5 * spacing) / kDamA);
   }
   Result r;
-  r.error = abs_sum / n;
-  r.value = sum / n;  // signed: > 0 when the simulated front runs ahead of the experiment
+  r.error = std::numeric_limits<double>::infinity();
+  for (double tau = 0; tau <= kDamMaxDelay + 1e-12; tau += 0.001)
+    if (const double e = dam_break_deviation(z, tau); e < r.error) r.error = e, r.value = tau;
   r.aux = r.value;
   r.particle_steps = particle_steps(sim);
   r.substeps = double(sim.steps());
