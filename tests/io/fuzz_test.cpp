@@ -20,6 +20,7 @@
 #include <typeinfo>
 #include <vector>
 
+#include "fuzz_mutate.h"
 #include "slurry/io/tetgen.h"
 #include "slurry/io/ply.h"
 #include "slurry/engine/scene/scene.h"
@@ -65,37 +66,11 @@ const char* const kTokens[] = {
     "\n",
     "\0"};
 
-/// One mutated copy of `seed`.
+/// One mutated copy of `seed`, the special mutation inserting a token that once broke a reader.
 std::string mutate(const std::string& seed, std::mt19937_64& rng) {
-  std::string s = seed;
-  const auto pick = [&](std::size_t n) { return n == 0 ? std::size_t(0) : std::size_t(rng() % n); };
-  const int n = 1 + int(rng() % 4);
-  for (int k = 0; k < n; ++k) {
-    const std::size_t at = pick(s.size() + 1);
-    switch (rng() % 6) {
-      case 0:  // flip a byte
-        if (!s.empty()) s[pick(s.size())] ^= char(1 << (rng() % 8));
-        break;
-      case 1:  // a token that once broke a reader
-        s.insert(at, kTokens[pick(std::size(kTokens))]);
-        break;
-      case 2:  // delete a range
-        s.erase(at, pick(32) + 1);
-        break;
-      case 3: {  // duplicate a range
-        const std::string part = s.substr(at, pick(64) + 1);
-        s.insert(pick(s.size() + 1), part);
-        break;
-      }
-      case 4:  // truncate
-        s.resize(at);
-        break;
-      default:  // a random byte
-        s.insert(at, 1, char(rng() % 256));
-        break;
-    }
-  }
-  return s;
+  return slurry::test::mutate(seed, rng, [](std::string& s, std::size_t at, const auto& pick) {
+    s.insert(at, kTokens[pick(std::size(kTokens))]);
+  });
 }
 
 std::string read_file(const fs::path& p) {

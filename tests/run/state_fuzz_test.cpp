@@ -22,6 +22,7 @@
 #include <typeinfo>
 #include <vector>
 
+#include "fuzz_mutate.h"
 #include "slurry/engine/errors.h"
 #include "slurry/engine/run/run.h"
 #include "slurry/engine/scene/scene.h"
@@ -52,43 +53,17 @@ fs::path scratch(const std::string& name) {
 }
 
 /// One mutated copy of binary `seed`: counts and sizes are the fields a state reader trusts
-/// least, so besides flips and cuts the mutations write integers that overflow or mislead them.
+/// least, so the special mutation writes integers that overflow or mislead them (and infinities
+/// and NaNs where doubles lie), 4 or 8 bytes in place.
 std::string mutate(const std::string& seed, std::mt19937_64& rng) {
   static const std::uint64_t kValues[] = {0, 1, 0xffffffffu, 0x7fffffffu, 0x80000000u, 0xffffffffffffffffull,
                                           std::uint64_t(1) << 40, 0x7ff0000000000000ull /* +inf */,
                                           0x7ff8000000000000ull /* NaN */, 0xfff0000000000000ull /* -inf */};
-  std::string s = seed;
-  const auto pick = [&](std::size_t n) { return n == 0 ? std::size_t(0) : std::size_t(rng() % n); };
-  const int n = 1 + int(rng() % 4);
-  for (int k = 0; k < n; ++k) {
-    const std::size_t at = pick(s.size() + 1);
-    switch (rng() % 6) {
-      case 0:
-        if (!s.empty()) s[pick(s.size())] ^= char(1 << (rng() % 8));
-        break;
-      case 1: {  // an integer or double in place, 4 or 8 bytes
-        const std::uint64_t v = kValues[pick(std::size(kValues))];
-        const std::size_t width = rng() % 2 ? 8 : 4;
-        if (at + width <= s.size()) std::memcpy(&s[at], &v, width);
-        break;
-      }
-      case 2:
-        s.erase(at, pick(64) + 1);
-        break;
-      case 3: {
-        const std::string part = s.substr(at, pick(64) + 1);
-        s.insert(pick(s.size() + 1), part);
-        break;
-      }
-      case 4:
-        s.resize(at);
-        break;
-      default:
-        s.insert(at, 1, char(rng() % 256));
-        break;
-    }
-  }
-  return s;
+  return slurry::test::mutate(seed, rng, [&](std::string& s, std::size_t at, const auto& pick) {
+    const std::uint64_t v = kValues[pick(std::size(kValues))];
+    const std::size_t width = rng() % 2 ? 8 : 4;
+    if (at + width <= s.size()) std::memcpy(&s[at], &v, width);
+  });
 }
 
 /// Runs fn(); anything but success or slurry::Error is a finding, reported with the iteration.
