@@ -189,9 +189,12 @@ PYBIND11_MODULE(slurry, m) {
             {
               py::gil_scoped_release release;
               // In pieces of one frame, so that Ctrl-C stops within a frame's worth of substeps.
+              // Each piece ends at a later time than the last, so the loop ends at t.
               const double piece = s.scene.frame_dt();
-              while (s.solver->time() < t && !g_interrupted)
-                steps += s.solver->advance_to(std::min(t, s.solver->time() + piece));
+              for (double next = s.solver->time(); next < t && !g_interrupted;) {
+                next = std::min(t, std::max(next, s.solver->time()) + piece);
+                steps += s.solver->advance_to(next);
+              }
             }
             if (g_interrupted) {
               PyErr_SetNone(PyExc_KeyboardInterrupt);
