@@ -17,6 +17,7 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
+#include <utility>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -74,17 +75,36 @@ struct CellGrid {
   }
 };
 
-/// Indices of `pos` sorted by key (ties by index), and the sorted keys.
+/// Indices of `pos` sorted by key (ties by index), and the sorted keys: a least-significant-digit
+/// radix sort, 11 bits a pass over the bits the keys use, stable, so ties keep the index order.
 void sort_by_cell(const std::vector<std::array<float, 3>>& pos, const CellGrid& grid,
                   std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& order) {
-  std::vector<std::pair<std::uint64_t, std::uint32_t>> kv(pos.size());
-  parallel::parallel_for(0, std::int64_t(pos.size()), [&](std::int64_t i) {
-    kv[std::size_t(i)] = {CellGrid::key(grid.cell(pos[std::size_t(i)])), std::uint32_t(i)};
+  const std::size_t n = pos.size();
+  keys.resize(n);
+  order.resize(n);
+  parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t i) {
+    keys[std::size_t(i)] = CellGrid::key(grid.cell(pos[std::size_t(i)]));
+    order[std::size_t(i)] = std::uint32_t(i);
   });
-  std::sort(kv.begin(), kv.end());
-  keys.resize(pos.size());
-  order.resize(pos.size());
-  for (std::size_t i = 0; i < kv.size(); ++i) keys[i] = kv[i].first, order[i] = kv[i].second;
+  std::uint64_t used = 0;
+  for (const std::uint64_t k : keys) used |= k;
+  constexpr int kDigit = 11;
+  std::vector<std::uint64_t> keys_out(n);
+  std::vector<std::uint32_t> order_out(n);
+  std::vector<std::uint32_t> count(std::size_t(1) << kDigit);
+  for (int shift = 0; shift < 64 && (used >> shift) != 0; shift += kDigit) {
+    std::fill(count.begin(), count.end(), 0u);
+    for (const std::uint64_t k : keys) ++count[std::size_t((k >> shift) & ((1u << kDigit) - 1))];
+    std::uint32_t sum = 0;
+    for (auto& c : count) sum += std::exchange(c, sum);
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint32_t at = count[std::size_t((keys[i] >> shift) & ((1u << kDigit) - 1))]++;
+      keys_out[at] = keys[i];
+      order_out[at] = order[i];
+    }
+    keys.swap(keys_out);
+    order.swap(order_out);
+  }
 }
 
 /// Starts of the runs of equal keys in `keys`, with keys.size() appended.
