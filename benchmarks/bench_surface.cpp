@@ -8,6 +8,8 @@
 //     t = SLURRY_SURFACE_FRAME / 60 s (default frame 30, the column collapsing against the wall)
 //     at the simulation's dx: level set, mesh, vertex velocities and the velocity grid. method 0:
 //     anisotropic (the default), 1: spheres. Counters: seconds, particles per second, vertices.
+//   BM_SurfaceMesh/<threads>: surface_mesh with the anisotropic method, what a scene whose
+//     output.surface has no "vdb" asks for: the mesh and its vertex velocities, no level set.
 //   BM_SimulateFrame/<threads>: advancing the same simulation by one frame (1/60 s) from there.
 #include <benchmark/benchmark.h>
 
@@ -60,6 +62,23 @@ void BM_Surface(benchmark::State& state) {
   state.counters["vertices"] = double(vertices);
 }
 BENCHMARK(BM_Surface)->ArgsProduct({{0, 1}, {2}})->Unit(benchmark::kMillisecond)->UseRealTime();
+
+void BM_SurfaceMesh(benchmark::State& state) {
+  DamBreak& d = dam_break();
+  std::size_t vertices = 0;
+  slurry::io::with_threads(int(state.range(0)), [&] {
+    for (auto _ : state) {
+      const slurry::io::Surface s = slurry::io::surface_mesh(d.cloud, d.outputs.params);
+      vertices = s.mesh.vertices.size();
+      benchmark::DoNotOptimize(vertices);
+    }
+  });
+  state.counters["particles/s"] =
+      benchmark::Counter(double(d.cloud.size()) * double(state.iterations()), benchmark::Counter::kIsRate);
+  state.counters["particles"] = double(d.cloud.size());
+  state.counters["vertices"] = double(vertices);
+}
+BENCHMARK(BM_SurfaceMesh)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 void BM_SimulateFrame(benchmark::State& state) {
   DamBreak& d = dam_break();

@@ -78,7 +78,7 @@ double SurfaceParams::radius() const {
 }
 
 std::size_t LevelSet::active_voxels() const {
-  return std::size_t(impl_->grid->activeVoxelCount());
+  return impl_ ? std::size_t(impl_->grid->activeVoxelCount()) : 0;
 }
 double LevelSet::voxel_size() const {
   return impl_->grid->voxelSize()[0];
@@ -403,7 +403,8 @@ void add_droplets(TriangleMesh& mesh, const PointCloud& points, const std::vecto
 /// The anisotropic method (surface.h, steps A1-A6): the zero level of `iso - field` meshed, and
 /// the narrow-band level set of that mesh; the vertices take the particles' velocities when
 /// `vertex_velocities` (particles_to_level_set wants the level set alone).
-Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& params, bool vertex_velocities) {
+Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& params, bool vertex_velocities,
+                            bool level_set = true) {
   const double h = params.voxel_size, s = params.spacing;
   const detail::FieldBlocks blocks = detail::anisotropic_field(points, h, s);
   openvdb::FloatGrid::Ptr field = openvdb::FloatGrid::create(0.0f);
@@ -526,6 +527,9 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
     }
   }
   add_droplets(out.mesh, points, droplets, particle_volume);
+  if (vertex_velocities && !points.velocity.empty())
+    out.mesh.velocities = sample_velocities(out.mesh.vertices, points, s);
+  if (!level_set) return out;
   // A6: the level set of the mesh (OpenVDB's meshToLevelSet, half-width 3 voxels).
   std::vector<openvdb::Vec3s> verts(out.mesh.vertices.size());
   for (std::size_t i = 0; i < verts.size(); ++i)
@@ -539,8 +543,6 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
   ls->setName("surface");
   ls->setGridClass(openvdb::GRID_LEVEL_SET);
   out.level_set = LevelSet(std::make_shared<const LevelSet::Impl>(LevelSet::Impl{ls, nullptr}));
-  if (vertex_velocities && !points.velocity.empty())
-    out.mesh.velocities = sample_velocities(out.mesh.vertices, points, s);
   return out;
 }
 
@@ -636,6 +638,18 @@ Surface surface_particles(const PointCloud& points, const SurfaceParams& params)
   }
   if (!points.velocity.empty()) out.level_set = with_velocity(out.level_set, points, params.spacing);
   return out;
+}
+
+Surface surface_mesh(const PointCloud& points, const SurfaceParams& params) {
+  if (params.method != SurfaceMethod::Anisotropic) {
+    Surface out = surface_particles(points, params);
+    out.level_set = LevelSet(nullptr);
+    return out;
+  }
+  params.validate();
+  check_points(points);
+  detail::initialize_openvdb();
+  return anisotropic_surface(points, params, /*vertex_velocities=*/true, /*level_set=*/false);
 }
 
 void write_vdb(const std::filesystem::path& path, const LevelSet& level_set) {

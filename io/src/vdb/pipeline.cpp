@@ -94,7 +94,7 @@ FrameOutputReport write_frame_outputs(const Frame& frame, int index, const fs::p
     if (cloud.size() == 0) continue;
     const std::string stem = g.label.empty() ? "surface" : "surface_" + g.label;
     const auto t0 = std::chrono::steady_clock::now();
-    const Surface s = surface_particles(cloud, outputs.params);
+    const Surface s = outputs.vdb ? surface_particles(cloud, outputs.params) : surface_mesh(cloud, outputs.params);
     const auto t1 = std::chrono::steady_clock::now();
     if (outputs.vdb) {
       report.files.push_back(numbered(dir, stem, index, ".vdb"));

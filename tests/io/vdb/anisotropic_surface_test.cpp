@@ -254,3 +254,26 @@ TEST(AnisotropicSurface, ResultDoesNotDependOnTheThreadCount) {
   EXPECT_EQ(one.mesh.vertices, two.mesh.vertices);
   EXPECT_EQ(one.mesh.triangles, two.mesh.triangles);
 }
+
+// surface_mesh (outputs without a .vdb) gives surface_particles' mesh, vertex velocities and level,
+// without the level set.
+TEST(AnisotropicSurface, MeshAloneIsTheSameMeshWithoutALevelSet) {
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> u(-0.3f * float(s), 0.3f * float(s));
+  PointCloud cloud = box({0, 0, 0}, {0.2, 0.1, 0.2});
+  for (auto& p : cloud.position) {
+    for (auto& x : p) x += u(rng);
+    cloud.velocity.push_back({p[1], 0.5f, -p[0]});
+  }
+  const SurfaceParams p{dx, s};
+  const slurry::io::Surface full = slurry::io::surface_particles(cloud, p);
+  const slurry::io::Surface mesh = slurry::io::surface_mesh(cloud, p);
+  ASSERT_FALSE(full.mesh.vertices.empty());
+  EXPECT_EQ(mesh.iso, full.iso);
+  EXPECT_EQ(mesh.mesh.vertices, full.mesh.vertices);
+  EXPECT_EQ(mesh.mesh.triangles, full.mesh.triangles);
+  EXPECT_EQ(mesh.mesh.velocities, full.mesh.velocities);
+  EXPECT_FALSE(mesh.mesh.velocities.empty());
+  EXPECT_GT(full.level_set.active_voxels(), 0u);
+  EXPECT_EQ(mesh.level_set.active_voxels(), 0u);
+}
