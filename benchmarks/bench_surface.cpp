@@ -44,15 +44,14 @@ DamBreak& dam_break() {
   return d;
 }
 
-void BM_Surface(benchmark::State& state) {
+/// Times `surface` (a function of the cloud) on `threads` threads, with the counters.
+template <class Surface>
+void time_surfacing(benchmark::State& state, int threads, Surface&& surface) {
   DamBreak& d = dam_break();
-  slurry::io::SurfaceParams params = d.outputs.params;
-  params.method = state.range(0) == 0 ? slurry::io::SurfaceMethod::Anisotropic : slurry::io::SurfaceMethod::Spheres;
   std::size_t vertices = 0;
-  slurry::io::with_threads(int(state.range(1)), [&] {
+  slurry::io::with_threads(threads, [&] {
     for (auto _ : state) {
-      const slurry::io::Surface s = slurry::io::surface_particles(d.cloud, params);
-      vertices = s.mesh.vertices.size();
+      vertices = surface(d.cloud).mesh.vertices.size();
       benchmark::DoNotOptimize(vertices);
     }
   });
@@ -61,22 +60,19 @@ void BM_Surface(benchmark::State& state) {
   state.counters["particles"] = double(d.cloud.size());
   state.counters["vertices"] = double(vertices);
 }
+
+void BM_Surface(benchmark::State& state) {
+  slurry::io::SurfaceParams params = dam_break().outputs.params;
+  params.method = state.range(0) == 0 ? slurry::io::SurfaceMethod::Anisotropic : slurry::io::SurfaceMethod::Spheres;
+  time_surfacing(state, int(state.range(1)),
+                 [&](const slurry::io::PointCloud& c) { return slurry::io::surface_particles(c, params); });
+}
 BENCHMARK(BM_Surface)->ArgsProduct({{0, 1}, {2}})->Unit(benchmark::kMillisecond)->UseRealTime();
 
 void BM_SurfaceMesh(benchmark::State& state) {
-  DamBreak& d = dam_break();
-  std::size_t vertices = 0;
-  slurry::io::with_threads(int(state.range(0)), [&] {
-    for (auto _ : state) {
-      const slurry::io::Surface s = slurry::io::surface_mesh(d.cloud, d.outputs.params);
-      vertices = s.mesh.vertices.size();
-      benchmark::DoNotOptimize(vertices);
-    }
-  });
-  state.counters["particles/s"] =
-      benchmark::Counter(double(d.cloud.size()) * double(state.iterations()), benchmark::Counter::kIsRate);
-  state.counters["particles"] = double(d.cloud.size());
-  state.counters["vertices"] = double(vertices);
+  const slurry::io::SurfaceParams params = dam_break().outputs.params;
+  time_surfacing(state, int(state.range(0)),
+                 [&](const slurry::io::PointCloud& c) { return slurry::io::surface_mesh(c, params); });
 }
 BENCHMARK(BM_SurfaceMesh)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
