@@ -98,6 +98,19 @@ py::dtype real_dtype(const slurry::ParticleStorage& s) {
   return s.precision == slurry::Precision::Double ? py::dtype::of<double>() : py::dtype::of<float>();
 }
 
+/// A read-only property: the storage channel `member` of the simulation as a view (`rank` 0: one
+/// value per particle, 1: a vector of the dimension, 2: a matrix), None where it is not stored.
+template <class Member>
+auto channel(Member member, int rank, py::dtype (*type)(const slurry::ParticleStorage&)) {
+  return [member, rank, type](py::object self) -> py::object {
+    const auto st = self.cast<Simulation&>().solver->particle_storage();
+    const std::vector<py::ssize_t> inner(std::size_t(rank), py::ssize_t(st.dimension));
+    return view(self, st.*member, st.count, inner, rank == 2, type(st));
+  };
+}
+
+py::dtype material_dtype(const slurry::ParticleStorage&) { return py::dtype::of<std::uint16_t>(); }
+
 py::dict stats_dict(const slurry::RunStats& s) {
   py::dict d;
   d["frame"] = s.frame;
@@ -213,20 +226,10 @@ PYBIND11_MODULE(slurry, m) {
           },
           py::arg("attributes") = std::vector<std::string>{"position", "velocity", "id"},
           "The frame a run would write, as {table: {column: array}} (copies).")
-      .def_property_readonly(
-          "positions",
-          [](py::object self) {
-            const auto st = self.cast<Simulation&>().solver->particle_storage();
-            return view(self, st.x, st.count, {st.dimension}, false, real_dtype(st));
-          },
-          "Positions (n, dim), storage order, read-only, no copy: valid until the next substep.")
-      .def_property_readonly(
-          "velocities",
-          [](py::object self) {
-            const auto st = self.cast<Simulation&>().solver->particle_storage();
-            return view(self, st.v, st.count, {st.dimension}, false, real_dtype(st));
-          },
-          "Velocities (n, dim), storage order, read-only, no copy.")
+      .def_property_readonly("positions", channel(&slurry::ParticleStorage::x, 1, real_dtype),
+                             "Positions (n, dim), storage order, read-only, no copy: valid until the next substep.")
+      .def_property_readonly("velocities", channel(&slurry::ParticleStorage::v, 1, real_dtype),
+                             "Velocities (n, dim), storage order, read-only, no copy.")
       .def_property_readonly(
           "ids",
           [](py::object self) -> py::object {
@@ -239,34 +242,14 @@ PYBIND11_MODULE(slurry, m) {
             return view(self, st.id, st.count, {}, false, py::dtype::of<std::uint32_t>());
           },
           "Persistent ids (n,), storage order (no copy when the solver stores ids).")
-      .def_property_readonly(
-          "materials",
-          [](py::object self) -> py::object {
-            const auto st = self.cast<Simulation&>().solver->particle_storage();
-            return view(self, st.material, st.count, {}, false, py::dtype::of<std::uint16_t>());
-          },
-          "Material index per particle (n,), or None when every particle is material 0.")
-      .def_property_readonly(
-          "F",
-          [](py::object self) -> py::object {
-            const auto st = self.cast<Simulation&>().solver->particle_storage();
-            return view(self, st.F, st.count, {st.dimension, st.dimension}, true, real_dtype(st));
-          },
-          "Elastic deformation gradients (n, dim, dim) of MPM solids, or None.")
-      .def_property_readonly(
-          "J",
-          [](py::object self) -> py::object {
-            const auto st = self.cast<Simulation&>().solver->particle_storage();
-            return view(self, st.J, st.count, {}, false, real_dtype(st));
-          },
-          "Volume ratio (n,) of MPM fluids, or None.")
-      .def_property_readonly(
-          "plastic",
-          [](py::object self) -> py::object {
-            const auto st = self.cast<Simulation&>().solver->particle_storage();
-            return view(self, st.plastic, st.count, {}, false, real_dtype(st));
-          },
-          "Plastic state (n,) of MPM plastic materials, or None.")
+      .def_property_readonly("materials", channel(&slurry::ParticleStorage::material, 0, material_dtype),
+                             "Material index per particle (n,), or None when every particle is material 0.")
+      .def_property_readonly("F", channel(&slurry::ParticleStorage::F, 2, real_dtype),
+                             "Elastic deformation gradients (n, dim, dim) of MPM solids, or None.")
+      .def_property_readonly("J", channel(&slurry::ParticleStorage::J, 0, real_dtype),
+                             "Volume ratio (n,) of MPM fluids, or None.")
+      .def_property_readonly("plastic", channel(&slurry::ParticleStorage::plastic, 0, real_dtype),
+                             "Plastic state (n,) of MPM plastic materials, or None.")
       .def(
           "id_order",
           [](const Simulation& s) {
