@@ -3,61 +3,16 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
-#include <map>
 #include <utility>
 
 #include "geometry/scene_meshes.h"
+#include "slurry/engine/geometry/shapes.h"
 
 namespace slurry::detail {
 
 namespace {
 
 using geometry::TriangleMesh;
-
-/// The axis-aligned box [lo, hi], outward-facing triangles.
-TriangleMesh box_mesh(const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
-  TriangleMesh m;
-  for (int c = 0; c < 8; ++c) m.vertices.emplace_back(c & 1 ? hi[0] : lo[0], c & 2 ? hi[1] : lo[1], c & 4 ? hi[2] : lo[2]);
-  // Corner c has bit d set where it lies at hi[d]; each face as two triangles, wound outward.
-  const int quads[6][4] = {{0, 4, 6, 2}, {1, 3, 7, 5}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 2, 3, 1}, {4, 5, 7, 6}};
-  for (const auto& q : quads) {
-    m.triangles.push_back({q[0], q[1], q[2]});
-    m.triangles.push_back({q[0], q[2], q[3]});
-  }
-  return m;
-}
-
-/// The unit sphere as an icosahedron subdivided `levels` times, vertices projected on it.
-TriangleMesh unit_sphere(int levels) {
-  TriangleMesh m;
-  const double g = (1 + std::sqrt(5.0)) / 2;
-  const double p[12][3] = {{-1, g, 0}, {1, g, 0}, {-1, -g, 0}, {1, -g, 0}, {0, -1, g}, {0, 1, g},
-                           {0, -1, -g}, {0, 1, -g}, {g, 0, -1}, {g, 0, 1}, {-g, 0, -1}, {-g, 0, 1}};
-  for (const auto& v : p) m.vertices.push_back(Eigen::Vector3d(v[0], v[1], v[2]).normalized());
-  m.triangles = {{0, 11, 5}, {0, 5, 1}, {0, 1, 7}, {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
-                 {11, 10, 2}, {10, 7, 6}, {7, 1, 8}, {3, 9, 4}, {3, 4, 2}, {3, 2, 6}, {3, 6, 8},
-                 {3, 8, 9}, {4, 9, 5}, {2, 4, 11}, {6, 2, 10}, {8, 6, 7}, {9, 8, 1}};
-  for (int level = 0; level < levels; ++level) {
-    std::map<std::pair<int, int>, int> middle;
-    const auto mid = [&](int a, int b) {
-      const auto key = std::minmax(a, b);
-      const auto it = middle.find(key);
-      if (it != middle.end()) return it->second;
-      m.vertices.push_back((m.vertices[std::size_t(a)] + m.vertices[std::size_t(b)]).normalized());
-      return middle[key] = int(m.vertices.size()) - 1;
-    };
-    std::vector<std::array<int, 3>> next;
-    for (const auto& t : m.triangles) {
-      const int ab = mid(t[0], t[1]), bc = mid(t[1], t[2]), ca = mid(t[2], t[0]);
-      next.push_back({t[0], ab, ca});
-      next.push_back({t[1], bc, ab});
-      next.push_back({t[2], ca, bc});
-      next.push_back({ab, bc, ca});
-    }
-    m.triangles = std::move(next);
-  }
-  return m;
-}
 
 /// The polygon where the plane through `point` with normal `n` cuts the box [lo, hi], fanned into
 /// triangles whose normal is n (out of the half-space's solid); empty if the plane misses the box.
@@ -105,10 +60,10 @@ ColliderSurfaces::ColliderSurfaces(const Scene& scene) {
     TriangleMesh mesh;
     switch (c.shape) {
       case ColliderShape::HalfSpace: mesh = plane_in_box(c.point, c.normal, scene.domain.min, scene.domain.max); break;
-      case ColliderShape::Box: mesh = box_mesh(c.min, c.max); break;
+      case ColliderShape::Box: mesh = geometry::box_mesh(c.min, c.max); break;
       case ColliderShape::Sphere:
-        mesh = unit_sphere(3);
-        for (auto& v : mesh.vertices) v = c.center + c.radius * v;
+        mesh = geometry::icosphere(c.radius, 3);
+        for (auto& v : mesh.vertices) v += c.center;
         break;
       case ColliderShape::Mesh:
         mesh = place_scene_mesh(scene, c.mesh, c.scale, Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(),

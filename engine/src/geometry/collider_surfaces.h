@@ -20,8 +20,8 @@ class ColliderSurfaces {
   /// - half_space: the convex polygon where its plane cuts the domain box (nothing if it misses),
   ///   facing out of the solid;
   /// - box: its 6 faces, 12 triangles;
-  /// - sphere: an icosahedron subdivided 3 times, projected on the sphere (642 vertices, 1280
-  ///   triangles; the chords lie within 0.3% of the radius inside it);
+  /// - sphere: geometry::icosphere at 3 levels (642 vertices, 1280 triangles, its triangles
+  ///   about 0.45% of the radius inside the sphere at most);
   /// - mesh: the mesh file with the collider's scale, as the solver places it.
   explicit ColliderSurfaces(const Scene& scene);
 

@@ -573,6 +573,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     colliders = std::make_unique<detail::ColliderSurfaces>(limited);
     if (colliders->empty()) colliders.reset();
   }
+  const bool z_up = scene.output.up_axis == "z";
   const int every = scene.output.checkpoint_every;
   const bool retry = scene.solver.on_instability == OnInstability::Retry;
   std::string snapshot;  // on_instability "retry": the state at the start of the frame
@@ -617,22 +618,22 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     try {
       if (per_rank) {
         Frame part = sim->own_frame(scene.output.attributes);
-        if (scene.output.up_axis == "z") to_z_up(part);
+        if (z_up) to_z_up(part);
         part.comments.push_back("slurry run " + run_token);
         io::write_ply(rank_frame_file(dir, f, comm->rank()), part, format);
       } else if (files) {
         frame = sim->frame_view(scene.output.attributes);
-        if (scene.output.up_axis == "z") to_z_up(frame);
+        if (z_up) to_z_up(frame);
         if (writer) io::write_ply(file, frame, format);
       }
       if (colliders) {
-        Frame surfaces = colliders->at(f * scene.frame_dt());
-        if (scene.output.up_axis == "z") to_z_up(surfaces);
+        const double t = f * scene.frame_dt();
+        Frame surfaces = colliders->at(t);
+        if (z_up) to_z_up(surfaces);
         if (collider_ply) io::write_ply(collider_file(dir, f, "ply"), surfaces, format);
         if (collider_obj)
-          io::write_obj(collider_file(dir, f, "obj"), surfaces,
-                        "slurry colliders at t = " + fmt(f * scene.frame_dt()) + " s: one object per collider", "collider",
-                        "collider_");
+          io::write_obj(collider_file(dir, f, "obj"), surfaces, "slurry colliders at t = " + fmt(t) + " s: one object per collider",
+                        "collider", "collider_");
       }
     } catch (...) {
       if (f == 0 && created) fs::remove(dir, ec);  // nothing is left of a run without a frame

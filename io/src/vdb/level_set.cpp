@@ -624,32 +624,32 @@ LevelSet with_velocity(const LevelSet& ls, const PointCloud& points, double spac
 
 }  // namespace
 
-Surface surface_particles(const PointCloud& points, const SurfaceParams& params) {
+namespace {
+/// surface_particles and surface_mesh: the mesh with its vertex velocities and, with `level_set`,
+/// the level set with its velocity grid.
+Surface surface_of(const PointCloud& points, const SurfaceParams& params, bool level_set) {
   params.validate();
   check_points(points);
   detail::initialize_openvdb();
   Surface out;
   if (params.method == SurfaceMethod::Anisotropic) {
-    out = anisotropic_surface(points, params, /*vertex_velocities=*/true);
+    out = anisotropic_surface(points, params, /*vertex_velocities=*/true, level_set);
   } else {
     LevelSet ls = spheres_level_set(points, params);
     TriangleMesh mesh = level_set_to_mesh(ls, points, params);
-    out = Surface{std::move(ls), std::move(mesh)};
+    out = Surface{level_set ? std::move(ls) : LevelSet(nullptr), std::move(mesh)};
   }
-  if (!points.velocity.empty()) out.level_set = with_velocity(out.level_set, points, params.spacing);
+  if (level_set && !points.velocity.empty()) out.level_set = with_velocity(out.level_set, points, params.spacing);
   return out;
+}
+}  // namespace
+
+Surface surface_particles(const PointCloud& points, const SurfaceParams& params) {
+  return surface_of(points, params, /*level_set=*/true);
 }
 
 Surface surface_mesh(const PointCloud& points, const SurfaceParams& params) {
-  if (params.method != SurfaceMethod::Anisotropic) {
-    Surface out = surface_particles(points, params);
-    out.level_set = LevelSet(nullptr);
-    return out;
-  }
-  params.validate();
-  check_points(points);
-  detail::initialize_openvdb();
-  return anisotropic_surface(points, params, /*vertex_velocities=*/true, /*level_set=*/false);
+  return surface_of(points, params, /*level_set=*/false);
 }
 
 void write_vdb(const std::filesystem::path& path, const LevelSet& level_set) {

@@ -147,8 +147,8 @@ TriangleMesh level_set_to_mesh(const LevelSet& level_set, const PointCloud& poin
 Surface surface_particles(const PointCloud& points, const SurfaceParams& params);
 /// The mesh of surface_particles alone (the same vertices, triangles and vertex velocities), for
 /// outputs without a .vdb: the anisotropic method then skips the level set of its mesh (A6) and
-/// its velocity grid, about 40% of its time. Surface::level_set is empty (no voxels); the spheres
-/// method meshes its level set as surface_particles does and drops it.
+/// its velocity grid, about 40% of its time; the spheres method meshes its level set and drops
+/// it without a velocity grid. Surface::level_set is empty (no voxels).
 Surface surface_mesh(const PointCloud& points, const SurfaceParams& params);
 
 /// Per-vertex velocities (step 5) at `vertices` from `points` (which must have velocities).
