@@ -111,6 +111,16 @@ auto channel(Member member, int rank, py::dtype (*type)(const slurry::ParticleSt
 
 py::dtype material_dtype(const slurry::ParticleStorage&) { return py::dtype::of<std::uint16_t>(); }
 
+/// The storage index of each particle in ascending id order: the permutation of the solver's
+/// particle view (Solver::particles_view).
+template <class T, int Dim>
+std::vector<std::uint32_t> id_order(const Solver& solver) {
+  const auto view = solver.particles_view<T, Dim>();
+  std::vector<std::uint32_t> order(view.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = std::uint32_t(view.slot(i));
+  return order;
+}
+
 py::dict stats_dict(const slurry::RunStats& s) {
   py::dict d;
   d["frame"] = s.frame;
@@ -254,9 +264,10 @@ PYBIND11_MODULE(slurry, m) {
           "id_order",
           [](const Simulation& s) {
             const auto st = s.solver->particle_storage();
-            std::vector<std::uint32_t> order(st.count);
-            for (std::size_t i = 0; i < st.count; ++i) order[i] = std::uint32_t(i);
-            if (st.id) std::sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) { return st.id[a] < st.id[b]; });
+            const bool dbl = st.precision == slurry::Precision::Double;
+            const std::vector<std::uint32_t> order =
+                st.dimension == 2 ? (dbl ? id_order<double, 2>(*s.solver) : id_order<float, 2>(*s.solver))
+                                  : (dbl ? id_order<double, 3>(*s.solver) : id_order<float, 3>(*s.solver));
             return py::array_t<std::uint32_t>(py::ssize_t(order.size()), order.data());
           },
           "The storage indices in ascending id order: positions[sim.id_order()] is in id order (a copy).");
