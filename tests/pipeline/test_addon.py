@@ -1,0 +1,228 @@
+# The Blender add-on (blender/slurry_blender), headless in Debian's Blender 3.4:
+#
+#   BLENDER_USER_SCRIPTS=TMP blender -b --factory-startup --python-exit-code 1 -P test_addon.py -- \
+#       ADDON.zip DIR FRAMES OUT [MODULE_DIR RUN_SCENE]
+#
+# Installs the zipped add-on into the user scripts folder BLENDER_USER_SCRIPTS names (a temporary
+# one: nothing global changes) and enables it; imports DIR (a run of a shipped scene by the CLI,
+# frames 0..FRAMES); steps the frames and checks, for each, that the particles, surface and
+# colliders objects hold the vertex and face counts the PLY headers declare, that the particles'
+# `velocity` (FLOAT_VECTOR) and `id` (INT) attributes are the file's columns in Blender's axes, row
+# by row, that the surface and colliders carry `velocity`, and that the VDB volume reads that
+# frame's file with its `velocity` grid. Then renders one frame at 64 x 48 with Cycles on the CPU
+# three times: motion blur off, on, and on with the surface's velocities zeroed, and asserts that
+# the velocities make the blurred picture differ from the sharp one, and that without them it does
+# not (so the difference is the blur the attribute drives). With MODULE_DIR and RUN_SCENE, also
+# runs RUN_SCENE through the add-on's Run operator (blocking) with the module from MODULE_DIR and
+# checks what it imported. Any failed assertion raises; --python-exit-code 1 makes Blender exit 1.
+import os
+import sys
+import time
+
+import bpy
+import numpy as np
+
+
+def expect(cond, message):
+    if not cond:
+        raise AssertionError(message)
+    print("ok:", message)
+
+
+def header_counts(path):
+    counts = {}
+    with open(path, "rb") as f:
+        assert f.readline().strip() == b"ply", path
+        for raw in f:
+            words = raw.decode("ascii").split()
+            if words[:1] == ["element"]:
+                counts[words[1]] = int(words[2])
+            if words[:1] == ["end_header"]:
+                return counts
+    raise AssertionError(f"{path}: no end_header")
+
+
+def read_vertex_columns(path):
+    """The vertex element of a binary little-endian PLY, as {name: array} (read here, not by the add-on)."""
+    types = {"float": "<f4", "double": "<f8", "uint": "<u4", "int": "<i4", "uchar": "u1", "ushort": "<u2"}
+    props, count = [], 0
+    with open(path, "rb") as f:
+        f.readline()
+        element = None
+        for raw in f:
+            words = raw.decode("ascii").split()
+            if words[0] == "element":
+                element = words[1]
+                if element == "vertex":
+                    count = int(words[2])
+            elif words[0] == "property" and element == "vertex":
+                props.append((words[2], types[words[1]]))
+            elif words[0] == "end_header":
+                break
+        rows = np.frombuffer(f.read(np.dtype(props).itemsize * count), np.dtype(props), count)
+    return {n: rows[n] for n, _ in props}
+
+
+def pixels(path):
+    img = bpy.data.images.load(path)
+    a = np.empty(len(img.pixels), np.float32)
+    img.pixels.foreach_get(a)
+    bpy.data.images.remove(img)
+    return a.reshape(-1, 4)[:, :3]
+
+
+def main():
+    argv = sys.argv[sys.argv.index("--") + 1:]
+    addon_zip, directory, frames, out = argv[0], os.path.abspath(argv[1]), int(argv[2]), os.path.abspath(argv[3])
+    module_dir, run_scene = (argv[4], argv[5]) if len(argv) >= 6 else (None, None)
+    os.makedirs(out, exist_ok=True)
+    user_scripts = os.environ.get("BLENDER_USER_SCRIPTS", "")
+    expect(user_scripts and os.path.isdir(user_scripts), f"BLENDER_USER_SCRIPTS is a folder ({user_scripts})")
+
+    # 1. Install and enable the zipped add-on, into the temporary user scripts folder.
+    bpy.ops.preferences.addon_install(filepath=os.path.abspath(addon_zip), overwrite=True)
+    bpy.ops.preferences.addon_enable(module="slurry_blender")
+    import slurry_blender
+    expect(os.path.realpath(slurry_blender.__file__).startswith(os.path.realpath(user_scripts)),
+           f"add-on installed under the temporary scripts folder: {slurry_blender.__file__}")
+    expect(hasattr(bpy.ops.slurry, "import_directory") and hasattr(bpy.ops.slurry, "run"), "operators registered")
+
+    # 2. Import the CLI's output into an empty scene (no startup cube): Blender frame f shows frame f.
+    scene = bpy.context.scene
+    for obj in list(scene.objects):
+        bpy.data.objects.remove(obj)
+    t0 = time.time()
+    result = bpy.ops.slurry.import_directory(directory=directory, start_frame=0, up_axis="AUTO")
+    expect(result == {"FINISHED"}, f"import finished ({time.time() - t0:.2f} s)")
+    objects = {o.name: o for o in scene.objects}
+    for name in ("particles", "surface", "colliders", "surface_vdb"):
+        expect(name in objects, f"object {name} imported")
+    particles, surface, colliders, volume = (objects[n] for n in ("particles", "surface", "colliders", "surface_vdb"))
+    expect(scene.frame_start == 0 and scene.frame_end == frames, f"frame range {scene.frame_start}..{scene.frame_end}")
+
+    # 3. Every frame: counts as declared, attributes as written (in Z-up), the VDB of that frame.
+    for f in range(frames + 1):
+        scene.frame_set(f)
+        tag = f"{f:04d}"
+        expected = header_counts(os.path.join(directory, f"frame_{tag}.ply"))
+        mesh = particles.data
+        expect(len(mesh.vertices) == expected["vertex"] and len(mesh.polygons) == 0,
+               f"frame {f}: particles {len(mesh.vertices)} vertices, {expected['vertex']} written")
+        cols = read_vertex_columns(os.path.join(directory, f"frame_{tag}.ply"))
+        n = len(mesh.vertices)
+        co = np.empty(3 * n, np.float32)
+        mesh.vertices.foreach_get("co", co)
+        vel = mesh.attributes.get("velocity")
+        ids = mesh.attributes.get("id")
+        expect(vel is not None and vel.data_type == "FLOAT_VECTOR" and vel.domain == "POINT",
+               f"frame {f}: particles have a point FLOAT_VECTOR velocity")
+        expect(ids is not None and ids.data_type == "INT" and ids.domain == "POINT", f"frame {f}: particles have INT id")
+        v = np.empty(3 * n, np.float32)
+        vel.data.foreach_get("vector", v)
+        i = np.empty(n, np.int32)
+        ids.data.foreach_get("value", i)
+        # The scene is Y-up: Blender's (x, y, z) is the file's (x, -z, y).
+        expect(np.array_equal(co.reshape(-1, 3), np.column_stack([cols["x"], -cols["z"], cols["y"]])),
+               f"frame {f}: positions are the file's, turned Z-up")
+        expect(np.array_equal(v.reshape(-1, 3), np.column_stack([cols["vx"], -cols["vz"], cols["vy"]])),
+               f"frame {f}: velocities are the file's m/s, turned Z-up (max |v| {np.abs(v).max():.3f})")
+        expect(np.array_equal(i, cols["id"].astype(np.int32)), f"frame {f}: ids are the file's, row by row")
+        for obj, stem in ((surface, "surface"), (colliders, "colliders")):
+            expected = header_counts(os.path.join(directory, f"{stem}_{tag}.ply"))
+            m = obj.data
+            expect(len(m.vertices) == expected["vertex"] and len(m.polygons) == expected["face"],
+                   f"frame {f}: {stem} {len(m.vertices)} vertices, {len(m.polygons)} faces; "
+                   f"{expected['vertex']}, {expected['face']} written")
+            a = m.attributes.get("velocity")
+            expect(a is not None and a.data_type == "FLOAT_VECTOR" and a.domain == "POINT", f"frame {f}: {stem} velocity")
+        expect(colliders.data.attributes.get("collider") is not None, f"frame {f}: colliders have the face attribute collider")
+        grids = volume.data.grids
+        grids.load()
+        expect(os.path.basename(grids.frame_filepath) == f"surface_{tag}.vdb",
+               f"frame {f}: the volume reads {os.path.basename(grids.frame_filepath)}")
+        names = {g.name for g in grids}
+        expect({"surface", "velocity"} <= names and volume.data.velocity_grid == "velocity",
+               f"frame {f}: volume grids {sorted(names)}, velocity grid {volume.data.velocity_grid}")
+
+    # 4. Motion blur from the velocity attribute: one frame, 64 x 48, Cycles CPU.
+    f = frames
+    scene.frame_set(f)
+    particles.hide_render = True
+    colliders.hide_render = True
+    lo = np.array([min(v.co[k] for v in surface.data.vertices) for k in range(3)])
+    hi = np.array([max(v.co[k] for v in surface.data.vertices) for k in range(3)])
+    centre, size = (lo + hi) / 2, float(max(hi - lo))
+    cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
+    scene.collection.objects.link(cam)
+    cam.location = centre + np.array([0.0, -1.6 * size, 0.5 * size])
+    from mathutils import Vector
+    cam.rotation_euler = (Vector(centre) - cam.location).to_track_quat("-Z", "Y").to_euler()
+    scene.camera = cam
+    sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
+    sun.data.energy = 4.0
+    sun.rotation_euler = (0.6, 0.2, 0.4)
+    scene.collection.objects.link(sun)
+    world = bpy.data.worlds.new("world")
+    world.color = (0.8, 0.8, 0.8)
+    scene.world = world
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = 8
+    scene.cycles.use_denoising = False
+    scene.cycles.seed = 1
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 64, 48, 100
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.image_settings.color_depth = "16"
+    # A shutter of 4 frames: the liquid moves a few pixels while it is open.
+    scene.render.motion_blur_shutter = 4.0
+
+    def render(name, blur):
+        scene.render.use_motion_blur = blur
+        scene.render.filepath = os.path.join(out, name)
+        t = time.time()
+        bpy.ops.render.render(write_still=True)
+        print(f"rendered {name} in {time.time() - t:.2f} s")
+        return pixels(scene.render.filepath)
+
+    sharp = render("sharp.png", False)
+    blurred = render("blurred.png", True)
+    velocity = surface.data.attributes["velocity"]
+    saved = np.empty(3 * len(velocity.data), np.float32)
+    velocity.data.foreach_get("vector", saved)
+    velocity.data.foreach_set("vector", np.zeros_like(saved))
+    still = render("blur_without_velocity.png", True)
+    velocity.data.foreach_set("vector", saved)
+    moved = float(np.abs(blurred - sharp).mean())
+    unmoved = float(np.abs(still - sharp).mean())
+    changed = float((np.abs(blurred - sharp).max(axis=1) > 0.02).mean())
+    print(f"pixel difference: blur on {moved:.5f} (mean |diff|, {100 * changed:.1f} % of pixels > 0.02), "
+          f"blur on without velocities {unmoved:.5f}")
+    expect(moved > 0.002 and changed > 0.01, f"motion blur changes the picture: mean {moved:.5f}, {100 * changed:.1f} % of pixels")
+    expect(unmoved < 0.25 * moved, f"without the velocity attribute the blur is gone: {unmoved:.5f} < 0.25 x {moved:.5f}")
+
+    # 5. The panel's Run, blocking, through the slurry module.
+    if module_dir:
+        prefs = bpy.context.preferences.addons["slurry_blender"].preferences
+        prefs.module_folder = module_dir
+        settings = scene.slurry
+        settings.scene_file = os.path.abspath(run_scene)
+        settings.cache_dir = os.path.join(out, "cache")
+        settings.frames = 2
+        settings.threads = 2
+        settings.start_frame = 1
+        before = set(bpy.data.collections.keys())
+        t = time.time()
+        result = bpy.ops.slurry.run(blocking=True)
+        expect(result == {"FINISHED"}, f"Run finished ({time.time() - t:.1f} s)")
+        run_dir = os.path.join(out, "cache", os.path.splitext(os.path.basename(run_scene))[0])
+        expect(os.path.isfile(os.path.join(run_dir, "frame_0002.ply")), f"Run wrote {run_dir}/frame_0002.ply")
+        (new,) = set(bpy.data.collections.keys()) - before
+        names = {o.name.split(".")[0] for o in bpy.data.collections[new].objects}
+        expect({"particles", "surface"} <= names, f"Run imported {sorted(names)}")
+        scene.frame_set(3)
+        (parts,) = [o for o in bpy.data.collections[new].objects if o.name.startswith("particles")]
+        expected = header_counts(os.path.join(run_dir, "frame_0002.ply"))
+        expect(len(parts.data.vertices) == expected["vertex"], f"Blender frame 3 shows frame 2: {len(parts.data.vertices)} particles")
+
+
+main()
