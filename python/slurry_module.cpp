@@ -1,13 +1,15 @@
 // The Python module `slurry` (pybind11): scenes from a file or a dict, simulations stepped from
 // Python with their particles as NumPy arrays that read the solver's memory (no copy), whole runs
-// with a Python callback per frame. docs/python.md describes every call with an example.
+// with a Python callback per frame, the liquid's surface as NumPy arrays. docs/python.md
+// describes every call with an example.
 //
 // Lifetimes: a particle array's memory belongs to the simulation; the array keeps the Python
 // Simulation object alive, but its contents are valid only until the simulation takes its next
 // substep (the solvers re-sort and reallocate their particles), so the arrays are read-only and
 // the documentation says to copy what must outlive a step. Long calls (advance_to, run_scene)
-// release the GIL; run_scene takes it back for the callback. Ctrl-C during a call stops it
-// between substeps and raises KeyboardInterrupt.
+// release the GIL; run_scene takes it back for the callback. Ctrl-C during a call from the main
+// thread stops it between substeps and raises KeyboardInterrupt; a StopToken stops it from any
+// thread (Blender's add-on runs scenes in a worker thread and cancels through one).
 #include <pybind11/functional.h>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
@@ -15,7 +17,9 @@
 #include <pybind11/stl/filesystem.h>
 
 #include <algorithm>
+#include <cmath>
 #include <csignal>
+#include <cstdio>
 #include <memory>
 #include <optional>
 #include <string>
@@ -25,6 +29,11 @@
 #include "slurry/engine/run/run.h"
 #include "slurry/engine/solver.h"
 #include "slurry/io/scene_file.h"
+#include "substep.h"
+#ifdef SLURRY_PYTHON_WITH_OPENVDB
+#include "slurry/io/pipeline.h"
+#include "slurry/io/surface.h"
+#endif
 
 namespace py = pybind11;
 
@@ -33,23 +42,122 @@ namespace {
 using slurry::Scene;
 using slurry::Solver;
 
-/// SIGINT while C++ runs without the GIL: the flag is polled between substeps (RunOptions::stop)
-/// and between advance_to's frames; the previous handler comes back afterwards.
-volatile std::sig_atomic_t g_interrupted = 0;
-extern "C" void on_sigint(int) { g_interrupted = 1; }
+/// How a call was stopped: by SIGINT (Ctrl-C) or by a StopToken.
+constexpr std::sig_atomic_t kStoppedBySigint = SIGINT;
+constexpr std::sig_atomic_t kStoppedByToken = 1;
 
-class SigintGuard {
- public:
-  SigintGuard() {
-    g_interrupted = 0;
-    previous_ = std::signal(SIGINT, on_sigint);
+/// SIGINT while C++ runs without the GIL: the handler sets the flag of the call in progress
+/// (polled between substeps, RunOptions::stop, and between advance_to's frames). Installed only
+/// by calls from the main thread, where Python handles signals; the previous handler comes back
+/// afterwards.
+volatile std::sig_atomic_t* g_sigint_target = nullptr;
+extern "C" void on_sigint(int) {
+  if (g_sigint_target) *g_sigint_target = kStoppedBySigint;
+}
+
+bool on_main_thread() {
+  const py::module_ threading = py::module_::import("threading");
+  return threading.attr("current_thread")().is(threading.attr("main_thread")());
+}
+
+/// A request to stop a call (run_scene, advance_to) from another thread or a callback. While a
+/// call runs, the token points at that call's stop flag; both are touched with the GIL held
+/// (request() is called from Python; the call attaches and detaches before it releases and after
+/// it takes back the GIL), so the pointer never dangles.
+struct StopToken {
+  bool requested = false;
+  volatile std::sig_atomic_t* target = nullptr;
+  void request() {
+    requested = true;
+    if (target) *target = kStoppedByToken;
   }
-  ~SigintGuard() { std::signal(SIGINT, previous_); }
-  SigintGuard(const SigintGuard&) = delete;
-  SigintGuard& operator=(const SigintGuard&) = delete;
+};
+
+/// The stop flag of one call, set by SIGINT (main thread only) or by the call's StopToken.
+class StopFlag {
+ public:
+  explicit StopFlag(StopToken* token) : token_(token) {
+    if (token_) {
+      token_->target = &flag_;
+      if (token_->requested) flag_ = kStoppedByToken;
+    }
+    if (on_main_thread()) {
+      sigint_ = true;
+      g_sigint_target = &flag_;
+      previous_ = std::signal(SIGINT, on_sigint);
+    }
+  }
+  ~StopFlag() {
+    if (sigint_) {
+      std::signal(SIGINT, previous_);
+      g_sigint_target = nullptr;
+    }
+    if (token_) token_->target = nullptr;
+  }
+  StopFlag(const StopFlag&) = delete;
+  StopFlag& operator=(const StopFlag&) = delete;
+  volatile std::sig_atomic_t* flag() { return &flag_; }
+  bool stopped() const { return flag_ != 0; }
+  /// Raises KeyboardInterrupt if SIGINT stopped the call.
+  void raise_if_interrupted() const {
+    if (flag_ == kStoppedBySigint) {
+      PyErr_SetNone(PyExc_KeyboardInterrupt);
+      throw py::error_already_set();
+    }
+  }
 
  private:
+  volatile std::sig_atomic_t flag_ = 0;
+  StopToken* token_;
+  bool sigint_ = false;
   void (*previous_)(int) = SIG_DFL;
+};
+
+/// Progress of a long call, with the GIL held: `progress` is None (nothing), a callable
+/// progress(done, total), or True (a tqdm bar if tqdm is installed, else one line on stderr
+/// rewritten in place).
+class Progress {
+ public:
+  Progress(const py::object& progress, double total, const char* unit) : total_(total), unit_(unit) {
+    if (progress.is_none() || (py::isinstance<py::bool_>(progress) && !progress.cast<bool>())) return;
+    if (py::isinstance<py::bool_>(progress)) {
+      try {
+        bar_ = py::module_::import("tqdm").attr("tqdm")(py::arg("total") = total, py::arg("unit") = unit);
+      } catch (const py::error_already_set&) {
+        text_ = true;  // no tqdm
+      }
+      return;
+    }
+    if (!PyCallable_Check(progress.ptr())) throw py::type_error("progress: expected None, True or a callable progress(done, total)");
+    callback_ = progress;
+  }
+  ~Progress() {
+    if (bar_) {
+      try {
+        bar_.attr("close")();
+      } catch (const py::error_already_set&) {
+      }
+    }
+    if (text_ && shown_) std::fputc('\n', stderr);
+  }
+  Progress(const Progress&) = delete;
+  Progress& operator=(const Progress&) = delete;
+  void operator()(double done) {
+    if (callback_) callback_(done, total_);
+    if (bar_) bar_.attr("update")(done - done_);
+    if (text_) {
+      std::fprintf(stderr, "\r%g / %g %s", done, total_, unit_);
+      std::fflush(stderr);
+      shown_ = true;
+    }
+    done_ = done;
+  }
+
+ private:
+  double total_, done_ = 0;
+  const char* unit_;
+  py::object callback_, bar_;
+  bool text_ = false, shown_ = false;
 };
 
 /// A scene from a Python dict (the scene file's keys) or a JSON string, validated as a file is.
@@ -158,6 +266,65 @@ py::dict frame_dict(const slurry::Frame& f) {
   return out;
 }
 
+#ifdef SLURRY_PYTHON_WITH_OPENVDB
+/// The surface of the current particles, as output.surface would mesh this frame: the scene's
+/// surfacing parameters (io::frame_outputs), its liquid's particles, io::surface_mesh.
+py::dict surface_dict(const Simulation& s, std::optional<double> voxel_size, std::optional<std::string> method,
+                      std::optional<int> smoothing) {
+  namespace io = slurry::io;
+  if (s.scene.solver.dimension != 3 || s.scene.solver.type == slurry::SolverType::FEM)
+    throw slurry::SceneError(s.scene.source + ": surface: expected a 3D MPM or FLIP scene (" +
+                             std::to_string(s.scene.solver.dimension) + "D " +
+                             std::string(slurry::to_string(s.scene.solver.type)) + ")");
+  io::FrameOutputs outputs = io::frame_outputs(s.scene);
+  if (voxel_size) outputs.params.voxel_size = *voxel_size;
+  if (smoothing) outputs.params.smoothing = *smoothing;
+  if (method) {
+    if (*method != "anisotropic" && *method != "spheres")
+      throw py::value_error("surface: method: expected \"anisotropic\" or \"spheres\", got \"" + *method + "\"");
+    outputs.params.method = *method == "spheres" ? io::SurfaceMethod::Spheres : io::SurfaceMethod::Anisotropic;
+  }
+  try {
+    outputs.params.validate();
+  } catch (const std::invalid_argument& e) {
+    throw py::value_error(std::string("surface: ") + e.what());
+  }
+  // Every group's materials together (one surface), as the frame's material column selects them.
+  std::vector<int> materials;
+  for (const auto& g : outputs.groups) materials.insert(materials.end(), g.materials.begin(), g.materials.end());
+  io::TriangleMesh mesh;
+  {
+    py::gil_scoped_release release;
+    std::vector<std::string> attributes{"position", "velocity"};
+    if (!materials.empty()) attributes.push_back("material");
+    const slurry::Frame frame = s.solver->frame(attributes);
+    io::PointCloud cloud;
+    if (materials.empty()) {
+      cloud = io::point_cloud(frame);
+    } else {
+      for (int m : materials) {
+        io::PointCloud c = io::point_cloud(frame, m);
+        cloud.position.insert(cloud.position.end(), c.position.begin(), c.position.end());
+        cloud.velocity.insert(cloud.velocity.end(), c.velocity.begin(), c.velocity.end());
+      }
+    }
+    if (cloud.size() > 0) mesh = io::surface_mesh(cloud, outputs.params).mesh;
+  }
+  const auto rows = [](const auto& v, auto zero) {
+    using E = decltype(zero);
+    py::array_t<E> a({py::ssize_t(v.size()), py::ssize_t(3)});
+    if (!v.empty()) std::copy(&v[0][0], &v[0][0] + 3 * v.size(), a.mutable_data());
+    return a;
+  };
+  py::dict d;
+  d["vertices"] = rows(mesh.vertices, float());
+  d["faces"] = rows(mesh.triangles, std::int32_t());
+  d["velocities"] = mesh.velocities.empty() ? rows(std::vector<std::array<float, 3>>(mesh.vertices.size()), float())
+                                            : rows(mesh.velocities, float());
+  return d;
+}
+#endif
+
 }  // namespace
 
 PYBIND11_MODULE(slurry, m) {
@@ -188,6 +355,14 @@ PYBIND11_MODULE(slurry, m) {
       .def_property_readonly("frames", [](const Scene& s) { return s.output.frames; })
       .def_property_readonly("fps", [](const Scene& s) { return s.output.fps; })
       .def_property_readonly("frame_dt", &Scene::frame_dt)
+      .def_property_readonly("solver_type", [](const Scene& s) { return std::string(slurry::to_string(s.solver.type)); },
+                             "\"mpm\", \"flip\" or \"fem\".")
+      .def_property_readonly("directory", [](const Scene& s) { return s.output.directory; },
+                             "output.directory (relative to the working directory).")
+      .def_property_readonly("up_axis", [](const Scene& s) { return s.output.up_axis; },
+                             "output.up_axis: \"y\" (files in the simulation's axes) or \"z\".")
+      .def_property_readonly("surface", [](const Scene& s) { return s.output.surface; },
+                             "output.surface: the surface formats written per frame.")
       .def("__repr__", [](const Scene& s) {
         return "<slurry.Scene " + s.source + ": " + std::to_string(s.solver.dimension) + "D, " +
                std::to_string(s.output.frames) + " frames at " + std::to_string(s.output.fps) + " fps>";
@@ -206,26 +381,55 @@ PYBIND11_MODULE(slurry, m) {
       .def_property_readonly("scene", [](const Simulation& s) { return s.scene; })
       .def(
           "advance_to",
-          [](Simulation& s, double t) {
-            SigintGuard guard;
+          [](Simulation& s, double t, const py::object& progress, StopToken* stop) {
+            StopFlag flag(stop);
+            const double t0 = s.solver->time();
+            Progress shown(progress, std::max(0.0, t - t0), "s");
             std::int64_t steps = 0;
-            {
-              py::gil_scoped_release release;
-              // In pieces of one frame, so that Ctrl-C stops within a frame's worth of substeps.
-              // Each piece ends at a later time than the last, so the loop ends at t.
-              const double piece = s.scene.frame_dt();
-              for (double next = s.solver->time(); next < t && !g_interrupted;) {
-                next = std::min(t, std::max(next, s.solver->time()) + piece);
+            // In pieces of one frame, so that Ctrl-C or a StopToken stops within a frame's
+            // worth of substeps and progress is shown once a frame. Each piece ends at a later
+            // time than the last, so the loop ends at t.
+            const double piece = s.scene.frame_dt();
+            for (double next = s.solver->time(); next < t && !flag.stopped();) {
+              next = std::min(t, std::max(next, s.solver->time()) + piece);
+              {
+                py::gil_scoped_release release;
                 steps += s.solver->advance_to(next);
               }
+              shown(s.solver->time() - t0);
             }
-            if (g_interrupted) {
-              PyErr_SetNone(PyExc_KeyboardInterrupt);
-              throw py::error_already_set();
-            }
+            flag.raise_if_interrupted();
             return steps;
           },
-          py::arg("t"), "Steps the simulation to time t (s); returns the substeps taken. Releases the GIL.")
+          py::arg("t"), py::arg("progress") = py::none(), py::arg("stop") = nullptr,
+          "Steps the simulation to time t (s); returns the substeps taken. Releases the GIL. progress: "
+          "None, True (a tqdm bar if installed) or progress(done_seconds, total_seconds), called once a frame; "
+          "stop: a StopToken that ends the call early (at a frame's end), from another thread.")
+      .def(
+          "step",
+          [](Simulation& s, std::optional<double> dt) {
+            const double length = dt ? *dt : s.solver->dt_scale() * slurry::python::stable_dt(*s.solver);
+            if (!(length > 0) || !std::isfinite(length))
+              throw py::value_error("step: expected a substep length > 0, got " + std::to_string(length));
+            py::gil_scoped_release release;
+            // advance_to an end at most one stable substep away takes exactly one substep that
+            // lands on it (substeps.h), with the solver's own checks.
+            s.solver->advance_to(s.solver->time() + length);
+            return s.solver->time();
+          },
+          py::arg("dt") = py::none(),
+          "Takes one substep: of the solver's stable length (times its dt scale), or of `dt` seconds if "
+          "given (more than one substep if dt exceeds the stable length). Returns the new time (s).")
+      .def_property_readonly(
+          "stable_dt", [](const Simulation& s) { return slurry::python::stable_dt(*s.solver); },
+          "The length (s) of the next substep the solver would take now (its CFL and elastic limits).")
+#ifdef SLURRY_PYTHON_WITH_OPENVDB
+      .def("surface", &surface_dict, py::arg("voxel_size") = py::none(), py::arg("method") = py::none(),
+           py::arg("smoothing") = py::none(),
+           "The liquid's surface of the current particles, as output.surface meshes it (slurry::io::surface_mesh): "
+           "{'vertices': (n, 3) float32, 'faces': (m, 3) int32, 'velocities': (n, 3) float32}, in the simulation's "
+           "axes. voxel_size (m), method ('anisotropic' or 'spheres') and smoothing override the scene's output keys.")
+#endif
       .def(
           "stats", [](Simulation& s) { return stats_dict(s.solver->take_stats()); },
           "The scene-level figures now (mass, momentum, energies, volume, CFL): a dict.")
@@ -284,25 +488,60 @@ PYBIND11_MODULE(slurry, m) {
       },
       py::arg("scene"), "Builds the solver the scene asks for (reading its mesh files).");
 
+  py::class_<StopToken>(m, "StopToken",
+                        "Stops a run_scene or advance_to call from another thread or a callback: the call ends "
+                        "after the frame it is computing (run_scene: written, with a checkpoint for resume).")
+      .def(py::init<>())
+      .def("request", &StopToken::request, "Asks the call that holds this token to stop (thread-safe).")
+      .def_property_readonly("requested", [](const StopToken& t) { return t.requested; });
+
   m.def(
       "run_scene",
       [](const Scene& scene, std::optional<std::string> directory, std::optional<int> frames, int threads,
-         bool write_files, std::function<void(py::dict)> on_frame) {
+         bool write_files, std::function<void(py::dict)> on_frame, bool resume, bool force, bool overwrite,
+         const py::object& progress, StopToken* stop) {
         slurry::RunOptions o;
         if (directory) o.directory = *directory;
         o.frames = frames;
         o.threads = threads;
         o.write_files = write_files;
-        SigintGuard guard;
-        o.stop = &g_interrupted;
+        o.resume = resume;
+        o.force = force;
+        o.overwrite = overwrite;
+        std::vector<std::string> notices;
+        o.notice = [&notices](const std::string& line) { notices.push_back(line); };
+        const bool pipeline = write_files && (!scene.output.surface.empty() || scene.output.vdb_points);
+#ifdef SLURRY_PYTHON_WITH_OPENVDB
+        const slurry::io::FrameOutputs outputs = slurry::io::frame_outputs(scene);
+#else
+        if (pipeline)
+          throw slurry::SceneError(scene.source + ": " + (scene.output.vdb_points ? "output.vdb_points" : "output.surface") +
+                                   ": this module was built without OpenVDB; expected no pipeline outputs");
+#endif
+        StopFlag flag(stop);
+        o.stop = flag.flag();
+        Progress shown(progress, double(frames ? *frames : scene.output.frames), "frame");
         std::exception_ptr callback_error;
         slurry::RunSummary summary;
         {
           py::gil_scoped_release release;
           summary = slurry::run_scene(scene, o, [&](const slurry::FrameReport& r) {
-            if (!on_frame || callback_error) return;
+            std::vector<std::string> files;
+#ifdef SLURRY_PYTHON_WITH_OPENVDB
+            // The surfaces, level sets and VDB points the scene asks for, as `slurry run` writes
+            // them beside each frame (the colliders come from run_scene itself).
+            if (pipeline && r.frame_data) {
+              slurry::io::with_threads(threads, [&] {
+                for (const auto& f : slurry::io::write_frame_outputs(*r.frame_data, r.frame, r.file.parent_path(), outputs).files)
+                  files.push_back(f.string());
+              });
+            }
+#endif
+            if (callback_error) return;
             py::gil_scoped_acquire acquire;
             try {
+              shown(double(r.frame));
+              if (!on_frame) return;
               py::dict d;
               d["frame"] = r.frame;
               d["frames"] = r.frames;
@@ -310,32 +549,40 @@ PYBIND11_MODULE(slurry, m) {
               d["seconds"] = r.seconds;
               d["particles"] = r.particles;
               d["file"] = r.file.string();
+              d["pipeline_files"] = files;
               d["stats"] = stats_dict(r.stats);
               d["warnings"] = r.warnings;
               on_frame(d);
             } catch (...) {
               callback_error = std::current_exception();
-              g_interrupted = 1;  // stop the run after this frame
+              *flag.flag() = kStoppedByToken;  // stop the run after this frame
             }
           });
         }
         if (callback_error) std::rethrow_exception(callback_error);
-        if (summary.interrupted) {
-          PyErr_SetNone(PyExc_KeyboardInterrupt);
-          throw py::error_already_set();
-        }
+        flag.raise_if_interrupted();
         py::dict d;
         d["frames_written"] = summary.frames_written;
         d["directory"] = summary.directory.string();
         d["particles"] = summary.particles;
         d["wall_seconds"] = summary.wall_seconds;
         d["drift_warnings"] = summary.drift_warnings;
+        d["resumed_from"] = summary.resumed_from;
+        d["checkpoints_written"] = summary.checkpoints_written;
+        d["stopped"] = summary.interrupted != 0;
+        d["notices"] = notices;
         d["first"] = stats_dict(summary.first);
         d["last"] = stats_dict(summary.last);
         return d;
       },
       py::arg("scene"), py::arg("directory") = py::none(), py::arg("frames") = py::none(), py::arg("threads") = 0,
-      py::arg("write_files") = true, py::arg("on_frame") = nullptr,
-      "Runs the scene as `slurry run` does (frames, stats.csv, checkpoints), calling on_frame(dict) after every "
-      "frame. Releases the GIL; Ctrl-C stops after the current substep loop and raises KeyboardInterrupt.");
+      py::arg("write_files") = true, py::arg("on_frame") = nullptr, py::arg("resume") = false,
+      py::arg("force") = false, py::arg("overwrite") = false, py::arg("progress") = py::none(),
+      py::arg("stop") = nullptr,
+      "Runs the scene as `slurry run` does (frames, stats.csv, checkpoints, colliders, and the surfaces and VDB "
+      "points the scene asks for), calling on_frame(dict) after every frame. resume: continue from the newest "
+      "checkpoint in the directory (force: one written for another version of the scene); overwrite: remove "
+      "another scene's frames; progress: None, True (tqdm if installed) or progress(frame, frames); stop: a "
+      "StopToken (the run ends after the frame it is computing and returns with 'stopped' True). Releases the GIL; "
+      "Ctrl-C (main thread) stops after the current substep loop and raises KeyboardInterrupt.");
 }

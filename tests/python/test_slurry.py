@@ -112,3 +112,117 @@ def test_a_shipped_scene_file_loads_and_steps():
     sim = slurry.make_simulation(scene)
     sim.advance_to(scene.frame_dt)
     assert sim.particle_count > 0 and np.isfinite(sim.positions).all()
+
+
+def test_step_takes_one_substep_of_the_stable_length():
+    sim = slurry.make_simulation(slurry.parse_scene(FALL))
+    dt = sim.stable_dt
+    assert 0 < dt < 1 / 24
+    t = sim.step()
+    assert sim.steps == 1 and t == sim.time == pytest.approx(dt, rel=1e-12)
+    # Free fall: one substep of symplectic Euler gives every particle vy = -g dt.
+    assert float(np.mean(sim.velocities[:, 1])) == pytest.approx(-9.81 * dt, rel=1e-4)
+    t2 = sim.step(dt=1e-4)  # a given length below the stable one: one substep of exactly that
+    assert sim.steps == 2 and t2 == pytest.approx(dt + 1e-4, rel=1e-12)
+    with pytest.raises(ValueError, match="substep length"):
+        sim.step(dt=-1.0)
+
+
+def test_progress_callbacks_and_the_text_fallback(tmp_path, capfd):
+    sim = slurry.make_simulation(slurry.parse_scene(FALL))
+    seen = []
+    sim.advance_to(0.2, progress=lambda done, total: seen.append((done, total)))
+    assert len(seen) == math.ceil(0.2 * 24)  # once a frame
+    assert all(total == pytest.approx(0.2) for _, total in seen)
+    assert [d for d, _ in seen] == sorted(d for d, _ in seen) and seen[-1][0] == pytest.approx(0.2)
+    frames = []
+    slurry.run_scene(slurry.parse_scene(FALL), directory=str(tmp_path / "p"), threads=1,
+                     progress=lambda frame, total: frames.append((frame, total)))
+    assert frames == [(0, 4), (1, 4), (2, 4), (3, 4), (4, 4)]
+    with pytest.raises(TypeError, match="progress"):
+        sim.advance_to(0.3, progress=42)
+    try:
+        import tqdm  # noqa: F401 (with tqdm installed, True draws its bar instead)
+    except ImportError:
+        slurry.run_scene(slurry.parse_scene(FALL), directory=str(tmp_path / "q"), threads=1, progress=True)
+        assert "4 / 4 frame" in capfd.readouterr().err
+
+
+def test_a_stop_token_from_another_thread_then_resume(tmp_path):
+    import threading
+    spec = dict(FALL, output=dict(FALL["output"], frames=6, checkpoint_every=2))
+    scene = slurry.parse_scene(spec, "fall.json")
+    whole = tmp_path / "whole"
+    slurry.run_scene(scene, directory=str(whole), threads=1)
+    token, reached, asked = slurry.StopToken(), threading.Event(), threading.Event()
+
+    def on_frame(f):
+        if f["frame"] == 3:  # wait here until the main thread has asked the run to stop
+            reached.set()
+            asked.wait(30)
+
+    out = tmp_path / "stopped"
+    result = {}
+    worker = threading.Thread(target=lambda: result.update(
+        slurry.run_scene(scene, directory=str(out), threads=1, on_frame=on_frame, stop=token)))
+    worker.start()
+    assert reached.wait(60)
+    token.request()
+    asked.set()
+    worker.join(60)
+    assert token.requested and result["stopped"] and result["frames_written"] == 4
+    assert not (out / "frame_0004.ply").exists() and (out / "checkpoint_0003.slc").exists()
+    # Resume continues from the checkpoint of the frame it stopped after, to the same last frame.
+    resumed = slurry.run_scene(scene, directory=str(out), threads=1, resume=True)
+    assert resumed["resumed_from"] == 3 and not resumed["stopped"]
+    for f in range(7):
+        name = f"frame_{f:04d}.ply"
+        assert (out / name).read_bytes() == (whole / name).read_bytes(), name
+
+
+# A 3D FLIP ball of water (8 particles a cell), falling freely, asking for a PLY surface per frame.
+BALL = {
+    "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "dx": 0.05},
+    "solver": {"type": "flip", "dimension": 3, "transfer": "apic", "kernel": "linear"},
+    "materials": [{"name": "water", "model": "fluid", "density": 1000}],
+    "bodies": [{"shape": "sphere", "center": [0.5, 0.6, 0.5], "radius": 0.2, "material": "water",
+                "particles_per_cell": 8}],
+    "output": {"directory": "frames", "fps": 24, "frames": 2, "attributes": ["position", "velocity", "id"],
+               "surface": ["ply"]},
+}
+
+
+def enclosed_volume(vertices, faces):
+    a, b, c = (vertices[faces[:, k]].astype(np.float64) for k in range(3))
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6)
+
+
+def test_the_surface_of_the_current_particles():
+    sim = slurry.make_simulation(slurry.parse_scene(BALL))
+    sim.advance_to(0.1)
+    s = sim.surface()
+    v, f, u = s["vertices"], s["faces"], s["velocities"]
+    assert v.dtype == np.float32 and v.shape[1] == 3 and f.dtype == np.int32 and f.shape[1] == 3
+    assert u.shape == v.shape and len(f) > 100 and f.min() >= 0 and f.max() < len(v)
+    # The anisotropic surface keeps the particles' volume, count x spacing^3 (spacing dx / 2).
+    particles_volume = sim.particle_count * (0.05 / 2) ** 3
+    assert enclosed_volume(v, f) == pytest.approx(particles_volume, rel=0.03)
+    # The ball falls as a whole at about g t: so do its surface's vertices.
+    assert float(np.mean(u[:, 1])) == pytest.approx(float(np.mean(sim.velocities[:, 1])), rel=0.05)
+    assert float(np.mean(u[:, 1])) == pytest.approx(-9.81 * 0.1, rel=0.05)
+    spheres = sim.surface(method="spheres", smoothing=1)
+    assert len(spheres["faces"]) > 0 and enclosed_volume(spheres["vertices"], spheres["faces"]) < enclosed_volume(v, f)
+    with pytest.raises(ValueError, match="method"):
+        sim.surface(method="blobs")
+    with pytest.raises(slurry.SceneError, match="3D"):
+        slurry.make_simulation(slurry.parse_scene(FALL)).surface()
+
+
+def test_run_scene_writes_the_surfaces_the_scene_asks_for(tmp_path):
+    files = []
+    slurry.run_scene(slurry.parse_scene(BALL), directory=str(tmp_path), threads=1,
+                     on_frame=lambda f: files.append(f["pipeline_files"]))
+    assert [[os.path.basename(p) for p in fs] for fs in files] == [[f"surface_{k:04d}.ply"] for k in range(3)]
+    with open(tmp_path / "surface_0002.ply", "rb") as fh:
+        header = fh.read(400).decode("ascii", "replace")
+    assert "property float vx" in header and "element face" in header
