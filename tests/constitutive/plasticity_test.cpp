@@ -193,6 +193,32 @@ TEST(DruckerPrager, AlphaFromFrictionAngle) {
   EXPECT_NO_THROW((sc::DruckerPrager<double>{35}.validate()));
 }
 
+// A 2D run is the plane-strain slice of the 3D material: the 2D yield function of in-plane
+// principal stresses equals the 3D one with the out-of-plane stress at the in-plane mean (its
+// value in isochoric plastic flow without out-of-plane strain), and at yield the in-plane
+// Mohr-Coulomb angle is asin(3 alpha_3 / sqrt 2), 43.9 degrees for phi = 30.
+TEST(DruckerPrager, TwoDimensionalConeIsThePlaneStrainSliceOfTheThreeDimensionalOne) {
+  sc::DruckerPrager<double> dp;
+  std::mt19937 rng(31);
+  std::uniform_real_distribution<double> u(-3.0, 1.0);
+  for (double phi : {10.0, 30.0, 40.0}) {
+    dp.friction_angle = phi;
+    EXPECT_NEAR(dp.alpha<2>(), 1.5 * dp.alpha<3>(), 1e-15);
+    for (int i = 0; i < 200; ++i) {
+      const double t1 = u(rng), t2 = u(rng);
+      const double y2 = dp.yield_function<2>(Eigen::Vector2d(t1, t2));
+      const double y3 = dp.yield_function<3>(Eigen::Vector3d(t1, t2, 0.5 * (t1 + t2)));
+      EXPECT_NEAR(y2, y3, 1e-12) << phi << " " << t1 << " " << t2;
+    }
+  }
+  dp.friction_angle = 30;
+  // On the 2D cone under compression p: |t1 - t2| = sin(phi_in_plane) * (-(t1 + t2)).
+  const double p = 1.0, k = 3 * dp.alpha<3>() / std::sqrt(2.0);
+  const double t1 = -p + k * p, t2 = -p - k * p;
+  EXPECT_NEAR(dp.yield_function<2>(Eigen::Vector2d(t1, t2)), 0.0, 1e-12);
+  EXPECT_NEAR(std::asin(k) * 180 / 3.14159265358979323846, 43.85, 0.01);
+}
+
 TYPED_TEST(PlasticityTest, DruckerPragerTensionReturnsToTip) {
   constexpr int D = TypeParam::value;
   const sc::DruckerPrager<double> dp;

@@ -207,10 +207,22 @@ struct SnowPlasticity {
 /// projection algorithm), for the elasticity of hencky_stvk.h.
 ///
 /// Yield function on principal Kirchhoff stresses (tension positive):
-///   y(tau) = ||dev tau||_F + alpha tr(tau) <= 0,
-///   alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi)),   phi = friction_angle.
+///   y(tau) = ||dev tau||_F + alpha_d tr(tau) <= 0,
+///   alpha_3 = sqrt(2/3) 2 sin(phi) / (3 - sin(phi)),   phi = friction_angle,
+/// Klar et al.'s cone, which meets Mohr-Coulomb at phi in triaxial compression.
+///
+/// In 2D (plane strain) the stress has an out-of-plane component that the 2x2 state does not
+/// carry. While the material flows plastically with zero dilatancy and no out-of-plane strain,
+/// that component equals the in-plane mean stress (the out-of-plane deviator must vanish), and
+/// the 3D cone on (tau1, tau2, (tau1 + tau2) / 2) reads ||dev_2 tau||_F + (3/2) alpha_3 tr_2(tau)
+/// <= 0 on the in-plane stresses. So alpha_2 = (3/2) alpha_3: a 2D run is the plane-strain slice
+/// of the same 3D material (in-plane Mohr-Coulomb angle asin(3 alpha_3 / sqrt 2), 43.9 degrees
+/// for phi = 30, the plane-strain strength of the 3D cone). Taking alpha_3 unchanged in 2D would
+/// make the 2D material weaker than its 3D self (in-plane angle asin(sqrt 2 alpha_3), 27.5
+/// degrees for phi = 30); the column-collapse runout then converges 44% above Lube et al.'s 2D
+/// experiments (docs/accuracy.md).
 /// With eps = log(sigma), eps^ = dev eps and tau = 2 mu eps + lambda tr(eps) 1, the return map is
-///   delta_gamma = ||eps^|| + (d lambda + 2 mu)/(2 mu) tr(eps) alpha   (= y(tau) / (2 mu)),
+///   delta_gamma = ||eps^|| + (d lambda + 2 mu)/(2 mu) tr(eps) alpha_d   (= y(tau) / (2 mu)),
 ///   delta_gamma <= 0:  inside, unchanged;
 ///   tr(eps) > 0:       tension, project to the tip sigma = 1 (Fe becomes the rotation U V^T),
 ///                      state += ||eps||;
@@ -223,10 +235,14 @@ struct DruckerPrager {
   /// treated as compressed to this stretch along its weakest direction).
   T min_singular_value = T(1e-4);
 
-  /// alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi)). Evaluated in every project() call (one sin).
+  /// alpha_3 = sqrt(2/3) 2 sin(phi) / (3 - sin(phi)) for Dim = 3, alpha_2 = (3/2) alpha_3 for
+  /// Dim = 2 (the plane-strain slice, above). Evaluated in every project() call (one sin).
+  template <int Dim = 3>
   T alpha() const {
+    static_assert(Dim == 2 || Dim == 3, "DruckerPrager: 2D or 3D");
     const T s = std::sin(friction_angle * T(3.14159265358979323846) / T(180));
-    return std::sqrt(T(2) / T(3)) * T(2) * s / (T(3) - s);
+    const T alpha3 = std::sqrt(T(2) / T(3)) * T(2) * s / (T(3) - s);
+    return Dim == 2 ? T(1.5) * alpha3 : alpha3;
   }
 
   /// Projects Fe onto the yield cone for the Hencky St. Venant-Kirchhoff elasticity with the
@@ -344,11 +360,11 @@ struct DruckerPrager {
   /// its eigenvalues' relative error, about eps sigma_max / sigma_min, stays below 32 eps.
   static constexpr T kLeftEigenRatio = T(1e-3);
 
-  /// y(tau) = ||dev tau||_F + alpha tr(tau) for principal Kirchhoff stresses tau; <= 0 inside.
+  /// y(tau) = ||dev tau||_F + alpha_Dim tr(tau) for principal Kirchhoff stresses tau; <= 0 inside.
   template <int Dim>
   T yield_function(const Eigen::Matrix<T, Dim, 1>& tau) const {
     const T tr = tau.sum();
-    return (tau.array() - tr / T(Dim)).matrix().norm() + alpha() * tr;
+    return (tau.array() - tr / T(Dim)).matrix().norm() + alpha<Dim>() * tr;
   }
 
   /// Throws std::invalid_argument unless 0 <= friction_angle < 90 and min_singular_value > 0.
@@ -377,7 +393,7 @@ struct DruckerPrager {
     for (int i = 0; i < 3; ++i) r.eps_hat[i] = eps[i] - tr / T(3);
     const L eps_hat_norm =
         lanes::sqrt(L(r.eps_hat[0] * r.eps_hat[0] + r.eps_hat[1] * r.eps_hat[1] + r.eps_hat[2] * r.eps_hat[2]));
-    const L delta_gamma = eps_hat_norm + (T(3) * lambda + T(2) * mu) / (T(2) * mu) * tr * alpha();
+    const L delta_gamma = eps_hat_norm + (T(3) * lambda + T(2) * mu) / (T(2) * mu) * tr * alpha<3>();
     r.inside = lanes::le(delta_gamma, T(0));
     r.tip = ~r.inside & (lanes::gt(tr, T(0)) | ~lanes::gt(eps_hat_norm, T(0)));
     const lanes::Mask<T, W> cone = ~r.inside & ~r.tip;
@@ -414,7 +430,7 @@ struct DruckerPrager {
     const T tr = eps.sum();
     const Vec eps_hat = eps.array() - tr / T(Dim);
     const T eps_hat_norm = eps_hat.norm();
-    const T delta_gamma = eps_hat_norm + (T(Dim) * lambda + T(2) * mu) / (T(2) * mu) * tr * alpha();
+    const T delta_gamma = eps_hat_norm + (T(Dim) * lambda + T(2) * mu) / (T(2) * mu) * tr * alpha<Dim>();
     if (delta_gamma <= T(0)) {
       // Inside the cone. If a singular value was floored, store the floored Fe so that it is
       // the one the elastic stress sees.
