@@ -40,6 +40,9 @@ struct Problem {
   bool flip = false;       ///< FLIP liquid (else MPM)
   bool solid = false;      ///< implicit integration applies (MPM solids)
   bool has_affine_init = false;
+  /// The smallest difference of errors the measure resolves (0: limited by round-off only);
+  /// presets are compared within the larger of it and the measured spread.
+  double resolution = 0;
 };
 
 // ---------------------------------------------------------------------------------------------
