@@ -103,7 +103,8 @@ TEST(Sleep, FramesEqualUntilTheFirstBlockSleepsAndStayCloseAfter) {
       first_sleep_frame, sleepy.solver_status().c_str(), worst_after, worst_after / kDx,
       ball_low[0], ball_low[1], surface[0], surface[1]);
   ASSERT_TRUE(slept) << "no block ever fell asleep";
-  EXPECT_GE(sleepy.sleeping_blocks(), 8u) << "most of the settled layer should sleep";
+  // The layer (x 0.05 .. 0.95 m, 0.12 m deep) spans 8 blocks of 8 x 8 nodes.
+  EXPECT_GE(sleepy.sleeping_blocks(), 6u) << "most of the settled layer should sleep";
   EXPECT_LT(worst_after, 0.5 * kDx);
   EXPECT_LT(ball_low[0], 0.16) << "the ball did not come down onto the layer";
   EXPECT_GT(sleepy.blocks_fallen_asleep(), std::int64_t(sleepy.sleeping_blocks()))
@@ -118,14 +119,14 @@ TEST(Sleep, FramesEqualUntilTheFirstBlockSleepsAndStayCloseAfter) {
 TEST(Sleep, ResumeWhileBlocksSleepIsExact) {
   const Scene s = pile(0.01, 0.0, 1.4);
   slurry::MpmSolver<float, 2> a(s);
-  a.advance_to(12 / 30.0);
+  a.advance_to(20 / 30.0);
   ASSERT_GT(a.sleeping_blocks(), 0u);
   std::string state;
   a.save_state(state);
   slurry::MpmSolver<float, 2> b(s);
   b.load_state(state, "test state");
   EXPECT_EQ(b.sleeping_blocks(), a.sleeping_blocks());
-  for (int f = 13; f <= 20; ++f) {
+  for (int f = 21; f <= 28; ++f) {
     a.advance_to(f / 30.0);
     b.advance_to(f / 30.0);
     const Columns ca = columns(a), cb = columns(b);

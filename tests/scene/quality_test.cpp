@@ -52,8 +52,9 @@ TEST(Quality, PresetsSetTheirKnobsMpm) {
     EXPECT_EQ(s->solver.max_dt, none.solver.max_dt);
   }
   EXPECT_EQ(reference.solver.precision, slurry::Precision::Double);
-  EXPECT_EQ(reference.solver.elastic_cfl, 0.25);
-  EXPECT_EQ(reference.bodies[0].particles_per_cell, 8);
+  EXPECT_EQ(reference.solver.elastic_cfl, none.solver.elastic_cfl);
+  EXPECT_EQ(reference.solver.max_dt, none.solver.max_dt);
+  EXPECT_EQ(reference.bodies[0].particles_per_cell, 16);
 }
 
 TEST(Quality, PresetsSetTheirKnobsFlip) {
