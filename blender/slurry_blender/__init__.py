@@ -1,6 +1,6 @@
 """Slurry for Blender: imports a Slurry output directory as animated objects (particles with
-velocity and id, the surface mesh sequence, the surface VDB sequence, the colliders), and runs
-a scene through the `slurry` Python module from a panel (View3D sidebar, "Slurry" tab), with
+velocity and id, the surface mesh and VDB sequences, one pair per material when the scene
+surfaces its materials separately, the colliders), and runs a scene through the `slurry` Python module from a panel (View3D sidebar, "Slurry" tab), with
 progress in the status bar, Esc to cancel, and resume from the run's checkpoints.
 docs/pipeline-outputs.md ("Using the frames in Blender and Houdini") describes it."""
 
@@ -75,7 +75,7 @@ class SLURRY_OT_import_directory(bpy.types.Operator):
 
     def execute(self, context):
         try:
-            collection, made = importer.import_directory(
+            collection, made, notes = importer.import_directory(
                 context, self.directory, start=self.start_frame, up_axis=self.up_axis, particles=self.particles,
                 surface=self.surface, volume=self.volume, colliders=self.colliders,
                 particle_radius=self.particle_radius, set_scene=self.set_scene)
@@ -83,6 +83,8 @@ class SLURRY_OT_import_directory(bpy.types.Operator):
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
         self.report({"INFO"}, f"Slurry: {', '.join(made)} from {collection['slurry_directory']}")
+        for note in notes:
+            self.report({"INFO"}, f"Slurry: {note}")
         return {"FINISHED"}
 
     def invoke(self, context, event):
@@ -163,8 +165,10 @@ class SLURRY_OT_run(bpy.types.Operator):
             self.report({"WARNING"}, f"Slurry: cancelled after frame {value['frames_written'] - 1} "
                                      f"(tick Resume to continue from the last checkpoint)")
         if os.path.isdir(self.directory) and importer.scan(self.directory)["frame"]:
-            importer.import_directory(context, self.directory, start=settings.start_frame,
-                                      up_axis=self.scene.up_axis.upper())
+            _, _, notes = importer.import_directory(context, self.directory, start=settings.start_frame,
+                                                    up_axis=self.scene.up_axis.upper())
+            for note in notes:
+                self.report({"INFO"}, f"Slurry: {note}")
         if kind == "done":
             self.report({"INFO"}, f"Slurry: {value['frames_written']} frames in {self.directory} "
                                   f"({value['wall_seconds']:.1f} s)")

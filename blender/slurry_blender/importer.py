@@ -9,10 +9,17 @@ What a directory holds (docs/pipeline-outputs.md) and what it becomes, in one co
   (or .obj)           (the OBJ has none), shaded smooth.
   surface_NNNN.vdb    "surface_vdb": a volume object reading the sequence (is_sequence), its
                       `velocity` grid set as the volume's motion-blur grid (unit: seconds).
+  surface_<material>_NNNN.ply (or .obj), .vdb
+                      "surface_<material>", "surface_<material>_vdb": the same, one pair of
+                      objects per liquid material (output.surface_per_material).
   colliders_NNNN.ply  "colliders": the colliders' mesh with vertex `velocity` and the face
   (or .obj)           attribute `collider` (the index in the scene's `colliders`).
+  points_NNNN.vdb     not imported: Blender 3.4 loads voxel grids only and refuses OpenVDB
+                      points; the particles come from frame_NNNN.ply, with the same columns.
 The mesh objects change data on every frame change (a persistent frame_change_pre handler):
-each frame's mesh is read once, when first shown, and kept as its own datablock.
+each frame's mesh is read once, when first shown, and kept as its own datablock. A surface has no
+file for a frame without its liquid (the CLI writes none for an empty group): that frame shows an
+empty mesh, where the particles and colliders hold their nearest earlier file.
 
 Units and axes: Slurry writes metres and m/s; one Blender unit is one metre, and Cycles reads a
 mesh's or point cloud's `velocity` attribute in units per second (it scales it by the shutter
@@ -34,28 +41,49 @@ from bpy.app.handlers import persistent
 from . import ply
 
 SEQUENCE_KEY = "slurry_sequence"
-_PATTERN = re.compile(r"^(frame|surface|colliders)_(\d{4,})\.(ply|obj|vdb)$")
+# frame_0001.ply, surface_0001.vdb, surface_water_0001.ply (a material's surface: the name is
+# everything between "surface_" and the last "_NNNN"), colliders_0001.obj, points_0001.vdb.
+_PATTERN = re.compile(r"^(frame|surface|colliders|points)(?:_(.+))?_(\d{4,})\.(ply|obj|vdb)$")
 
 
 def scan(directory):
-    """{kind: {frame number: path}} for kinds frame, surface (.ply preferred to .obj), surface_vdb
-    and colliders (.ply preferred)."""
-    found = {"frame": {}, "surface": {}, "surface_vdb": {}, "colliders": {}}
+    """{kind: {frame number: path}} for kinds frame, surface (.ply preferred to .obj), surface_vdb,
+    colliders (.ply preferred) and points_vdb, and under "materials" {material: {"surface": ...,
+    "surface_vdb": ...}} for the per-material surfaces."""
+    found = {"frame": {}, "surface": {}, "surface_vdb": {}, "colliders": {}, "points_vdb": {}, "materials": {}}
     for name in sorted(os.listdir(directory)):
         m = _PATTERN.match(name)
         if not m:
             continue
-        stem, number, ext = m.group(1), int(m.group(2)), m.group(3)
+        stem, label, number, ext = m.group(1), m.group(2), int(m.group(3)), m.group(4)
+        if label is not None and stem != "surface":
+            continue
         path = os.path.join(directory, name)
+        if label is not None:
+            into = found["materials"].setdefault(label, {"surface": {}, "surface_vdb": {}})
+        else:
+            into = found
         if ext == "vdb":
-            if stem == "surface":
-                found["surface_vdb"][number] = path
+            if stem in ("surface", "points"):
+                into[stem + "_vdb"][number] = path
             continue
         if stem == "frame" and ext == "ply":
-            found["frame"][number] = path
-        elif stem in ("surface", "colliders") and (ext == "ply" or number not in found[stem]):
-            found[stem][number] = path
+            into["frame"][number] = path
+        elif stem in ("surface", "colliders") and (ext == "ply" or number not in into[stem]):
+            into[stem][number] = path
     return found
+
+
+def has_files(found):
+    return any(found[k] for k in ("frame", "surface", "surface_vdb", "colliders")) or any(
+        any(m.values()) for m in found["materials"].values())
+
+
+def last_frame(found):
+    """The largest frame number of any file the importer reads."""
+    numbers = [n for k in ("frame", "surface", "surface_vdb", "colliders") for n in found[k]]
+    numbers += [n for m in found["materials"].values() for files in m.values() for n in files]
+    return max(numbers) if numbers else 0
 
 
 def frame_comment(path):
@@ -197,9 +225,14 @@ def _sequence(obj):
 
 def sequence_frame(seq, scene_frame):
     """The file frame shown at a Blender frame: frame - start, held at the first and last files
-    (and at the last file before it where one is missing)."""
+    (and at the last file before it where one is missing). A sequence with "last" (the surfaces)
+    instead shows None, an empty mesh, at a frame in 0..last that has no file of its own, and
+    frame 0 and `last` before and after the run."""
     numbers = seq["frames"]
     target = scene_frame - seq["start"]
+    if "last" in seq:
+        target = min(max(target, 0), seq["last"])
+        return target if str(target) in seq["files"] else None
     best = numbers[0]
     for n in numbers:
         if n <= target:
@@ -208,7 +241,17 @@ def sequence_frame(seq, scene_frame):
 
 
 def mesh_for(seq, number):
-    """The mesh of one file of a sequence, read once and kept (re-read if the file changed)."""
+    """The mesh of one file of a sequence, read once and kept (re-read if the file changed); an
+    empty mesh for number None."""
+    if number is None:
+        name = f"{seq['key']}_empty"
+        mesh = bpy.data.meshes.get(name) or bpy.data.meshes.new(name)
+        if len(mesh.materials) == 0:
+            for m in seq.get("materials", []):
+                mat = bpy.data.materials.get(m)
+                if mat is not None:
+                    mesh.materials.append(mat)
+        return mesh
     path = os.path.join(seq["dir"], seq["files"][str(number)])
     name = f"{seq['key']}_{number:04d}"
     mesh = bpy.data.meshes.get(name)
@@ -297,46 +340,47 @@ def _points_node_group(radius):
     return ng
 
 
+# Surface colours of the per-material surfaces, in the order of their names: water's blue first.
+_PALETTE = [(0.15, 0.45, 0.85, 1.0), (0.85, 0.35, 0.12, 1.0), (0.2, 0.7, 0.3, 1.0), (0.75, 0.2, 0.6, 1.0),
+            (0.85, 0.75, 0.15, 1.0), (0.3, 0.3, 0.3, 1.0)]
+
+
 def import_directory(context, directory, start=1, up_axis="AUTO", particles=True, surface=True, volume=True,
                      colliders=True, particle_radius=0.01, set_scene=True):
-    """Imports a Slurry output directory into a new collection; returns it. `start` is the Blender
+    """Imports a Slurry output directory into a new collection. Returns (collection, {object name:
+    object}, notes), notes being lines for the user about files left out. `start` is the Blender
     frame that shows frame 0. Raises ValueError if the directory holds no Slurry file."""
     directory = os.path.abspath(bpy.path.abspath(directory))
     found = scan(directory)
-    if not any(found.values()):
-        raise ValueError(f"{directory}: no frame_NNNN.ply, surface_NNNN.* or colliders_NNNN.* files")
+    if not has_files(found):
+        raise ValueError(f"{directory}: no frame_NNNN.ply, surface_NNNN.*, surface_<material>_NNNN.* "
+                         f"or colliders_NNNN.* files")
     axis = detect_up_axis(directory, found["frame"]) if up_axis == "AUTO" else up_axis.lower()
     z_up = axis != "z"  # the data is turned to Z-up when the files are Y-up
+    last = last_frame(found)
     scene = context.scene
     collection = bpy.data.collections.new(f"Slurry {os.path.basename(directory)}")
     scene.collection.children.link(collection)
     digest = hashlib.sha1(directory.encode()).hexdigest()[:8]
     made = {}
+    notes = []
 
     def sequence_object(kind, files, label, materials=()):
         seq = {"dir": directory, "kind": kind, "start": start, "z_up": z_up, "frames": sorted(files),
                "files": {str(n): os.path.basename(p) for n, p in files.items()},
                "key": f"slurry_{digest}_{label}", "materials": list(materials)}
-        obj = bpy.data.objects.new(label, mesh_for(seq, seq["frames"][0]))
+        if kind == "surface":
+            seq["last"] = last
+        obj = bpy.data.objects.new(label, mesh_for(seq, sequence_frame(seq, start)))
         obj[SEQUENCE_KEY] = json.dumps(seq)
         collection.objects.link(obj)
         made[label] = obj
         return obj
 
-    if particles and found["frame"]:
-        obj = sequence_object("points", found["frame"], "particles")
-        mod = obj.modifiers.new("Slurry points", "NODES")
-        mod.node_group = _points_node_group(particle_radius)
-    if surface and found["surface"]:
-        water = _material("Slurry water", (0.15, 0.45, 0.85, 1.0), 0.1)
-        sequence_object("surface", found["surface"], "surface", [water.name])
-    if colliders and found["colliders"]:
-        solid = _material("Slurry collider", (0.6, 0.55, 0.5, 1.0), 0.5)
-        sequence_object("colliders", found["colliders"], "colliders", [solid.name])
-    if volume and found["surface_vdb"]:
-        numbers = sorted(found["surface_vdb"])
-        vol = bpy.data.volumes.new(f"slurry_{digest}_surface_vdb")
-        vol.filepath = found["surface_vdb"][numbers[0]]
+    def volume_object(files, label, hidden):
+        numbers = sorted(files)
+        vol = bpy.data.volumes.new(f"slurry_{digest}_{label}")
+        vol.filepath = files[numbers[0]]
         vol.is_sequence = True
         # Blender reads file number (frame - frame_start + 1 + frame_offset): frame start + k
         # shows file k.
@@ -347,15 +391,39 @@ def import_directory(context, directory, start=1, up_axis="AUTO", particles=True
         vol.velocity_grid = "velocity"
         vol.velocity_unit = "SECOND"
         vol.velocity_scale = 1.0
-        obj = bpy.data.objects.new("surface_vdb", vol)
+        obj = bpy.data.objects.new(label, vol)
         if z_up:
             obj.rotation_euler = (np.pi / 2, 0.0, 0.0)
         # The level set is for meshing (a Volume to Mesh modifier) or shading; the mesh renders.
-        obj.hide_render = bool(found["surface"]) and surface
+        obj.hide_render = hidden
         collection.objects.link(obj)
-        made["surface_vdb"] = obj
+        made[label] = obj
+        return obj
+
+    if particles and found["frame"]:
+        obj = sequence_object("points", found["frame"], "particles")
+        mod = obj.modifiers.new("Slurry points", "NODES")
+        mod.node_group = _points_node_group(particle_radius)
+    if surface and found["surface"]:
+        water = _material("Slurry water", _PALETTE[0], 0.1)
+        sequence_object("surface", found["surface"], "surface", [water.name])
+    for k, name in enumerate(sorted(found["materials"])):
+        if surface and found["materials"][name]["surface"]:
+            mat = _material(f"Slurry {name}", _PALETTE[k % len(_PALETTE)], 0.1)
+            sequence_object("surface", found["materials"][name]["surface"], f"surface_{name}", [mat.name])
+    if colliders and found["colliders"]:
+        solid = _material("Slurry collider", (0.6, 0.55, 0.5, 1.0), 0.5)
+        sequence_object("colliders", found["colliders"], "colliders", [solid.name])
+    if volume and found["surface_vdb"]:
+        volume_object(found["surface_vdb"], "surface_vdb", bool(found["surface"]) and surface)
+    for name in sorted(found["materials"]):
+        files = found["materials"][name]
+        if volume and files["surface_vdb"]:
+            volume_object(files["surface_vdb"], f"surface_{name}_vdb", bool(files["surface"]) and surface)
+    if found["points_vdb"]:
+        notes.append(f"points_NNNN.vdb not imported ({len(found['points_vdb'])} files): Blender 3.4 loads "
+                     f"voxel grids only, not OpenVDB points; the particles come from frame_NNNN.ply")
     if set_scene:
-        last = max(max(f) for f in found.values() if f)
         scene.frame_start = start
         scene.frame_end = start + last
         fps = frame_rate(found["frame"])
@@ -369,4 +437,4 @@ def import_directory(context, directory, start=1, up_axis="AUTO", particles=True
     collection["slurry_up_axis"] = axis
     register_handler()
     on_frame_change(scene)
-    return collection, made
+    return collection, made, notes

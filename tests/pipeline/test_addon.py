@@ -1,7 +1,7 @@
 # The Blender add-on (blender/slurry_blender), headless in Debian's Blender 3.4:
 #
 #   BLENDER_USER_SCRIPTS=TMP blender -b --factory-startup --python-exit-code 1 -P test_addon.py -- \
-#       ADDON.zip DIR FRAMES OUT [MODULE_DIR RUN_SCENE]
+#       ADDON.zip DIR FRAMES MATERIALS_DIR OUT [MODULE_DIR RUN_SCENE]
 #
 # Installs the zipped add-on into the user scripts folder BLENDER_USER_SCRIPTS names (a temporary
 # one: nothing global changes) and enables it; imports DIR (a run of a shipped scene by the CLI,
@@ -9,12 +9,16 @@
 # colliders objects hold the vertex and face counts the PLY headers declare, that the particles'
 # `velocity` (FLOAT_VECTOR) and `id` (INT) attributes are the file's columns in Blender's axes, row
 # by row, that the surface and colliders carry `velocity`, and that the VDB volume reads that
-# frame's file with its `velocity` grid. Then renders one frame at 64 x 48 with Cycles on the CPU
-# three times: motion blur off, on, and on with the surface's velocities zeroed, and asserts that
-# the velocities make the blurred picture differ from the sharp one, and that without them it does
-# not (so the difference is the blur the attribute drives). With MODULE_DIR and RUN_SCENE, also
-# runs RUN_SCENE through the add-on's Run operator (blocking) with the module from MODULE_DIR and
-# checks what it imported. Any failed assertion raises; --python-exit-code 1 makes Blender exit 1.
+# frame's file with its `velocity` grid. Imports MATERIALS_DIR (a run of two_liquids.json, one
+# surface per material) and checks one mesh and one volume object per material, with every
+# frame's counts as the headers declare, and, from a copy missing one material's mesh of a
+# frame, that the surface shows an empty mesh there. Then renders one frame at 64 x 48 with
+# Cycles on the CPU three times: motion blur off, on, and on with the surface's velocities
+# zeroed, and asserts that the velocities make the blurred picture differ from the sharp one, and
+# that without them it does not (so the difference is the blur the attribute drives). With
+# MODULE_DIR and RUN_SCENE, also runs RUN_SCENE through the add-on's Run operator (blocking) with
+# the module from MODULE_DIR and checks what it imported. Any failed assertion raises;
+# --python-exit-code 1 makes Blender exit 1.
 import os
 import sys
 import time
@@ -71,10 +75,87 @@ def pixels(path):
     return a.reshape(-1, 4)[:, :3]
 
 
+
+def new_collection(before):
+    """The one collection made since `before` (a set of names), and its objects by name without
+    Blender's ".001" suffixes."""
+    (name,) = set(bpy.data.collections.keys()) - before
+    coll = bpy.data.collections[name]
+    return coll, {o.name.split(".")[0]: o for o in coll.objects}
+
+
+def check_materials(scene, directory, out):
+    """The per-material surfaces of DIRECTORY (surface_<material>_NNNN.ply/.vdb): one mesh and one
+    volume object per material, every frame's counts as the PLY headers declare."""
+    import shutil
+    from slurry_blender import importer
+    materials = sorted({n[len("surface_"):-len("_0000.ply")] for n in os.listdir(directory)
+                        if n.startswith("surface_") and n.endswith(".ply")})
+    expect(materials == ["dyed", "water"], f"two_liquids wrote one surface per material: {materials}")
+    numbers = sorted(int(n[6:10]) for n in os.listdir(directory) if n.startswith("frame_") and n.endswith(".ply"))
+    last = numbers[-1]
+    before = set(bpy.data.collections.keys())
+    # set_scene=False: the scene keeps the first import's frame rate, which the render below blurs with.
+    result = bpy.ops.slurry.import_directory(directory=directory, start_frame=0, up_axis="AUTO", set_scene=False)
+    expect(result == {"FINISHED"}, "per-material import finished")
+    coll, objects = new_collection(before)
+    expected_names = {"particles"} | {f"surface_{m}" for m in materials} | {f"surface_{m}_vdb" for m in materials}
+    expect(set(objects) == expected_names, f"objects {sorted(objects)}")
+    expect(objects["surface_water"].data.materials[0] != objects["surface_dyed"].data.materials[0],
+           f"materials {objects['surface_water'].data.materials[0].name}, {objects['surface_dyed'].data.materials[0].name}")
+    checked = 0
+    for f in range(last + 1):
+        scene.frame_set(f)
+        tag = f"{f:04d}"
+        for m in materials:
+            expected = header_counts(os.path.join(directory, f"surface_{m}_{tag}.ply"))
+            mesh = objects[f"surface_{m}"].data
+            expect(len(mesh.vertices) == expected["vertex"] and len(mesh.polygons) == expected["face"] > 0,
+                   f"frame {f}: surface_{m} {len(mesh.vertices)} vertices, {len(mesh.polygons)} faces; "
+                   f"{expected['vertex']}, {expected['face']} written")
+            a = mesh.attributes.get("velocity")
+            expect(a is not None and a.data_type == "FLOAT_VECTOR", f"frame {f}: surface_{m} velocity")
+            grids = objects[f"surface_{m}_vdb"].data.grids
+            grids.load()
+            names = sorted(g.name for g in grids)
+            expect(os.path.basename(grids.frame_filepath) == f"surface_{m}_{tag}.vdb" and "velocity" in names,
+                   f"frame {f}: surface_{m}_vdb reads {os.path.basename(grids.frame_filepath)}, grids {names}")
+            checked += 1
+        expected = header_counts(os.path.join(directory, f"frame_{tag}.ply"))
+        expect(len(objects["particles"].data.vertices) == expected["vertex"],
+               f"frame {f}: particles {expected['vertex']}")
+    expect(checked == 2 * (last + 1), f"{checked} per-material surfaces checked")
+    coll.hide_viewport = True
+
+    # A material without particles in a frame has no file there: that frame shows an empty mesh,
+    # the others their own files.
+    gap = os.path.join(out, "two_liquids_gap")
+    shutil.rmtree(gap, ignore_errors=True)
+    os.makedirs(gap)
+    for n in os.listdir(directory):
+        if n.endswith(".ply") and n != "surface_dyed_0001.ply":
+            os.symlink(os.path.join(directory, n), os.path.join(gap, n))
+    before = set(bpy.data.collections.keys())
+    expect(bpy.ops.slurry.import_directory(directory=gap, start_frame=0, set_scene=False) == {"FINISHED"}, "import with a gap")
+    coll, objects = new_collection(before)
+    shown = []
+    for f in range(-1, last + 2):
+        scene.frame_set(f)
+        shown.append(len(objects["surface_dyed"].data.vertices))
+    declared = [header_counts(os.path.join(directory, f"surface_dyed_{n:04d}.ply"))["vertex"] for n in (0, 2)]
+    want = [declared[0], declared[0], 0, declared[1], declared[1]]
+    expect(shown == want, f"surface_dyed vertices at Blender frames -1..{last + 1}: {shown} (want {want})")
+    seq = {"frames": [1, 2], "files": {"1": "a", "2": "b"}, "start": 0, "last": 3}
+    expect([importer.sequence_frame(seq, f) for f in range(-1, 5)] == [None, None, 1, 2, None, None],
+           "a surface sequence is empty where it has no file, held at frames 0 and last outside them")
+    coll.hide_viewport = True
+
+
 def main():
     argv = sys.argv[sys.argv.index("--") + 1:]
-    addon_zip, directory, frames, out = argv[0], os.path.abspath(argv[1]), int(argv[2]), os.path.abspath(argv[3])
-    module_dir, run_scene = (argv[4], argv[5]) if len(argv) >= 6 else (None, None)
+    addon_zip, directory, frames = argv[0], os.path.abspath(argv[1]), int(argv[2])
+    materials_dir, out = os.path.abspath(argv[3]), os.path.abspath(argv[4])
+    module_dir, run_scene = (argv[5], argv[6]) if len(argv) >= 7 else (None, None)
     os.makedirs(out, exist_ok=True)
     user_scripts = os.environ.get("BLENDER_USER_SCRIPTS", "")
     expect(user_scripts and os.path.isdir(user_scripts), f"BLENDER_USER_SCRIPTS is a folder ({user_scripts})")
@@ -144,7 +225,13 @@ def main():
         expect({"surface", "velocity"} <= names and volume.data.velocity_grid == "velocity",
                f"frame {f}: volume grids {sorted(names)}, velocity grid {volume.data.velocity_grid}")
 
+    # 3b. One surface per material: a mesh and a volume object per liquid, counts per frame.
+    check_materials(scene, materials_dir, out)
+
     # 4. Motion blur from the velocity attribute: one frame, 64 x 48, Cycles CPU.
+    for coll in bpy.data.collections:
+        if coll.get("slurry_directory") != directory:
+            coll.hide_render = True
     f = frames
     scene.frame_set(f)
     particles.hide_render = True
