@@ -345,6 +345,21 @@ _PALETTE = [(0.15, 0.45, 0.85, 1.0), (0.85, 0.35, 0.12, 1.0), (0.2, 0.7, 0.3, 1.
             (0.85, 0.75, 0.15, 1.0), (0.3, 0.3, 0.3, 1.0)]
 
 
+def _velocity_grid(vol):
+    """Names the volume's `velocity` grid as its motion-blur grid if the first file has one.
+    Blender checks the name against the loaded grids and reports an error for one it cannot
+    find (also for any name before the grids are loaded), so the grids are loaded first; a
+    scene written without velocities has no such grid and keeps Blender's default."""
+    if not vol.grids.load():
+        return False
+    if vol.grids.get("velocity") is None:
+        return False
+    vol.velocity_grid = "velocity"
+    vol.velocity_unit = "SECOND"
+    vol.velocity_scale = 1.0
+    return True
+
+
 def import_directory(context, directory, start=1, up_axis="AUTO", particles=True, surface=True, volume=True,
                      colliders=True, particle_radius=0.01, set_scene=True):
     """Imports a Slurry output directory into a new collection. Returns (collection, {object name:
@@ -388,9 +403,7 @@ def import_directory(context, directory, start=1, up_axis="AUTO", particles=True
         vol.frame_offset = -1
         vol.frame_duration = numbers[-1] + 1
         vol.sequence_mode = "EXTEND"
-        vol.velocity_grid = "velocity"
-        vol.velocity_unit = "SECOND"
-        vol.velocity_scale = 1.0
+        _velocity_grid(vol)
         obj = bpy.data.objects.new(label, vol)
         if z_up:
             obj.rotation_euler = (np.pi / 2, 0.0, 0.0)
