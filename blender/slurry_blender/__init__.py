@@ -1,8 +1,10 @@
 """Slurry for Blender: imports a Slurry output directory as animated objects (particles with
 velocity and id, the surface mesh and VDB sequences, one pair per material when the scene
-surfaces its materials separately, the colliders), and runs a scene through the `slurry` Python module from a panel (View3D sidebar, "Slurry" tab), with
-progress in the status bar, Esc to cancel, and resume from the run's checkpoints.
-docs/pipeline-outputs.md ("Using the frames in Blender and Houdini") describes it."""
+surfaces its materials separately, the colliders), and runs a scene through the `slurry` Python
+module from a panel (View3D sidebar, "Slurry" tab), with progress in the status bar, Esc to
+cancel, and resume from the run's checkpoints; the run itself is job.RunJob, which the modal
+operator's timer ticks. docs/pipeline-outputs.md ("Using the frames in Blender and Houdini")
+describes it."""
 
 bl_info = {
     "name": "Slurry",
@@ -16,13 +18,11 @@ bl_info = {
 
 import json
 import os
-import queue
-import threading
 
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
-from . import importer, module
+from . import importer, job, module
 
 UP_AXES = [("AUTO", "Auto", "The scene the frames name decides (output.up_axis); Y-up if it cannot be read"),
            ("Y", "Y-up", "Files in the simulation's axes (Slurry's default): turned to Z-up"),
@@ -126,6 +126,34 @@ def cache_directory(settings, scene_file):
     return os.path.join(path, os.path.splitext(os.path.basename(scene_file))[0])
 
 
+def start_run(context):
+    """A RunJob for the scene panel's settings (raises ImportError, OSError or ValueError)."""
+    settings = context.scene.slurry
+    slurry = load_slurry(context)
+    scene = load_scene(slurry, settings)
+    return job.RunJob(slurry, scene, cache_directory(settings, scene.source), frames=settings.frames or None,
+                      threads=settings.threads, resume=settings.resume)
+
+
+def finish_run(context, run, tick):
+    """Imports what an ended run wrote (also a cancelled one's frames); returns the reports, as
+    [(level, message)], and the new collection or None."""
+    reports = [({"ERROR"} if tick.state == "error" else {"WARNING"} if tick.state == "stopped" else {"INFO"}, tick.text)]
+    collection = None
+    if os.path.isdir(run.directory) and importer.scan(run.directory)["frame"]:
+        collection, _, notes = importer.import_directory(context, run.directory, start=context.scene.slurry.start_frame,
+                                                         up_axis=run.scene.up_axis.upper())
+        reports += [({"INFO"}, f"Slurry: {n}") for n in notes]
+    return reports, collection
+
+
+def show_tick(context, tick):
+    """The status bar's text and the progress indicator (0..frames) for a tick."""
+    context.window_manager.progress_update(max(0, tick.frame))
+    if context.workspace is not None:
+        context.workspace.status_text_set(tick.text)
+
+
 class SLURRY_OT_run(bpy.types.Operator):
     """Run the scene into the cache directory through the slurry module, then import it (Esc cancels)"""
     bl_idname = "slurry.run"
@@ -134,81 +162,45 @@ class SLURRY_OT_run(bpy.types.Operator):
     blocking: BoolProperty(name="Blocking", default=False, options={"SKIP_SAVE"},
                            description="Run in this call (scripts, blender -b), without the modal timer")
 
-    def start(self, context):
-        settings = context.scene.slurry
-        slurry = load_slurry(context)
-        self.scene = load_scene(slurry, settings)
-        self.directory = cache_directory(settings, self.scene.source)
-        self.total = settings.frames or self.scene.frames
-        self.token = slurry.StopToken()
-        self.events = queue.Queue()
-        self.result = None
-        kwargs = dict(directory=self.directory, frames=settings.frames or None, threads=settings.threads,
-                      resume=settings.resume, stop=self.token,
-                      on_frame=lambda f: self.events.put((f["frame"], f["frames"], f["seconds"])))
-
-        def work():
-            try:
-                self.result = ("done", slurry.run_scene(self.scene, **kwargs))
-            except BaseException as e:  # handed to the main thread, which reports it
-                self.result = ("error", e)
-
-        self.thread = threading.Thread(target=work, name="slurry run", daemon=True)
-        self.thread.start()
-
-    def finish(self, context):
-        kind, value = self.result
-        settings = context.scene.slurry
-        if kind == "error":
-            self.report({"ERROR"}, f"Slurry: {value}")
-        elif value["stopped"]:
-            self.report({"WARNING"}, f"Slurry: cancelled after frame {value['frames_written'] - 1} "
-                                     f"(tick Resume to continue from the last checkpoint)")
-        if os.path.isdir(self.directory) and importer.scan(self.directory)["frame"]:
-            _, _, notes = importer.import_directory(context, self.directory, start=settings.start_frame,
-                                                    up_axis=self.scene.up_axis.upper())
-            for note in notes:
-                self.report({"INFO"}, f"Slurry: {note}")
-        if kind == "done":
-            self.report({"INFO"}, f"Slurry: {value['frames_written']} frames in {self.directory} "
-                                  f"({value['wall_seconds']:.1f} s)")
-        return {"FINISHED"} if kind == "done" else {"CANCELLED"}
+    def finish(self, context, tick):
+        reports, _ = finish_run(context, self.job, tick)
+        for level, message in reports:
+            self.report(level, message)
+        return {"FINISHED"} if tick.state == "done" else {"CANCELLED"}
 
     def execute(self, context):
         try:
-            self.start(context)
+            self.job = start_run(context)
         except (ImportError, OSError, ValueError) as e:
             self.report({"ERROR"}, f"Slurry: {e}")
             return {"CANCELLED"}
         if self.blocking:
-            self.thread.join()
-            return self.finish(context)
+            tick = self.job.tick()
+            while tick.state == "running":
+                self.job.wait(0.25)
+                tick = self.job.tick()
+            return self.finish(context, tick)
         wm = context.window_manager
         self.timer = wm.event_timer_add(0.25, window=context.window)
-        wm.progress_begin(0, max(1, self.total))
+        wm.progress_begin(0, max(1, self.job.frames))
         wm.modal_handler_add(self)
-        context.workspace.status_text_set(f"Slurry: running {os.path.basename(self.scene.source)} (Esc cancels)")
+        context.workspace.status_text_set(f"Slurry: running {os.path.basename(self.job.scene.source)} (Esc cancels)")
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event):
-        if event.type == "ESC" and not self.token.requested:
-            self.token.request()
-            context.workspace.status_text_set("Slurry: stopping after the current frame")
-        if event.type != "TIMER":
+        if event.type == "ESC":
+            self.job.cancel()
+        elif event.type != "TIMER":
             return {"PASS_THROUGH"}
-        while not self.events.empty():
-            frame, frames, seconds = self.events.get()
-            context.window_manager.progress_update(frame)
-            if not self.token.requested:
-                context.workspace.status_text_set(
-                    f"Slurry: frame {frame}/{frames} ({seconds:.1f} s a frame), Esc cancels")
-        if self.thread.is_alive():
+        tick = self.job.tick()
+        show_tick(context, tick)
+        if tick.state == "running":
             return {"PASS_THROUGH"}
         wm = context.window_manager
         wm.event_timer_remove(self.timer)
         wm.progress_end()
         context.workspace.status_text_set(None)
-        return self.finish(context)
+        return self.finish(context, tick)
 
     def invoke(self, context, event):
         return self.execute(context)

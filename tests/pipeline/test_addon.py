@@ -17,7 +17,10 @@
 # zeroed, and asserts that the velocities make the blurred picture differ from the sharp one, and
 # that without them it does not (so the difference is the blur the attribute drives). With
 # MODULE_DIR and RUN_SCENE, also runs RUN_SCENE through the add-on's Run operator (blocking) with
-# the module from MODULE_DIR and checks what it imported. Any failed assertion raises;
+# the module from MODULE_DIR and checks what it imported, then drives the modal Run's ticks by
+# hand (RunJob.tick, no event loop): every frame reported once and in order, a cancel that stops
+# the run between frames and leaves the frames written so far and a checkpoint, and a second run
+# with Resume that continues from that checkpoint to the last frame. Any failed assertion raises;
 # --python-exit-code 1 makes Blender exit 1.
 import os
 import sys
@@ -150,6 +153,106 @@ def check_materials(scene, directory, out):
            "a surface sequence is empty where it has no file, held at frames 0 and last outside them")
     coll.hide_viewport = True
 
+
+def stepped_job():
+    """The RunJob class with a worker that waits, after each frame it reports, until a tick has
+    taken it (drive() lets it go on): the ticks see every frame as it is written, and a cancel
+    lands between the same two frames on a fast machine and a slow one."""
+    import threading
+    from slurry_blender import job
+
+    class SteppedJob(job.RunJob):
+        def __init__(self, *args, **kwargs):
+            self.gate = threading.Semaphore(0)
+            super().__init__(*args, **kwargs)
+
+        def frame_written(self, report):
+            super().frame_written(report)
+            self.gate.acquire()
+
+    return SteppedJob
+
+
+def drive(run, cancel_at=None):
+    """Ticks a RunJob by hand until it ends, as the modal operator's timer does; cancels it at the
+    first tick that reports frame `cancel_at` or a later one. Returns the last tick and every
+    frame reported, in the order the ticks reported them."""
+    seen, frames_seen = [], []
+    tick = run.tick()
+    while True:
+        seen += tick.new_frames
+        frames_seen.append(tick.frame)
+        if tick.state != "running":
+            break
+        if cancel_at is not None and tick.frame >= cancel_at and not run.cancelled:
+            run.cancel()
+            if hasattr(run, "gate"):  # the worker waits at the gate: the run cannot have ended
+                t = run.tick()
+                expect(t.state == "running" and not t.new_frames and "stopping" in t.text,
+                       f"a cancelled run says so until it ends: {t.text}")
+        for _ in tick.new_frames:
+            if hasattr(run, "gate"):
+                run.gate.release()
+        run.wait(0.05)
+        tick = run.tick()
+    expect(frames_seen == sorted(frames_seen), f"progress never goes back: {frames_seen[0]} .. {frames_seen[-1]} "
+                                               f"over {len(frames_seen)} ticks")
+    return tick, seen
+
+
+def check_run_ticks(scene, cache, run_scene):
+    """The modal Run without an event loop: progress, cancel between frames, resume."""
+    import shutil
+    import slurry_blender
+    settings = scene.slurry
+    settings.scene_file = os.path.abspath(run_scene)
+    settings.cache_dir = cache
+    settings.frames = 3
+    settings.threads = 2
+    settings.resume = False
+    directory = os.path.join(cache, os.path.splitext(os.path.basename(run_scene))[0])
+    ctx = bpy.context
+
+    # The panel's settings make the job start_run() starts.
+    run = slurry_blender.start_run(ctx)
+    expect(run.directory == directory and run.frames == 3, f"RunJob into {run.directory}, frames 0..{run.frames}")
+    run.cancel()
+    run.wait()
+    shutil.rmtree(directory)
+
+    # Cancelled when the ticks report frame 1: the run stops before frame 2, with frame 1's
+    # checkpoint.
+    slurry = slurry_blender.load_slurry(ctx)
+    run = stepped_job()(slurry, slurry_blender.load_scene(slurry, settings), directory, frames=3, threads=2)
+    tick, seen = drive(run, cancel_at=1)
+    last = tick.summary["frames_written"] - 1
+    expect(tick.state == "stopped" and tick.summary["stopped"], f"cancelled run ended {tick.state}: {tick.text}")
+    expect(seen == [0, 1] and tick.frame == last == 1, f"frames reported: {seen}; the run stopped after frame {last}")
+    written = sorted(n for n in os.listdir(directory) if n.startswith("frame_"))
+    expect(written == [f"frame_{n:04d}.ply" for n in range(last + 1)], f"the frames so far are kept: {written}")
+    expect(os.path.isfile(os.path.join(directory, f"checkpoint_{last:04d}.slc")), f"checkpoint_{last:04d}.slc written")
+    before = set(bpy.data.collections.keys())
+    reports, coll = slurry_blender.finish_run(ctx, run, tick)
+    expect(reports[0][0] == {"WARNING"} and "cancelled" in reports[0][1], f"report: {reports[0]}")
+    expect(any("points_NNNN.vdb not imported" in m for _, m in reports), "the VDB points left out are reported")
+    expect(coll is not None and coll.name not in before, f"the cancelled run's frames imported into {coll.name}")
+    coll.hide_viewport = coll.hide_render = True
+
+    # Resume: continues from that checkpoint to frame 3.
+    settings.resume = True
+    run = slurry_blender.start_run(ctx)
+    tick, seen = drive(run)
+    expect(tick.state == "done" and not tick.summary["stopped"], f"resumed run ended {tick.state}: {tick.text}")
+    expect(tick.summary["resumed_from"] == last, f"resumed from frame {tick.summary['resumed_from']}")
+    expect(seen == list(range(last + 1, 4)), f"the resumed run reports frames {seen}")
+    expect(os.path.isfile(os.path.join(directory, "frame_0003.ply")), "frame_0003.ply written")
+    reports, coll = slurry_blender.finish_run(ctx, run, tick)
+    expect(reports[0][0] == {"INFO"} and "frames 0-3" in reports[0][1], f"report: {reports[0]}")
+    objects = {o.name.split(".")[0]: o for o in coll.objects}
+    scene.frame_set(settings.start_frame + 3)
+    expected = header_counts(os.path.join(directory, "frame_0003.ply"))["vertex"]
+    expect(len(objects["particles"].data.vertices) == expected, f"frame 3 imported: {expected} particles")
+    settings.resume = False
 
 def main():
     argv = sys.argv[sys.argv.index("--") + 1:]
@@ -310,6 +413,8 @@ def main():
         (parts,) = [o for o in bpy.data.collections[new].objects if o.name.startswith("particles")]
         expected = header_counts(os.path.join(run_dir, "frame_0002.ply"))
         expect(len(parts.data.vertices) == expected["vertex"], f"Blender frame 3 shows frame 2: {len(parts.data.vertices)} particles")
+
+        check_run_ticks(scene, os.path.join(out, "cache_ticks"), run_scene)
 
 
 main()

@@ -3,7 +3,7 @@
 # liquid scene with surfaces and colliders, and of a two-material scene that surfaces each liquid
 # on its own (two_liquids.json), then Blender installs the zipped add-on into a temporary user
 # scripts folder and imports, steps and renders them (test_addon.py); with the Python module's
-# folder, it also runs a small scene through the add-on's Run operator.
+# folder, it also runs a small scene through the add-on's Run operator and its RunJob.
 # Blender's output is kept in WORKDIR/blender.log: the import must report the VDB points it
 # leaves out, and must not make Blender report a missing velocity grid.
 #   test_addon.sh SLURRY BLENDER ADDON_ZIP WORKDIR [MODULE_DIR]
