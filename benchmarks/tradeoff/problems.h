@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "slurry/engine/flip/flip_solver.h"
+#include "slurry/engine/scene/quality.h"
 #include "slurry/engine/scene/scene.h"
 #include "slurry/engine/mpm/mpm_solver.h"
 
@@ -53,7 +54,7 @@ inline Scene base_scene(int dim, slurry::SolverType type, const Eigen::Vector3d&
   s.source = "tradeoff";
   s.solver.type = type;
   s.solver.dimension = dim;
-  if (type == slurry::SolverType::FLIP) s.solver.transfer = slurry::TransferKind::APIC;  // "mls" is not for FLIP
+  slurry::apply_default_quality(s);  // the library defaults, as a scene file without solver.quality
   s.domain.min = {0, 0, 0};
   s.domain.max = max;
   s.domain.dx = dx;

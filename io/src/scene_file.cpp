@@ -299,7 +299,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     // A preset sets its knobs first (quality.h); the keys read below override them.
     std::string quality;
     r.string("quality", quality);
-    if (r.has("quality")) quality_ppc = apply_quality(s, quality);
+    quality_ppc = r.has("quality") ? apply_quality(s, quality) : apply_default_quality(s);
     r.choice("precision", kPrecision, s.solver.precision);
     r.choice("transfer", kTransfer, s.solver.transfer);
     r.choice("kernel", kKernel, s.solver.kernel);

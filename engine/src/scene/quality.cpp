@@ -83,4 +83,8 @@ double apply_quality(Scene& scene, std::string_view quality) {
   return p.particles_per_cell;
 }
 
+double apply_default_quality(Scene& scene) {
+  return scene.solver.type == SolverType::FLIP ? apply_quality(scene, "production") : 0;
+}
+
 }  // namespace slurry

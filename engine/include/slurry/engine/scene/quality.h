@@ -22,4 +22,13 @@ inline constexpr std::string_view kQualityPresets[] = {"preview", "production", 
 /// unknown name, and for solver.type "fem" (no preset was measured for it).
 double apply_quality(Scene& scene, std::string_view quality);
 
+/// The knobs of a scene that names no solver.quality: for solver.type "flip" those of
+/// "production" (apply_quality(scene, "production")), since the SolverParams initializers, which
+/// are MPM's, cost 3.8-9.5x as much CPU on the study's liquids for the same or a larger error
+/// (docs/accuracy.md); for "mpm" nothing ("production" is the initializers) and for "fem"
+/// nothing. parse_scene calls it after reading solver.type, before the other solver keys; a
+/// FLIP scene built in C++ calls it after setting solver.type to get the library's defaults.
+/// Returns the particles_per_cell it set (0 if none).
+double apply_default_quality(Scene& scene);
+
 }  // namespace slurry
