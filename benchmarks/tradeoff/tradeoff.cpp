@@ -266,7 +266,7 @@ std::vector<Point> sweep(int pi, const Problem& pr, bool reduced) {
   using slurry::KernelKind;
   using slurry::TransferKind;
   if (pr.flip) {
-    add("kernel", "kernel=linear", with([](Scene& s) { s.solver.kernel = KernelKind::Linear; }));
+    add("kernel", "kernel=quadratic", with([](Scene& s) { s.solver.kernel = KernelKind::Quadratic; }));
   } else {
     add("kernel", "kernel=linear,transfer=apic", with([](Scene& s) {
           s.solver.kernel = KernelKind::Linear;
@@ -304,7 +304,7 @@ std::vector<Point> sweep(int pi, const Problem& pr, bool reduced) {
       add("pressure.tolerance", "tolerance=" + fmt(t), with([&](Scene& s) { s.solver.pressure.tolerance = t; }), t);
     using slurry::PressurePreconditioner;
     for (auto [name, pc] : {std::pair{"none", PressurePreconditioner::None}, std::pair{"jacobi", PressurePreconditioner::Jacobi},
-                            std::pair{"multigrid", PressurePreconditioner::Multigrid}})
+                            std::pair{"mic0", PressurePreconditioner::MIC0}})
       add("pressure.preconditioner", std::string("preconditioner=") + name,
           with([pc = pc](Scene& s) { s.solver.pressure.preconditioner = pc; }));
     for (double v : {0.0, 1.0})
