@@ -474,6 +474,8 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.string("surface_method", s.output.surface_method);
     r.integer("surface_smoothing", s.output.surface_smoothing, -1000000, 1000000);
     r.boolean("surface_per_material", s.output.surface_per_material);
+    r.boolean("error_estimate", s.output.error_estimate);
+    r.number("error_order", s.output.error_order);
   });
   top.object("limits", [&](ObjectReader& r) {
     r.number("memory_gb", s.limits.memory_gb);

@@ -17,19 +17,21 @@ std::string g(double v) {
 }
 }  // namespace
 
-std::string stats_csv_header() {
-  return "frame,time,substeps,particles,mass,momentum_x,momentum_y,momentum_z,angular_momentum_x,"
-         "angular_momentum_y,angular_momentum_z,kinetic,potential,elastic,energy,volume,max_fluid_J_error,"
-         "projected,cfl";
+std::string stats_csv_header(bool error_estimate) {
+  return std::string("frame,time,substeps,particles,mass,momentum_x,momentum_y,momentum_z,angular_momentum_x,"
+                     "angular_momentum_y,angular_momentum_z,kinetic,potential,elastic,energy,volume,max_fluid_J_error,"
+                     "projected,cfl") +
+         (error_estimate ? ",error_energy,error_centroid" : "");
 }
 
-std::string stats_csv_row(const RunStats& s) {
+std::string stats_csv_row(const RunStats& s, bool error_estimate) {
   std::string r = std::to_string(s.frame) + "," + g(s.time) + "," + std::to_string(s.substeps) + "," +
                   std::to_string(s.particles) + "," + g(s.mass);
   for (int d = 0; d < 3; ++d) r += "," + g(s.momentum[d]);
   for (int d = 0; d < 3; ++d) r += "," + g(s.angular_momentum[d]);
   r += "," + g(s.kinetic) + "," + g(s.potential) + "," + g(s.elastic) + "," + g(s.energy()) + "," + g(s.volume) +
        "," + g(s.max_fluid_J_error) + "," + std::to_string(s.projected) + "," + g(s.cfl);
+  if (error_estimate) r += "," + g(s.error_energy) + "," + g(s.error_centroid);
   return r;
 }
 

@@ -474,6 +474,11 @@ void Scene::validate() const {
   c.in_range("output.fps", output.fps, 1e-6, 1e6, false, false);
   if (output.frames < 0) fail(source, "output.frames", "expected an integer >= 0, got " + std::to_string(output.frames));
   if (output.directory.empty()) fail(source, "output.directory", "expected a non-empty path");
+  c.in_range("output.error_order", output.error_order, 0, 8, true, false);
+  if (output.error_estimate && solver.type == SolverType::FEM)
+    fail(source, "output.error_estimate",
+         "the shadow simulation at twice domain.dx is for solver.type \"mpm\" and \"flip\" (FEM has no grid), "
+         "expected false");
   if (output.checkpoint_every < 0)
     fail(source, "output.checkpoint_every", "expected an integer >= 0 (0 = no checkpoints), got " + std::to_string(output.checkpoint_every));
   for (const auto& [key, value] : {std::pair<const char*, double>{"output.mass_drift", output.mass_drift},

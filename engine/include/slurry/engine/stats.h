@@ -21,6 +21,7 @@
 ///   cfl                largest particle displacement in one substep during the frame, in cells
 #include <Eigen/Core>
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -41,6 +42,10 @@ struct RunStats {
   double max_fluid_J_error = 0;
   std::int64_t projected = 0;
   double cfl = 0;
+  /// output.error_estimate (run/error_estimate.h): estimated error of energy() (J) and the
+  /// largest estimated error of a material's centroid (m); NaN without the estimate.
+  double error_energy = std::numeric_limits<double>::quiet_NaN();
+  double error_centroid = std::numeric_limits<double>::quiet_NaN();
 
   /// kinetic + potential + elastic.
   double energy() const { return kinetic + potential + elastic; }
