@@ -246,6 +246,9 @@ py::dict stats_dict(const slurry::RunStats& s) {
   d["max_fluid_J_error"] = s.max_fluid_J_error;
   d["projected"] = s.projected;
   d["cfl"] = s.cfl;
+  // output.error_estimate (run_scene's frames only): the run's estimate of its own error.
+  if (!std::isnan(s.error_energy)) d["error_energy"] = s.error_energy;
+  if (!std::isnan(s.error_centroid)) d["error_centroid"] = s.error_centroid;
   return d;
 }
 

@@ -89,6 +89,22 @@ def test_errors_name_the_key_and_the_file(tmp_path):
         slurry.parse_scene(42)
 
 
+def test_run_reports_its_own_error_estimate(tmp_path):
+    scene = dict(FALL, output=dict(FALL["output"], error_estimate=True))
+    seen = []
+    slurry.run_scene(slurry.parse_scene(scene), directory=str(tmp_path / "out"), threads=1,
+                     on_frame=lambda f: seen.append(f["stats"]))
+    assert len(seen) == 5
+    for s in seen:
+        assert s["error_energy"] >= 0 and s["error_centroid"] >= 0
+    # The block falls freely: the two resolutions' centroids agree to within a small part of dx,
+    # and the stats rows carry the same columns.
+    assert max(s["error_centroid"] for s in seen) < 0.05 * 0.05
+    header = open(tmp_path / "out" / "stats.csv").readline().strip().split(",")
+    assert header[-2:] == ["error_energy", "error_centroid"]
+    assert "error_energy" not in slurry.make_simulation(slurry.parse_scene(FALL)).stats()
+
+
 def test_run_with_a_callback_per_frame(tmp_path):
     seen = []
     summary = slurry.run_scene(slurry.parse_scene(FALL), directory=str(tmp_path / "out"), threads=1,
