@@ -86,6 +86,7 @@ std::vector<Problem> problems() {
     q.what = "MPM sand column collapse, plane strain, a = h/d = 1, runout at 1 s";
     q.reference = "(d - d_i)/d_i = 1.2 a (Lube et al. 2005, Phys. Rev. E 72, 041301)";
     q.error_name = "|runout / published - 1|";
+    q.aux_name = "largest particle speed at 1 s (m/s)";
     q.dx_levels = {1.0 / 64, 1.0 / 128, 1.0 / 256};
     q.dx_reduced = {1.0 / 64, 1.0 / 128};
     q.scene = granular2d_scene;
@@ -99,6 +100,7 @@ std::vector<Problem> problems() {
     q.what = "MPM sand column collapse, axisymmetric 3D, a = h/r = 0.5, runout at 1 s";
     q.reference = "(r - r_i)/r_i = 1.24 a (Lube et al. 2004, J. Fluid Mech. 508)";
     q.error_name = "|runout / published - 1|";
+    q.aux_name = "largest particle speed at 1 s (m/s)";
     q.dx_levels = {1.0 / 48, 1.0 / 64, 1.0 / 96};
     q.dx_reduced = {};
     q.scene = granular3d_scene;
@@ -266,7 +268,10 @@ std::vector<Point> sweep(int pi, const Problem& pr, bool reduced) {
   using slurry::KernelKind;
   using slurry::TransferKind;
   if (pr.flip) {
-    add("kernel", "kernel=quadratic", with([](Scene& s) { s.solver.kernel = KernelKind::Quadratic; }));
+    // FLIP takes the linear and quadratic kernels: the one the defaults do not use.
+    const bool linear = base.solver.kernel == KernelKind::Linear;
+    add("kernel", linear ? "kernel=quadratic" : "kernel=linear",
+        with([linear](Scene& s) { s.solver.kernel = linear ? KernelKind::Quadratic : KernelKind::Linear; }));
   } else {
     add("kernel", "kernel=linear,transfer=apic", with([](Scene& s) {
           s.solver.kernel = KernelKind::Linear;
@@ -304,9 +309,10 @@ std::vector<Point> sweep(int pi, const Problem& pr, bool reduced) {
       add("pressure.tolerance", "tolerance=" + fmt(t), with([&](Scene& s) { s.solver.pressure.tolerance = t; }), t);
     using slurry::PressurePreconditioner;
     for (auto [name, pc] : {std::pair{"none", PressurePreconditioner::None}, std::pair{"jacobi", PressurePreconditioner::Jacobi},
-                            std::pair{"mic0", PressurePreconditioner::MIC0}})
-      add("pressure.preconditioner", std::string("preconditioner=") + name,
-          with([pc = pc](Scene& s) { s.solver.pressure.preconditioner = pc; }));
+                            std::pair{"mic0", PressurePreconditioner::MIC0}, std::pair{"multigrid", PressurePreconditioner::Multigrid}})
+      if (pc != base.solver.pressure.preconditioner)  // the defaults' own is the default point
+        add("pressure.preconditioner", std::string("preconditioner=") + name,
+            with([pc = pc](Scene& s) { s.solver.pressure.preconditioner = pc; }));
     for (double v : {0.0, 1.0})
       add("volume_correction", "volume_correction=" + fmt(v), with([&](Scene& s) { s.solver.volume_correction = v; }), v);
   }
@@ -485,16 +491,16 @@ std::string preset_order_violation(const Presets& r) {
   for (const Point* p : r.q)
     if (!p || p->status != "ok") return "a preset did not run";
   std::string why;
-  const char* names[3] = {"preview", "production", "reference"};
+  const auto& names = slurry::kQualityPresets;
   for (int k = 0; k < 2; ++k) {
     const Point &lo = *r.q[k], &hi = *r.q[k + 1];
     if (hi.r.error > lo.r.error + r.spread)
-      why += std::string(why.empty() ? "" : "; ") + names[k + 1] + " error " + fmt(hi.r.error, "%.3g") + " > " + names[k] +
+      why += std::string(why.empty() ? "" : "; ") + std::string(names[k + 1]) + " error " + fmt(hi.r.error, "%.3g") + " > " + std::string(names[k]) +
              " " + fmt(lo.r.error, "%.3g") + " + spread " + fmt(r.spread, "%.2g");
     const bool more_work = hi.r.particle_steps > lo.r.particle_steps ||
                            (hi.r.particle_steps == lo.r.particle_steps && hi.r.sim_bytes >= lo.r.sim_bytes);
     if (!more_work)
-      why += std::string(why.empty() ? "" : "; ") + names[k + 1] + " does less work than " + names[k];
+      why += std::string(why.empty() ? "" : "; ") + std::string(names[k + 1]) + " does less work than " + std::string(names[k]);
   }
   return why;
 }
@@ -503,13 +509,13 @@ std::string preset_order_violation(const Presets& r) {
 /// work (particle-steps). Empty if none is, else which.
 std::string defaults_dominated(const Presets& r) {
   if (!r.def || r.def->status != "ok") return "the defaults did not run";
-  const char* names[3] = {"preview", "production", "reference"};
+  const auto& names = slurry::kQualityPresets;
   std::string why;
   for (int k = 0; k < 3; ++k) {
     const Point* q = r.q[k];
     if (q && q->status == "ok" && q->r.error + r.spread < r.def->r.error && q->r.particle_steps <= r.def->r.particle_steps)
       why += std::string(why.empty() ? "" : "; ") + "defaults (error " + fmt(r.def->r.error, "%.3g") + ") dominated by " +
-             names[k] + " (" + fmt(q->r.error, "%.3g") + ")";
+             std::string(names[k]) + " (" + fmt(q->r.error, "%.3g") + ")";
   }
   return why;
 }

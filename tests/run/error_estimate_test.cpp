@@ -151,29 +151,13 @@ TEST(ErrorEstimate, EnergyEstimateWithinAFactorOfTwoOfTheTrueError) {
   using Flip = slurry::flip::FlipSolver<float, 2>;
   using Mpm = slurry::MpmSolver<float, 2>;
   {  // Taylor-Green vortex, 1 s
-    const auto r = energy_estimate<Flip>(tradeoff::taylor_green_scene(1.0 / 32), 1.0, [](Flip& sim) {
-      auto& P = sim.particles();
-      for (std::size_t p = 0; p < P.size(); ++p) {
-        const double x = double(P.x[p][0]), y = double(P.x[p][1]);
-        P.v[p] = {float(std::sin(M_PI * x) * std::cos(M_PI * y)), float(-std::cos(M_PI * x) * std::sin(M_PI * y))};
-        if (P.affine) {
-          P.c[0][p] = {float(M_PI * std::cos(M_PI * x) * std::cos(M_PI * y)), float(-M_PI * std::sin(M_PI * x) * std::sin(M_PI * y))};
-          P.c[1][p] = {float(M_PI * std::sin(M_PI * x) * std::sin(M_PI * y)), float(-M_PI * std::cos(M_PI * x) * std::cos(M_PI * y))};
-        }
-      }
-    });
+    const auto r = energy_estimate<Flip>(tradeoff::taylor_green_scene(1.0 / 32), 1.0,
+                                         [](Flip& sim) { tradeoff::taylor_green_initial_velocity(sim); });
     expect_within_factor_2("taylor_green_2d", r);
   }
   {  // standing wave, 1 s
-    const auto r = energy_estimate<Flip>(tradeoff::wave_scene(1.0 / 32), 1.0, [](Flip& sim) {
-      const double L = 1, h = 0.5, g = 9.81, amp = 0.01, k = M_PI / L, omega = std::sqrt(g * k * std::tanh(k * h));
-      const double a = amp * omega / std::sinh(k * h);
-      auto& P = sim.particles();
-      for (std::size_t p = 0; p < P.size(); ++p) {
-        const double x = double(P.x[p][0]), y = double(P.x[p][1]);
-        P.v[p] = {float(-a * std::sin(k * x) * std::cosh(k * y)), float(a * std::cos(k * x) * std::sinh(k * y))};
-      }
-    });
+    const auto r = energy_estimate<Flip>(tradeoff::wave_scene(1.0 / 32), 1.0,
+                                         [](Flip& sim) { tradeoff::wave_initial_velocity(sim); });
     expect_within_factor_2("standing_wave_2d", r);
   }
   {  // two elastic disks colliding, 3 s
@@ -181,11 +165,8 @@ TEST(ErrorEstimate, EnergyEstimateWithinAFactorOfTwoOfTheTrueError) {
     expect_within_factor_2("disks_2d", r);
   }
   {  // elastic bar, first axial mode, 0.05 s (2.5 periods)
-    const auto r = energy_estimate<Mpm>(tradeoff::bar_scene(1.0 / 32), 0.05, [](Mpm& sim) {
-      auto& P = sim.particles();
-      for (std::size_t p = 0; p < P.size(); ++p)
-        P.v[p] = Eigen::Vector2f(float(0.05 * std::cos(M_PI * (double(P.x[p][0]) - 0.5))), 0.f);
-    });
+    const auto r = energy_estimate<Mpm>(tradeoff::bar_scene(1.0 / 32), 0.05,
+                                        [](Mpm& sim) { tradeoff::bar_initial_velocity(sim); });
     expect_within_factor_2("bar_2d", r);
   }
 }
