@@ -42,7 +42,6 @@ class ErrorEstimator {
   /// Sets stats.error_energy and stats.error_centroid for the main solver `main` at the
   /// shadow's time, `stats` being the main run's figures of this frame.
   void estimate(const Solver& main, RunStats& stats);
-  const Solver& shadow() const { return *shadow_; }
 
  private:
   std::unique_ptr<Solver> shadow_;
