@@ -23,6 +23,7 @@
 #include <string>
 
 #include "slurry/transfer/parallel.h"
+#include "vdb/radix_sort.h"
 
 namespace slurry::io::detail {
 
@@ -75,8 +76,7 @@ struct CellGrid {
   }
 };
 
-/// Indices of `pos` sorted by key (ties by index), and the sorted keys: a least-significant-digit
-/// radix sort, 11 bits a pass over the bits the keys use, stable, so ties keep the index order.
+/// Indices of `pos` sorted by key (ties by index), and the sorted keys.
 void sort_by_cell(const std::vector<std::array<float, 3>>& pos, const CellGrid& grid,
                   std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& order) {
   const std::size_t n = pos.size();
@@ -86,25 +86,7 @@ void sort_by_cell(const std::vector<std::array<float, 3>>& pos, const CellGrid& 
     keys[std::size_t(i)] = CellGrid::key(grid.cell(pos[std::size_t(i)]));
     order[std::size_t(i)] = std::uint32_t(i);
   });
-  std::uint64_t used = 0;
-  for (const std::uint64_t k : keys) used |= k;
-  constexpr int kDigit = 11;
-  std::vector<std::uint64_t> keys_out(n);
-  std::vector<std::uint32_t> order_out(n);
-  std::vector<std::uint32_t> count(std::size_t(1) << kDigit);
-  for (int shift = 0; shift < 64 && (used >> shift) != 0; shift += kDigit) {
-    std::fill(count.begin(), count.end(), 0u);
-    for (const std::uint64_t k : keys) ++count[std::size_t((k >> shift) & ((1u << kDigit) - 1))];
-    std::uint32_t sum = 0;
-    for (auto& c : count) sum += std::exchange(c, sum);
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::uint32_t at = count[std::size_t((keys[i] >> shift) & ((1u << kDigit) - 1))]++;
-      keys_out[at] = keys[i];
-      order_out[at] = order[i];
-    }
-    keys.swap(keys_out);
-    order.swap(order_out);
-  }
+  radix_sort_pairs(keys, order);
 }
 
 /// Starts of the runs of equal keys in `keys`, with keys.size() appended.
@@ -115,6 +97,39 @@ std::vector<std::uint32_t> runs(const std::vector<std::uint64_t>& keys) {
   start.push_back(std::uint32_t(keys.size()));
   return start;
 }
+
+/// Cell key to its run of particles: open addressing over a power-of-two table at most half
+/// full (a probe per lookup on average), built once, read by every task.
+class CellIndex {
+ public:
+  CellIndex(const std::vector<std::uint64_t>& keys, const std::vector<std::uint32_t>& runs) {
+    std::size_t size = 16;
+    while (size < 2 * runs.size()) size *= 2;
+    mask_ = size - 1;
+    slot_key_.assign(size, kEmpty);
+    slot_run_.assign(size, 0);
+    for (std::size_t r = 0; r + 1 < runs.size(); ++r) {
+      const std::uint64_t k = keys[runs[r]];
+      std::size_t at = hash(k);
+      while (slot_key_[at] != kEmpty) at = (at + 1) & mask_;
+      slot_key_[at] = k, slot_run_[at] = std::uint32_t(r);
+    }
+  }
+  /// The run of `key`, or -1 when no particle lies in that cell.
+  std::int64_t find(std::uint64_t key) const {
+    for (std::size_t at = hash(key);; at = (at + 1) & mask_) {
+      if (slot_key_[at] == key) return slot_run_[at];
+      if (slot_key_[at] == kEmpty) return -1;
+    }
+  }
+
+ private:
+  static constexpr std::uint64_t kEmpty = ~std::uint64_t(0);  // never a key: keys use 63 bits
+  std::size_t hash(std::uint64_t k) const { return std::size_t((k * 0x9E3779B97F4A7C15ull) >> 20) & mask_; }
+  std::size_t mask_ = 0;
+  std::vector<std::uint64_t> slot_key_;
+  std::vector<std::uint32_t> slot_run_;
+};
 
 struct Kernel {
   std::array<float, 3> centre;
@@ -143,20 +158,27 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
     std::vector<std::uint32_t> order;
     sort_by_cell(points.position, grid, keys, order);
     const std::vector<std::uint32_t> cells = runs(keys);
+    const CellIndex index(keys, cells);
     parallel::parallel_for_grain(0, std::int64_t(cells.size()) - 1, 16, [&](std::int64_t c) {
       const auto cc = CellGrid::unpack(keys[cells[std::size_t(c)]]);
       std::array<std::pair<std::uint32_t, std::uint32_t>, 9> rows;
       std::uint32_t fewest = UINT32_MAX;  // particles in the emptiest of the 27 cells
       for (int dy = -1, r = 0; dy <= 1; ++dy)
         for (int dz = -1; dz <= 1; ++dz, ++r) {
-          std::uint32_t edge[4];
-          auto at = keys.begin();
-          for (int e = 0; e < 4; ++e) {
-            at = std::lower_bound(at, keys.end(), pack(cc[0] - 1 + e, cc[1] + dy, cc[2] + dz));
-            edge[e] = std::uint32_t(at - keys.begin());
+          // The row's cells are consecutive keys, so its particles are one range of `order`.
+          std::uint32_t first = UINT32_MAX, last = 0;
+          for (int e = 0; e < 3; ++e) {
+            const std::int64_t run = index.find(pack(cc[0] - 1 + e, cc[1] + dy, cc[2] + dz));
+            if (run < 0) {
+              fewest = 0;
+              continue;
+            }
+            const std::uint32_t b = cells[std::size_t(run)], en = cells[std::size_t(run) + 1];
+            fewest = std::min(fewest, en - b);
+            first = std::min(first, b), last = std::max(last, en);
           }
-          for (int e = 0; e < 3; ++e) fewest = std::min(fewest, edge[e + 1] - edge[e]);
-          rows[std::size_t(r)] = {edge[0], edge[3]};
+          rows[std::size_t(r)] = first == UINT32_MAX ? std::pair<std::uint32_t, std::uint32_t>{0, 0}
+                                                     : std::pair<std::uint32_t, std::uint32_t>{first, last};
         }
       // Deep in the liquid (each of the 27 cells holds at least 3/4 of the 8 particles a cell
       // of side 2 spacings holds at rest): a particle's neighbourhood fills its ball, so its
@@ -173,25 +195,42 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
         }
         return;
       }
+      // The neighbourhood's particles, gathered once for the cell's particles, in the order of
+      // the rows (the sums below add them in that order).
+      thread_local std::vector<float> gx, gy, gz;
+      thread_local std::vector<double> ex, ey, ez, er2;
+      thread_local std::vector<std::uint32_t> gj;
+      gx.clear(), gy.clear(), gz.clear(), gj.clear();
+      for (const auto& [b, e] : rows)
+        for (std::uint32_t q = b; q < e; ++q) {
+          const std::uint32_t j = order[q];
+          const auto& xj = points.position[j];
+          gx.push_back(xj[0]), gy.push_back(xj[1]), gz.push_back(xj[2]), gj.push_back(j);
+        }
+      const std::size_t m_all = gj.size();
+      ex.resize(m_all), ey.resize(m_all), ez.resize(m_all), er2.resize(m_all);
       for (std::uint32_t a = cells[std::size_t(c)]; a < cells[std::size_t(c) + 1]; ++a) {
         const std::uint32_t i = order[a];
         const auto& xi = points.position[i];
+        const double xi0 = xi[0], xi1 = xi[1], xi2 = xi[2];
+        for (std::size_t q = 0; q < m_all; ++q) {
+          const double d0 = double(gx[q]) - xi0, d1 = double(gy[q]) - xi1, d2 = double(gz[q]) - xi2;
+          ex[q] = d0, ey[q] = d1, ez[q] = d2;
+          er2[q] = d0 * d0 + d1 * d1 + d2 * d2;
+        }
         double W = 0, mean[3] = {0, 0, 0}, second[6] = {0, 0, 0, 0, 0, 0};
         int count = 0;
-        for (const auto& [b, e] : rows)
-          for (std::uint32_t q = b; q < e; ++q) {
-            const std::uint32_t j = order[q];
-            const auto& xj = points.position[j];
-            const double d[3] = {double(xj[0]) - xi[0], double(xj[1]) - xi[1], double(xj[2]) - xi[2]};
-            const double r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-            if (r2 >= R * R) continue;
-            const double r = std::sqrt(r2) / R, w = 1 - r * r * r;
-            W += w;
-            for (int m = 0; m < 3; ++m) mean[m] += w * d[m];
-            second[0] += w * d[0] * d[0], second[1] += w * d[1] * d[1], second[2] += w * d[2] * d[2];
-            second[3] += w * d[0] * d[1], second[4] += w * d[0] * d[2], second[5] += w * d[1] * d[2];
-            if (j != i) ++count;
-          }
+        for (std::size_t q = 0; q < m_all; ++q) {
+          const double r2 = er2[q];
+          if (r2 >= R * R) continue;
+          const double d[3] = {ex[q], ey[q], ez[q]};
+          const double r = std::sqrt(r2) / R, w = 1 - r * r * r;
+          W += w;
+          for (int m = 0; m < 3; ++m) mean[m] += w * d[m];
+          second[0] += w * d[0] * d[0], second[1] += w * d[1] * d[1], second[2] += w * d[2] * d[2];
+          second[3] += w * d[0] * d[1], second[4] += w * d[0] * d[2], second[5] += w * d[1] * d[2];
+          if (gj[q] != i) ++count;
+        }
         for (int m = 0; m < 3; ++m) mean[m] /= W;  // W >= 1: the particle itself
         Kernel& ker = kernel[i];
         out.neighbours[i] = std::uint8_t(std::min(count, 255));

@@ -12,6 +12,7 @@
 #include "slurry/io/obj.h"
 #include "slurry/io/surface.h"
 #include "slurry/transfer/parallel.h"
+#include "vdb/radix_sort.h"
 #include "vdb/velocities.h"
 
 namespace slurry::io {
@@ -84,13 +85,31 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
   const auto key = [&](const std::array<std::int64_t, 3>& c) {
     return (c[0] * dims[1] + c[1]) * dims[2] + c[2];
   };
-  std::vector<std::pair<std::int64_t, std::uint32_t>> sorted(n);
-  for (std::size_t i = 0; i < n; ++i) {
+  // (cell key, particle) sorted by key, then particle.
+  std::vector<std::uint64_t> keys(n);
+  std::vector<std::uint32_t> index(n);
+  slurry::parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t i) {
     std::array<std::int64_t, 3> c;
-    cell_of(points.position[i], c);
-    sorted[i] = {key(c), std::uint32_t(i)};
+    cell_of(points.position[std::size_t(i)], c);
+    keys[std::size_t(i)] = std::uint64_t(key(c));
+    index[std::size_t(i)] = std::uint32_t(i);
+  });
+  radix_sort_pairs(keys, index);
+  std::vector<std::pair<std::int64_t, std::uint32_t>> sorted(n);
+  for (std::size_t i = 0; i < n; ++i) sorted[i] = {std::int64_t(keys[i]), index[i]};
+  // Where each cell's particles start in `sorted`, when the cells of the particles' box are few
+  // enough for a table (else a binary search per row).
+  const double cell_count = double(dims[0]) * double(dims[1]) * double(dims[2]);
+  std::vector<std::uint32_t> first;
+  if (cell_count <= std::max(4.0 * double(n), double(1 << 20))) {
+    first.assign(std::size_t(cell_count) + 1, 0);
+    for (std::size_t i = 0; i < n; ++i) ++first[std::size_t(keys[i]) + 1];
+    for (std::size_t c = 0; c + 1 < first.size(); ++c) first[c + 1] += first[c];
   }
-  std::sort(sorted.begin(), sorted.end());
+  const auto row_begin = [&](std::int64_t k) {
+    if (!first.empty()) return sorted.begin() + std::ptrdiff_t(first[std::size_t(k)]);
+    return std::lower_bound(sorted.begin(), sorted.end(), std::make_pair(k, std::uint32_t(0)));
+  };
 
   slurry::parallel::parallel_for(0, std::int64_t(vertices.size()), [&](std::int64_t vi) {
     const auto& q = vertices[std::size_t(vi)];
@@ -105,8 +124,7 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
         if (a < 0 || b < 0 || a >= dims[0] || b >= dims[1]) continue;
         const std::int64_t e0 = std::max<std::int64_t>(c[2] - 1, 0), e1 = std::min(c[2] + 1, dims[2] - 1);
         if (e0 > e1) continue;
-        auto it = std::lower_bound(sorted.begin(), sorted.end(),
-                                   std::make_pair(key({a, b, e0}), std::uint32_t(0)));
+        auto it = row_begin(key({a, b, e0}));
         const std::int64_t k_end = key({a, b, e1});
           for (; it != sorted.end() && it->first <= k_end; ++it) {
             const auto& p = points.position[it->second];
