@@ -6,7 +6,7 @@
 #include <openvdb/tools/Interpolation.h>
 #include <openvdb/tools/LevelSetFilter.h>
 #include <openvdb/tools/LevelSetMeasure.h>
-#include <openvdb/tools/MeshToVolume.h>
+#include <openvdb/tools/SignedFloodFill.h>
 #include <openvdb/tools/ParticlesToLevelSet.h>
 #include <openvdb/tools/Prune.h>
 #include <openvdb/tools/VolumeToMesh.h>
@@ -23,6 +23,7 @@
 #include "slurry/io/surface.h"
 #include "slurry/transfer/parallel.h"
 #include "vdb/anisotropic.h"
+#include "vdb/mesh_band.h"
 #include "vdb/vdb_common.h"
 #include "vdb/velocities.h"
 
@@ -400,6 +401,21 @@ void add_droplets(TriangleMesh& mesh, const PointCloud& points, const std::vecto
   }
 }
 
+/// Whether `p` lies inside the convex droplet whose 20 outward triangles start at `first`.
+bool droplet_contains(const TriangleMesh& mesh, std::size_t first, const openvdb::Vec3d& p) {
+  for (std::size_t f = first; f < first + 20; ++f) {
+    const auto& t = mesh.triangles[f];
+    const openvdb::Vec3d a(mesh.vertices[std::size_t(t[0])][0], mesh.vertices[std::size_t(t[0])][1],
+                           mesh.vertices[std::size_t(t[0])][2]);
+    const openvdb::Vec3d b(mesh.vertices[std::size_t(t[1])][0], mesh.vertices[std::size_t(t[1])][1],
+                           mesh.vertices[std::size_t(t[1])][2]);
+    const openvdb::Vec3d c(mesh.vertices[std::size_t(t[2])][0], mesh.vertices[std::size_t(t[2])][1],
+                           mesh.vertices[std::size_t(t[2])][2]);
+    if ((b - a).cross(c - a).dot(p - a) > 0) return false;
+  }
+  return true;
+}
+
 /// The anisotropic method (surface.h, steps A1-A6): the zero level of `iso - field` meshed, and
 /// the narrow-band level set of that mesh; the vertices take the particles' velocities when
 /// `vertex_velocities` (particles_to_level_set wants the level set alone).
@@ -526,20 +542,45 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
       }
     }
   }
+  const std::size_t body_triangles = out.mesh.triangles.size();
   add_droplets(out.mesh, points, droplets, particle_volume);
   if (vertex_velocities && !points.velocity.empty())
     out.mesh.velocities = sample_velocities(out.mesh.vertices, points, s);
   if (!level_set) return out;
-  // A6: the level set of the mesh (OpenVDB's meshToLevelSet, half-width 3 voxels).
-  std::vector<openvdb::Vec3s> verts(out.mesh.vertices.size());
-  for (std::size_t i = 0; i < verts.size(); ++i)
-    verts[i] = openvdb::Vec3s(out.mesh.vertices[i][0], out.mesh.vertices[i][1], out.mesh.vertices[i][2]);
-  std::vector<openvdb::Vec3I> tris(out.mesh.triangles.size());
-  for (std::size_t i = 0; i < tris.size(); ++i)
-    tris[i] = openvdb::Vec3I(openvdb::Index32(out.mesh.triangles[i][0]), openvdb::Index32(out.mesh.triangles[i][1]),
-                             openvdb::Index32(out.mesh.triangles[i][2]));
-  openvdb::FloatGrid::Ptr ls = openvdb::tools::meshToLevelSet<openvdb::FloatGrid>(
-      *openvdb::math::Transform::createLinearTransform(h), verts, tris, kHalfWidth);
+  // A6: the narrow-band level set of the mesh (half-width 3 voxels): the distance to its
+  // triangles (mesh_band.h), negative inside. Inside the body is where the field exceeds the level
+  // (the mesh is the field's level surface, so it separates exactly those voxel centres); inside
+  // a droplet is inside its icosahedron.
+  const detail::MeshBand band = detail::mesh_band(out.mesh.vertices, out.mesh.triangles, h, int(kHalfWidth));
+  const float background = float(kHalfWidth * h);
+  openvdb::FloatGrid::Ptr ls = openvdb::createLevelSet<openvdb::FloatGrid>(h, kHalfWidth);
+  {
+    using Leaf = openvdb::FloatTree::LeafNodeType;
+    constexpr int V = detail::MeshBand::kSize * detail::MeshBand::kSize * detail::MeshBand::kSize;
+    std::vector<Leaf*> leaves(band.origin.size());
+    slurry::parallel::parallel_tasks(0, std::int64_t(band.origin.size()), [&](std::int64_t b) {
+      const auto& o = band.origin[std::size_t(b)];
+      auto acc = field->getConstAccessor();
+      auto* leaf = new Leaf(openvdb::Coord(o[0], o[1], o[2]), background, /*active=*/false);
+      for (int v = 0; v < V; ++v) {
+        const std::size_t at = std::size_t(b) * V + std::size_t(v);
+        const openvdb::Coord c = leaf->offsetToGlobalCoord(openvdb::Index(v));
+        const std::int32_t t = band.triangle[at];
+        bool inside = acc.getValue(c) > float(iso);  // where iso - field, meshed at 0, is negative
+        if (!inside && t >= 0 && std::size_t(t) >= body_triangles) {
+          const std::size_t first = body_triangles + (std::size_t(t) - body_triangles) / 20 * 20;
+          inside = droplet_contains(out.mesh, first, ls->indexToWorld(c));
+        }
+        const float d = std::min(band.distance[at], float(kHalfWidth));
+        leaf->setValueOnly(openvdb::Index(v), float((inside ? -d : d) * h));
+        if (band.distance[at] < float(kHalfWidth)) leaf->setValueOn(openvdb::Index(v));
+      }
+      leaves[std::size_t(b)] = leaf;
+    });
+    auto& tree = ls->tree();
+    for (Leaf* leaf : leaves) tree.addLeaf(leaf);
+    openvdb::tools::signedFloodFill(tree);
+  }
   ls->setName("surface");
   ls->setGridClass(openvdb::GRID_LEVEL_SET);
   out.level_set = LevelSet(std::make_shared<const LevelSet::Impl>(LevelSet::Impl{ls, nullptr}));

@@ -23,7 +23,9 @@
 ///      the kernels' shapes change where the surface lies, not how much liquid it encloses;
 ///  A4. openvdb::tools::volumeToMesh meshes that level (adaptivity 0); a droplet of one particle
 ///      is a small closed piece, none is dropped;
-///  A5. the level set is the narrow-band signed distance to that mesh (meshToLevelSet).
+///  A5. the level set is the narrow-band signed distance to that mesh, 3 voxels either side: the
+///      distance to its nearest triangle (src/vdb/mesh_band.h; exact within a voxel of the
+///      surface), negative where the field exceeds the level or inside a droplet.
 ///
 /// SurfaceMethod::Spheres follows the usual "union of spheres, then closing" recipe:
 ///  1. every particle is rasterized as a sphere of radius r = max(spacing, 1.5 voxels) into a

@@ -1,0 +1,237 @@
+// The narrow band of distances to a triangle mesh (mesh_band.h).
+#include "vdb/mesh_band.h"
+
+#include <algorithm>
+#include <climits>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include "slurry/transfer/parallel.h"
+#include "vdb/radix_sort.h"
+
+namespace slurry::io::detail {
+
+namespace {
+
+constexpr int B = MeshBand::kSize;
+constexpr int kBits = 21;
+constexpr std::int64_t kRange = std::int64_t(1) << kBits;
+
+std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
+  return (std::uint64_t(z) << (2 * kBits)) | (std::uint64_t(y) << kBits) | std::uint64_t(x);
+}
+
+std::int64_t floor_div(std::int64_t a, std::int64_t b) {
+  return a >= 0 ? a / b : -((-a + b - 1) / b);
+}
+
+/// A triangle in index space.
+struct Tri {
+  float a[3], b[3], c[3];
+  std::int32_t lo[3], hi[3];  ///< voxels within one voxel of the bounding box
+};
+
+/// Squared distance from p to the triangle: the closest point by the Voronoi regions of the
+/// triangle's vertices, edges and face (Ericson, Real-Time Collision Detection, 2005, 5.1.5).
+float distance2(const Tri& t, const float p[3]) {
+  float ab[3], ac[3], ap[3], bp[3], cp[3];
+  for (int d = 0; d < 3; ++d) {
+    ab[d] = t.b[d] - t.a[d], ac[d] = t.c[d] - t.a[d];
+    ap[d] = p[d] - t.a[d], bp[d] = p[d] - t.b[d], cp[d] = p[d] - t.c[d];
+  }
+  const auto dot = [](const float* u, const float* v) { return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]; };
+  const auto len2 = [&](float x, float y, float z) { return x * x + y * y + z * z; };
+  const float d1 = dot(ab, ap), d2 = dot(ac, ap);
+  if (d1 <= 0 && d2 <= 0) return dot(ap, ap);
+  const float d3 = dot(ab, bp), d4 = dot(ac, bp);
+  if (d3 >= 0 && d4 <= d3) return dot(bp, bp);
+  const float vc = d1 * d4 - d3 * d2;
+  if (vc <= 0 && d1 >= 0 && d3 <= 0) {
+    const float v = d1 / (d1 - d3);
+    return len2(ap[0] - v * ab[0], ap[1] - v * ab[1], ap[2] - v * ab[2]);
+  }
+  const float d5 = dot(ab, cp), d6 = dot(ac, cp);
+  if (d6 >= 0 && d5 <= d6) return dot(cp, cp);
+  const float vb = d5 * d2 - d1 * d6;
+  if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+    const float w = d2 / (d2 - d6);
+    return len2(ap[0] - w * ac[0], ap[1] - w * ac[1], ap[2] - w * ac[2]);
+  }
+  const float va = d3 * d6 - d5 * d4;
+  if (va <= 0 && d4 - d3 >= 0 && d5 - d6 >= 0) {
+    const float w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+    return len2(bp[0] - w * (t.c[0] - t.b[0]), bp[1] - w * (t.c[1] - t.b[1]), bp[2] - w * (t.c[2] - t.b[2]));
+  }
+  const float sum = va + vb + vc;
+  if (!(sum > 0)) return std::min({dot(ap, ap), dot(bp, bp), dot(cp, cp)});  // degenerate
+  const float v = vb / sum, w = vc / sum;
+  return len2(ap[0] - ab[0] * v - ac[0] * w, ap[1] - ab[1] * v - ac[1] * w, ap[2] - ab[2] * v - ac[2] * w);
+}
+
+}  // namespace
+
+MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
+                   const std::vector<std::array<std::int32_t, 3>>& triangles, double h, int width) {
+  MeshBand out;
+  const std::size_t nt = triangles.size();
+  if (nt == 0) return out;
+  if (!(h > 0) || width < 1) throw std::invalid_argument("mesh_band: expected h > 0 and width >= 1");
+  const float inv_h = float(1 / h);
+  std::vector<Tri> tri(nt);
+  parallel::parallel_for(0, std::int64_t(nt), [&](std::int64_t i) {
+    Tri& t = tri[std::size_t(i)];
+    const auto& v = triangles[std::size_t(i)];
+    for (int d = 0; d < 3; ++d) {
+      t.a[d] = vertices[std::size_t(v[0])][d] * inv_h;
+      t.b[d] = vertices[std::size_t(v[1])][d] * inv_h;
+      t.c[d] = vertices[std::size_t(v[2])][d] * inv_h;
+      t.lo[d] = std::int32_t(std::ceil(std::min({t.a[d], t.b[d], t.c[d]}) - 1));
+      t.hi[d] = std::int32_t(std::floor(std::max({t.a[d], t.b[d], t.c[d]}) + 1));
+    }
+  });
+  // Blocks a triangle's band can reach: its seeded voxels plus `width` layers.
+  std::int64_t lo[3] = {INT64_MAX, INT64_MAX, INT64_MAX}, hi[3] = {INT64_MIN, INT64_MIN, INT64_MIN};
+  for (const Tri& t : tri)
+    for (int d = 0; d < 3; ++d) {
+      lo[d] = std::min(lo[d], floor_div(t.lo[d] - width, B));
+      hi[d] = std::max(hi[d], floor_div(t.hi[d] + width, B));
+    }
+  for (int d = 0; d < 3; ++d)
+    if (hi[d] - lo[d] + 3 >= kRange)
+      throw std::invalid_argument("mesh_band: the mesh spans more than 2^21 blocks of 8 voxels");
+  // One block beyond on each side, so that a block's face neighbours always have keys.
+  for (int d = 0; d < 3; ++d) lo[d] -= 1;
+  std::vector<std::uint64_t> keys;
+  std::vector<std::uint32_t> owner;
+  keys.reserve(nt * 8);
+  owner.reserve(nt * 8);
+  for (std::size_t i = 0; i < nt; ++i) {
+    const Tri& t = tri[i];
+    std::int64_t b0[3], b1[3];
+    for (int d = 0; d < 3; ++d)
+      b0[d] = floor_div(t.lo[d] - width, B) - lo[d], b1[d] = floor_div(t.hi[d] + width, B) - lo[d];
+    for (std::int64_t z = b0[2]; z <= b1[2]; ++z)
+      for (std::int64_t y = b0[1]; y <= b1[1]; ++y)
+        for (std::int64_t x = b0[0]; x <= b1[0]; ++x) {
+          keys.push_back(pack(x, y, z));
+          owner.push_back(std::uint32_t(i));
+        }
+  }
+  radix_sort_pairs(keys, owner);  // by block, then triangle
+  std::vector<std::uint32_t> run;  // starts of each block's triangles, then keys.size()
+  for (std::size_t i = 0; i < keys.size(); ++i)
+    if (i == 0 || keys[i] != keys[i - 1]) run.push_back(std::uint32_t(i));
+  run.push_back(std::uint32_t(keys.size()));
+  const std::size_t nb = run.size() - 1;
+  std::vector<std::uint64_t> block_key(nb);
+  for (std::size_t b = 0; b < nb; ++b) block_key[b] = keys[run[b]];
+  const auto origin_of = [&](std::size_t b) {
+    const std::uint64_t k = block_key[b];
+    return std::array<std::int64_t, 3>{(std::int64_t(k & (kRange - 1)) + lo[0]) * B,
+                                       (std::int64_t((k >> kBits) & (kRange - 1)) + lo[1]) * B,
+                                       (std::int64_t(k >> (2 * kBits)) + lo[2]) * B};
+  };
+  // Face neighbours of each block (-1: none, so no band there).
+  std::vector<std::array<std::int32_t, 6>> next(nb);
+  parallel::parallel_for(0, std::int64_t(nb), [&](std::int64_t b) {
+    const std::uint64_t k = block_key[std::size_t(b)];
+    const std::int64_t c[3] = {std::int64_t(k & (kRange - 1)), std::int64_t((k >> kBits) & (kRange - 1)),
+                               std::int64_t(k >> (2 * kBits))};
+    for (int f = 0; f < 6; ++f) {
+      std::int64_t n[3] = {c[0], c[1], c[2]};
+      n[f / 2] += f % 2 ? 1 : -1;
+      const std::uint64_t nk = pack(n[0], n[1], n[2]);
+      const auto it = std::lower_bound(block_key.begin(), block_key.end(), nk);
+      next[std::size_t(b)][std::size_t(f)] =
+          it != block_key.end() && *it == nk ? std::int32_t(it - block_key.begin()) : -1;
+    }
+  });
+  constexpr int V = B * B * B;
+  const float none = std::numeric_limits<float>::infinity();
+  std::vector<float> dist2(nb * V, none);
+  std::vector<std::int32_t> closest(nb * V, -1);
+  // 1. Seeds: each triangle's exact distance to the voxels within one voxel of its box.
+  parallel::parallel_tasks(0, std::int64_t(nb), [&](std::int64_t b) {
+    const auto o = origin_of(std::size_t(b));
+    float* d2 = dist2.data() + std::size_t(b) * V;
+    std::int32_t* cl = closest.data() + std::size_t(b) * V;
+    for (std::uint32_t r = run[std::size_t(b)]; r < run[std::size_t(b) + 1]; ++r) {
+      const std::uint32_t i = owner[r];
+      const Tri& t = tri[i];
+      std::int64_t v0[3], v1[3];
+      bool empty = false;
+      for (int d = 0; d < 3; ++d) {
+        v0[d] = std::max<std::int64_t>(t.lo[d], o[d]);
+        v1[d] = std::min<std::int64_t>(t.hi[d], o[d] + B - 1);
+        empty = empty || v0[d] > v1[d];
+      }
+      if (empty) continue;
+      for (std::int64_t x = v0[0]; x <= v1[0]; ++x)
+        for (std::int64_t y = v0[1]; y <= v1[1]; ++y)
+          for (std::int64_t z = v0[2]; z <= v1[2]; ++z) {
+            const float p[3] = {float(x), float(y), float(z)};
+            const float e = distance2(t, p);
+            const std::size_t at = std::size_t(((x - o[0]) * B + (y - o[1])) * B + (z - o[2]));
+            if (e < d2[at]) d2[at] = e, cl[at] = std::int32_t(i);  // ascending i: ties keep the lower
+          }
+    }
+  });
+  // 2. Layers: a voxel not reached takes the nearest of its face neighbours' closest triangles.
+  std::vector<float> dist2_next;
+  std::vector<std::int32_t> closest_next;
+  const float reach2 = float(width) * float(width);
+  for (int layer = 0; layer < width + 1; ++layer) {
+    dist2_next = dist2;
+    closest_next = closest;
+    parallel::parallel_tasks(0, std::int64_t(nb), [&](std::int64_t b) {
+      const auto o = origin_of(std::size_t(b));
+      const auto& nbr = next[std::size_t(b)];
+      for (int x = 0; x < B; ++x)
+        for (int y = 0; y < B; ++y)
+          for (int z = 0; z < B; ++z) {
+            const std::size_t at = std::size_t(std::size_t(b) * V + std::size_t((x * B + y) * B + z));
+            if (closest[at] >= 0) continue;
+            std::int32_t cand[6];
+            int nc = 0;
+            const int q[3] = {x, y, z};
+            for (int f = 0; f < 6; ++f) {
+              int n[3] = {q[0], q[1], q[2]};
+              n[f / 2] += f % 2 ? 1 : -1;
+              std::int64_t blk = b;
+              if (n[f / 2] < 0 || n[f / 2] >= B) {
+                blk = nbr[std::size_t(f)];
+                if (blk < 0) continue;
+                n[f / 2] = (n[f / 2] + B) % B;
+              }
+              const std::int32_t c = closest[std::size_t(blk) * V + std::size_t((n[0] * B + n[1]) * B + n[2])];
+              if (c < 0 || std::find(cand, cand + nc, c) != cand + nc) continue;
+              cand[nc++] = c;
+            }
+            if (nc == 0) continue;
+            std::sort(cand, cand + nc);
+            const float p[3] = {float(o[0] + x), float(o[1] + y), float(o[2] + z)};
+            float best = none;
+            std::int32_t who = -1;
+            for (int k = 0; k < nc; ++k)
+              if (const float e = distance2(tri[std::size_t(cand[k])], p); e < best) best = e, who = cand[k];
+            if (best < reach2) dist2_next[at] = best, closest_next[at] = who;
+          }
+    });
+    dist2.swap(dist2_next);
+    closest.swap(closest_next);
+  }
+  // The blocks with a voxel in the band.
+  for (std::size_t b = 0; b < nb; ++b) {
+    const float* d2 = dist2.data() + b * V;
+    if (std::none_of(d2, d2 + V, [&](float e) { return e < reach2; })) continue;
+    const auto o = origin_of(b);
+    out.origin.push_back({std::int32_t(o[0]), std::int32_t(o[1]), std::int32_t(o[2])});
+    for (int v = 0; v < V; ++v) out.distance.push_back(std::sqrt(d2[v]));
+    out.triangle.insert(out.triangle.end(), closest.begin() + std::ptrdiff_t(b * V),
+                        closest.begin() + std::ptrdiff_t((b + 1) * V));
+  }
+  return out;
+}
+
+}  // namespace slurry::io::detail
