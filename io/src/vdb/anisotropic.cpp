@@ -104,8 +104,10 @@ class CellIndex {
  public:
   CellIndex(const std::vector<std::uint64_t>& keys, const std::vector<std::uint32_t>& runs) {
     std::size_t size = 16;
-    while (size < 2 * runs.size()) size *= 2;
+    int bits = 4;
+    while (size < 2 * runs.size()) size *= 2, ++bits;
     mask_ = size - 1;
+    shift_ = 64 - bits;
     slot_key_.assign(size, kEmpty);
     slot_run_.assign(size, 0);
     for (std::size_t r = 0; r + 1 < runs.size(); ++r) {
@@ -125,8 +127,10 @@ class CellIndex {
 
  private:
   static constexpr std::uint64_t kEmpty = ~std::uint64_t(0);  // never a key: keys use 63 bits
-  std::size_t hash(std::uint64_t k) const { return std::size_t((k * 0x9E3779B97F4A7C15ull) >> 20) & mask_; }
+  /// Fibonacci hashing: the top bits of the product depend on every bit of the key.
+  std::size_t hash(std::uint64_t k) const { return std::size_t((k * 0x9E3779B97F4A7C15ull) >> shift_); }
   std::size_t mask_ = 0;
+  int shift_ = 60;
   std::vector<std::uint64_t> slot_key_;
   std::vector<std::uint32_t> slot_run_;
 };
