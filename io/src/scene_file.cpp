@@ -343,8 +343,9 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.number("density", m.density);
     r.choice("plasticity", kPlastic, m.plasticity);
     // Keys that belong to another model are errors, not silently ignored. The FLIP liquid is
-    // incompressible: density is its only parameter.
+    // incompressible: density and viscosity are its parameters.
     if (s.solver.type == SolverType::FLIP) {
+      r.number("viscosity", m.viscosity);
     } else if (m.model == ElasticModel::Fluid) {
       r.number("bulk_modulus", m.bulk_modulus);
       r.number("gamma", m.gamma);

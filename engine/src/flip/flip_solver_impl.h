@@ -57,6 +57,12 @@ FlipSolver<T, Dim>::FlipSolver(const Scene& scene) : scene_(scene) {
   projection_options_.tolerance = pp.tolerance;
   projection_options_.max_iterations = pp.max_iterations;
   projection_options_.density = scene_.materials[0].density;
+  for (const auto& m : scene_.materials) {
+    material_mu_.push_back(T(m.viscosity));
+    viscous_ = viscous_ || m.viscosity > 0;
+    mixed_viscosity_ = mixed_viscosity_ || m.viscosity != scene_.materials[0].viscosity;
+  }
+  viscosity_.no_slip_walls = scene_.boundaries.walls == Condition::Sticky;
 
   // The nominal density of particles: the densest body or emitter.
   double ppc = 0;
@@ -96,7 +102,14 @@ std::string FlipSolver<T, Dim>::solver_status() const {
   char buf[192];
   std::snprintf(buf, sizeof buf, "pressure PCG %d iterations, residual %.2g%s, max |div u| %.2g 1/s", r.iterations,
                 r.relative_residual, r.converged ? "" : " (not converged)", r.max_divergence);
-  return buf;
+  std::string status = buf;
+  if (viscous_) {
+    const auto& v = last_viscosity_;
+    std::snprintf(buf, sizeof buf, "; viscosity PCG %d iterations, residual %.2g%s", v.iterations, v.relative_residual,
+                  v.converged ? "" : " (not converged)");
+    status += buf;
+  }
+  return status;
 }
 
 template <class T, int Dim>
@@ -106,7 +119,7 @@ std::size_t FlipSolver<T, Dim>::bytes() const {
                   sort_.start.capacity() * sizeof(std::uint32_t);
   const std::size_t cells = std::size_t(grid_.num_cells());
   b += cells * (2 + 2 * sizeof(T)) + holes_.capacity();
-  b += pressure_.bytes() + extrapolator_.bytes();  // the pressure solve's vectors are most of the grid's memory
+  b += pressure_.bytes() + extrapolator_.bytes() + viscosity_.bytes() + cell_mu_.capacity() * sizeof(T);  // the pressure solve's vectors are most of the grid's memory
   for (int d = 0; d < Dim; ++d)
     b += (grid_.u[d].capacity() + grid_.weight[d].capacity() + grid_.u_solid[d].capacity() +
           weight_sum_[d].capacity() + old_u_[d].capacity()) * sizeof(T) + grid_.valid[d].capacity();
@@ -150,6 +163,8 @@ void FlipSolver<T, Dim>::step(T dt) {
   lap(kGravity);
   build_boundaries(T(time_) + dt);
   lap(kBoundaries);
+  if (viscous_) apply_viscosity(dt);
+  lap(kViscosity);
   project(dt);
   lap(kProject);
   extrapolate_velocities();
@@ -225,6 +240,47 @@ void FlipSolver<T, Dim>::build_boundaries(T t) {
   if (!solids_.empty() || !faces_ready_) solids_.update_faces(grid_, t);
   faces_ready_ = true;
   label_cells(grid_, particles_, sort_, solids_, t, particle_radius_, holes_);
+}
+
+template <class T, int Dim>
+void FlipSolver<T, Dim>::apply_viscosity(T dt) {
+  if (!mixed_viscosity_) {
+    last_viscosity_ = viscosity_.solve(grid_, dt, scene_.materials[0].density, double(material_mu_[0]));
+    return;
+  }
+  // Viscosity per cell: the mean over the cell's particles' materials; an empty cell (air next to
+  // the liquid, or a hole) takes the largest of its 3^Dim neighbours', so that stress samples at
+  // the surface see the liquid's viscosity.
+  const std::int64_t cells = grid_.num_cells();
+  cell_mu_.assign(std::size_t(cells), T(0));
+  const std::uint32_t* start = sort_.start.data();
+  const auto& mat = particles_.material;
+  parallel::parallel_for(0, cells, [&](std::int64_t c) {
+    const std::uint32_t p0 = start[c], p1 = start[c + 1];
+    if (p1 == p0) return;
+    T sum = T(0);
+    for (std::uint32_t p = p0; p < p1; ++p) sum += material_mu_[mat[p]];
+    cell_mu_[std::size_t(c)] = sum / T(p1 - p0);
+  });
+  std::vector<T>& filled = viscosity_scratch_;
+  filled = cell_mu_;
+  parallel::parallel_for(0, cells, [&](std::int64_t c) {
+    if (start[c + 1] > start[c]) return;
+    const IVec i = grid_.cell_coord(c);
+    T mu = T(0);
+    for (int o = 0; o < (Dim == 3 ? 27 : 9); ++o) {
+      IVec q = i;
+      bool inside = true;
+      for (int d = 0, m = o; d < Dim; ++d, m /= 3) {
+        q[d] += m % 3 - 1;
+        inside = inside && q[d] >= 0 && q[d] < grid_.res[d];
+      }
+      if (inside && start[grid_.cell(q) + 1] > start[grid_.cell(q)]) mu = std::max(mu, cell_mu_[std::size_t(grid_.cell(q))]);
+    }
+    filled[std::size_t(c)] = mu;
+  });
+  cell_mu_.swap(filled);
+  last_viscosity_ = viscosity_.solve(grid_, dt, scene_.materials[0].density, 0.0, cell_mu_);
 }
 
 template <class T, int Dim>

@@ -4,7 +4,7 @@ namespace slurry::flip {
 
 const char* phase_name(int phase) {
   static const char* names[kPhaseCount] = {"emit",    "sort",       "transfer_to_grid", "save_velocities",
-                                           "gravity", "boundaries", "project",          "extrapolate",
+                                           "gravity", "boundaries", "viscosity", "project",          "extrapolate",
                                            "enforce_solids", "transfer_to_particles", "advect", "reseed"};
   return phase >= 0 && phase < kPhaseCount ? names[phase] : "?";
 }

@@ -172,13 +172,21 @@ void Scene::validate_flip() const {
                std::string(to_string(materials[i].model)) + "\"");
     if (materials[i].plasticity != PlasticModel::None)
       fail(source, p + ".plasticity", "a \"fluid\" material takes no plasticity (expected \"none\")");
+    if (!(std::isfinite(materials[i].viscosity) && materials[i].viscosity >= 0))
+      fail(source, p + ".viscosity", "expected a finite number >= 0, got " + fmt_num(materials[i].viscosity));
     if (i > 0 && materials[i].density != materials[0].density)
       fail(source, p + ".density",
            "the FLIP solver takes one density for all liquids: expected " + fmt_num(materials[0].density) +
                " (materials[0].density), got " + fmt_num(materials[i].density));
   }
-  if (boundaries.walls == Condition::Sticky)
-    fail(source, "boundaries.walls", "solver.type \"flip\" walls are free-slip: expected \"slip\" or \"separate\", got \"sticky\"");
+  bool viscous = false;
+  for (const auto& m : materials) viscous = viscous || m.viscosity > 0;
+  // "sticky" is the no-slip wall of the viscous stress (flip/viscosity.h); an inviscid liquid has
+  // no tangential stress to hold it with.
+  if (boundaries.walls == Condition::Sticky && !viscous)
+    fail(source, "boundaries.walls",
+         "solver.type \"flip\" walls are free-slip: expected \"slip\" or \"separate\", got \"sticky\" (no-slip walls need a "
+         "material with viscosity > 0)");
   if (boundaries.friction != 0)
     fail(source, "boundaries.friction", "solver.type \"flip\" walls are free-slip: expected 0, got " + fmt_num(boundaries.friction));
   for (std::size_t i = 0; i < colliders.size(); ++i) {
@@ -332,6 +340,9 @@ void Scene::validate() const {
     for (std::size_t j = 0; j < i; ++j)
       if (materials[j].name == m.name) fail(source, p + ".name", "duplicate material name \"" + m.name + "\"");
     c.positive(p + ".density", m.density);
+    if (!flip && m.viscosity != 0)
+      fail(source, p + ".viscosity", "the viscosity of a liquid is a key of solver.type \"flip\" (expected 0, got " +
+                                         fmt_num(m.viscosity) + ")");
     if (m.model == ElasticModel::Fluid) {
       c.positive(p + ".bulk_modulus", m.bulk_modulus);
       c.in_range(p + ".gamma", m.gamma, 1, 20, false, false);

@@ -12,6 +12,12 @@
 ///   gravity          u += dt g
 ///   boundaries       solid face fractions and velocities (moving colliders: at t + dt),
 ///                    cell labels and the liquid level set phi from the particles
+///   viscosity        implicit viscous stress (viscosity.h, Batty & Bridson 2008); only when a
+///                    material has viscosity > 0. After gravity and before the projection, as
+///                    in the paper: the projection then removes the divergence the viscous step
+///                    leaves. Where liquids of different viscosity mix, a cell's viscosity is
+///                    the mean over its particles' materials (a cell without particles takes
+///                    the largest of its neighbours'), so it varies in space with the particles
 ///   project          pressure projection (pressure.h: PCG, ghost fluid, variational solids)
 ///   extrapolate      face velocities into the air (extrapolate.h)
 ///   enforce_solids   closed faces take the solid's velocity
@@ -40,6 +46,7 @@
 #include "slurry/engine/flip/pressure.h"
 #include "slurry/engine/flip/seeding.h"
 #include "slurry/engine/flip/solids.h"
+#include "slurry/engine/flip/viscosity.h"
 #include "slurry/engine/solver.h"
 #include "slurry/engine/substeps.h"
 
@@ -47,7 +54,7 @@ namespace slurry::flip {
 
 /// Named phases of a substep, for the per-phase timing (FlipSolver::phase_seconds).
 enum Phase : int {
-  kEmit, kSort, kToGrid, kSave, kGravity, kBoundaries, kProject, kExtrapolate, kEnforce, kToParticles,
+  kEmit, kSort, kToGrid, kSave, kGravity, kBoundaries, kViscosity, kProject, kExtrapolate, kEnforce, kToParticles,
   kAdvect, kReseed, kPhaseCount
 };
 const char* phase_name(int phase);
@@ -82,7 +89,10 @@ class FlipSolver final : public Solver {
   const Scene& scene() const { return scene_; }
   /// What the last pressure projection did (iterations, residual, max divergence).
   const ProjectionReport& last_projection() const { return last_projection_; }
-  /// "pressure PCG <iterations> iterations, residual <r>, max |div u| <d> 1/s" of the last substep.
+  /// What the last viscosity solve did (zero unknowns when every material is inviscid).
+  const ViscosityReport& last_viscosity() const { return last_viscosity_; }
+  /// "pressure PCG <iterations> iterations, residual <r>, max |div u| <d> 1/s" of the last
+  /// substep, and the viscosity PCG's iterations when a material is viscous.
   std::string solver_status() const override;
   /// Mass from the nominal particle volume (every particle carries dx^Dim / ppc); volume: the
   /// cells that hold a particle.
@@ -117,6 +127,7 @@ class FlipSolver final : public Solver {
   void save_velocities();
   void apply_gravity(T dt);
   void build_boundaries(T t);
+  void apply_viscosity(T dt);
   void project(T dt);
   void extrapolate_velocities();
   void enforce_solids();
@@ -166,6 +177,11 @@ class FlipSolver final : public Solver {
   Extrapolator<T, Dim> extrapolator_;
   ProjectionOptions projection_options_;
   ProjectionReport last_projection_;
+  ViscositySolver<T, Dim> viscosity_;
+  ViscosityReport last_viscosity_;
+  bool viscous_ = false;         // a material has viscosity > 0
+  bool mixed_viscosity_ = false; // materials of different viscosities: mu per cell (cell_mu_)
+  std::vector<T> material_mu_, cell_mu_, viscosity_scratch_;
   Vec gravity_, x_lo_, x_hi_;
   T particle_volume_ = 0, particle_radius_ = 0, max_speed_ = 0;
   T cfl_reached_ = 0;  // largest max_speed dt / dx since the last take_stats()

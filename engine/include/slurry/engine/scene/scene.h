@@ -142,6 +142,9 @@ struct MaterialParams {
   double yield_stress = 1e4;             ///< von Mises (Pa)
   /// FEM only: Rayleigh stiffness-proportional damping beta (s), D = beta K; >= 0.
   double damping = 0;
+  /// FLIP only: dynamic viscosity mu (Pa s) of the liquid, finite and >= 0; 0 = inviscid (the
+  /// viscosity solve is skipped). Water 1e-3, honey 2-10, thick tar 1e3 and more.
+  double viscosity = 0;
 };
 
 struct BodyParams {
