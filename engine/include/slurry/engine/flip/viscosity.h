@@ -23,7 +23,10 @@
 ///
 /// is symmetric positive (semi)definite; its right-hand side has no component in the null
 /// space (which lives on massless faces only), and it is solved by conjugate gradients with a
-/// Jacobi preconditioner on an assembled sparse matrix (CSR, double precision). The pressure
+/// Jacobi preconditioner on an assembled sparse matrix (a fixed number of slots per row, 32-bit
+/// columns, double precision). The work is done near the liquid only: cells within one cell of
+/// a cell with phi < dx/2, and the ring of samples and faces that read them (mark_active());
+/// elsewhere every weight is exactly 0, as the full-grid computation gives. The pressure
 /// solve's PCG (pressure.h) is specialised to one unknown per cell and its 5/7-point stencil;
 /// the viscous system has one unknown per face and couples the velocity components.
 ///
@@ -56,6 +59,7 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <array>
+#include <cassert>
 #include <cmath>
 #include <cstdint>
 #include <vector>
@@ -83,6 +87,9 @@ class ViscositySolver {
   /// Most stored entries of a row before duplicates merge: the diagonal, two diagonal samples
   /// of two faces each, and per other axis two off-diagonal samples of four faces each.
   static constexpr int kMaxRow = 1 + 2 * 2 + (Dim - 1) * 2 * 4;
+  /// Distinct columns of a row: the face itself, its two neighbours along its axis, and per
+  /// other axis b its two neighbours along b and the four axis-b faces around it.
+  static constexpr int kWidth = 1 + 2 + (Dim - 1) * 6;
   static constexpr std::int64_t kGrain = 4096;  ///< chunk of the parallel sums (fixed)
 
   double tolerance = 1e-6;   ///< relative residual of the PCG
@@ -99,6 +106,7 @@ class ViscositySolver {
     ViscosityReport rep;
     setup(g);
     no_slip_walls_ = no_slip_walls;
+    mark_active(g);
     supersample(g);
     const double scale = double(dt) / rho;
     stress_weights(g, scale, mu_uniform, mu_cell);
@@ -125,13 +133,12 @@ class ViscositySolver {
   /// Bytes held by the work arrays (capacity).
   std::size_t bytes() const {
     std::size_t b = fine_.capacity() * sizeof(T) + kappa_cell_.capacity() * sizeof(double);
+    b += active_.capacity() + reach_.capacity() + mask_scratch_.capacity();
     for (const auto& k : kappa_edge_) b += k.capacity() * sizeof(double);
     for (const auto& k : index_) b += k.capacity() * sizeof(std::int32_t);
-    b += (unknown_face_.capacity() + row_start_.capacity() + col_.capacity()) * sizeof(std::int64_t);
-    b += unknown_axis_.capacity() + (val_.capacity() + rhs_.capacity() + diag_.capacity() + x_.capacity() +
-                                     r_.capacity() + z_.capacity() + p_.capacity() + q_.capacity()) * sizeof(double);
-    b += scratch_col_.capacity() * sizeof(std::int64_t) + scratch_val_.capacity() * sizeof(double) +
-         scratch_len_.capacity() * sizeof(int);
+    b += (unknown_face_.capacity() + col_.capacity()) * sizeof(std::uint32_t) + unknown_axis_.capacity() + len_.capacity();
+    b += (val_.capacity() + rhs_.capacity() + diag_.capacity() + x_.capacity() + r_.capacity() + z_.capacity() +
+          p_.capacity() + q_.capacity()) * sizeof(double);
     return b;
   }
 
@@ -167,6 +174,43 @@ class ViscositySolver {
     return k;
   }
 
+  /// The cells near the liquid, where the work is done. A supersampling point's phi is a convex
+  /// combination of the phi of its cell and of neighbours within one cell, so H > 0 (phi <
+  /// dx/4) only at points of cells within one cell of a cell with phi < dx/2: those are
+  /// `active_`, and every other point of the grid holds H = 0 (or kSolid) without
+  /// interpolating. A stress sample or face whose control volumes hold only points of inactive
+  /// cells has no liquid volume, so one more ring, `reach_`, bounds where kappa and unknowns can
+  /// be nonzero: everything outside it is skipped by a test of one byte.
+  void mark_active(const Grid& g) {
+    const std::int64_t n = g.num_cells();
+    const T limit = T(0.5) * g.dx;
+    active_.resize(std::size_t(n));
+    std::uint8_t* near = active_.data();
+    parallel::parallel_for(0, n, [&](std::int64_t c) { near[c] = g.phi[std::size_t(c)] < limit ? 1 : 0; });
+    dilate(g, active_);
+    reach_ = active_;
+    dilate(g, reach_);
+  }
+
+  /// mask |= its neighbours within one cell along every axis (a 3^Dim box, axis by axis).
+  void dilate(const Grid& g, std::vector<std::uint8_t>& mask) {
+    const std::int64_t n = g.num_cells();
+    mask_scratch_.resize(std::size_t(n));
+    for (int a = 0; a < Dim; ++a) {
+      const std::int64_t stride = g.cell_stride(a);
+      const std::uint8_t* in = mask.data();
+      std::uint8_t* out = mask_scratch_.data();
+      parallel::parallel_for(0, n, [&](std::int64_t c) {
+        const int i = int((c / stride) % res_[a]);
+        std::uint8_t m = in[c];
+        if (i > 0) m |= in[c - stride];
+        if (i + 1 < res_[a]) m |= in[c + stride];
+        out[c] = m;
+      });
+      mask.swap(mask_scratch_);
+    }
+  }
+
   /// H at the supersampling points (2 per cell and axis), from phi interpolated multilinearly
   /// between cell centres (a point at +-dx/4 from its centre has weights 3/4 and 1/4 along each
   /// axis; outside the domain the cell's own value is used).
@@ -178,6 +222,14 @@ class ViscositySolver {
     parallel::parallel_for(0, g.num_cells(), [&](std::int64_t c) {
       const IVec i = g.cell_coord(c);
       const bool solid = g.label[std::size_t(c)] == Grid::Solid;
+      if (solid || !active_[std::size_t(c)]) {
+        for (int o = 0; o < (1 << Dim); ++o) {
+          IVec s;
+          for (int a = 0; a < Dim; ++a) s[a] = (o >> a) & 1;
+          fine_[std::size_t(linear(IVec(2 * i + s), fine_res_))] = solid ? kSolid : T(0);
+        }
+        return;
+      }
       for (int o = 0; o < (1 << Dim); ++o) {
         IVec s;
         for (int a = 0; a < Dim; ++a) s[a] = (o >> a) & 1;
@@ -236,6 +288,10 @@ class ViscositySolver {
     const bool uniform = mu_cell.empty();
     kappa_cell_.resize(std::size_t(g.num_cells()));
     parallel::parallel_for(0, g.num_cells(), [&](std::int64_t c) {
+      if (!active_[std::size_t(c)]) {
+        kappa_cell_[std::size_t(c)] = 0.0;
+        return;
+      }
       const IVec i = g.cell_coord(c);
       const auto [liquid, filled] = fraction(IVec(2 * i));
       const double mu = uniform ? mu_uniform : double(mu_cell[std::size_t(c)]);
@@ -249,6 +305,10 @@ class ViscositySolver {
       kappa_edge_[p].resize(std::size_t(n));
       parallel::parallel_for(0, n, [&](std::int64_t k) {
         const IVec j = transfer::lattice_coord<Dim>(k, er);
+        if (!reach_[std::size_t(g.cell(IVec(j.cwiseMin(res_ - IVec::Ones()))))]) {  // the 4 cells around j are inactive
+          kappa_edge_[p][std::size_t(k)] = 0.0;
+          return;
+        }
         IVec lo = 2 * j;
         lo[a] -= 1;
         lo[b] -= 1;
@@ -334,6 +394,8 @@ class ViscositySolver {
       std::int32_t* idx = index_[d].data();
       parallel::parallel_for(0, nf, [&](std::int64_t f) {
         const IVec i = g.face_coord(d, f);
+        // Every sample that reads face i lies within one cell of cell i (clamped to the grid).
+        if (!reach_[std::size_t(g.cell(IVec(i.cwiseMin(res_ - IVec::Ones()))))]) return;
         if (g.open_weight(d, i) <= T(0)) return;
         bool touched = false;
         for_each_sample(g, d, i, [&](double, const Term* t, int count) {
@@ -344,19 +406,22 @@ class ViscositySolver {
       for (std::int64_t f = 0; f < nf; ++f) {
         if (idx[f] < 0) continue;
         idx[f] = std::int32_t(unknown_face_.size());
-        unknown_face_.push_back(f);
+        unknown_face_.push_back(std::uint32_t(f));
         unknown_axis_.push_back(std::uint8_t(d));
       }
     }
   }
 
   /// Row r of the system: W_f on the diagonal plus, per sample, kappa c_f c_g; closed faces'
-  /// terms move to the right-hand side with their u_solid.
+  /// terms move to the right-hand side with their u_solid. Stored row by row in kWidth slots
+  /// (at most kWidth distinct columns, ascending, len_ of them used): no second pass to pack
+  /// the rows, 32-bit columns.
   void assemble(const Grid& g) {
     const std::int64_t n = std::int64_t(unknown_face_.size());
-    scratch_col_.resize(std::size_t(n * kMaxRow));
-    scratch_val_.resize(std::size_t(n * kMaxRow));
-    scratch_len_.resize(std::size_t(n));
+    col_.resize(std::size_t(n * kWidth));
+    val_.resize(std::size_t(n * kWidth));
+    len_.resize(std::size_t(n));
+    diag_.resize(std::size_t(n));
     rhs_.resize(std::size_t(n));
     x_.resize(std::size_t(n));
     parallel::parallel_for(0, n, [&](std::int64_t r) {
@@ -366,8 +431,8 @@ class ViscositySolver {
       IVec lo = 2 * i;
       lo[d] -= 1;
       const double mass = fraction(lo).first;
-      std::int64_t* cols = scratch_col_.data() + r * kMaxRow;
-      double* vals = scratch_val_.data() + r * kMaxRow;
+      std::int64_t cols[kMaxRow];
+      double vals[kMaxRow];
       int len = 0;
       cols[len] = r, vals[len] = mass, ++len;
       const double u0 = double(g.u[d][std::size_t(f)]);
@@ -381,6 +446,7 @@ class ViscositySolver {
           const double v = kappa * self * t[k].coef;
           const std::int32_t col = index_[t[k].d][std::size_t(t[k].f)];
           if (col >= 0) {
+            assert(len < kMaxRow);
             cols[len] = col, vals[len] = v, ++len;
           } else {
             b -= v * double(g.face_u_solid(t[k].d, t[k].f));
@@ -390,33 +456,22 @@ class ViscositySolver {
       // Merge duplicate columns (insertion sort of at most kMaxRow entries, then sum runs).
       for (int a = 1; a < len; ++a)
         for (int k = a; k > 0 && cols[k - 1] > cols[k]; --k) std::swap(cols[k - 1], cols[k]), std::swap(vals[k - 1], vals[k]);
+      std::uint32_t* out_col = col_.data() + r * kWidth;
+      double* out_val = val_.data() + r * kWidth;
       int m = 0;
       for (int k = 0; k < len; ++k) {
-        if (m > 0 && cols[m - 1] == cols[k]) {
-          vals[m - 1] += vals[k];
+        if (m > 0 && std::int64_t(out_col[m - 1]) == cols[k]) {
+          out_val[m - 1] += vals[k];
         } else {
-          cols[m] = cols[k], vals[m] = vals[k], ++m;
+          assert(m < kWidth);
+          out_col[m] = std::uint32_t(cols[k]), out_val[m] = vals[k], ++m;
         }
       }
-      scratch_len_[std::size_t(r)] = m;
+      for (int k = 0; k < m; ++k)
+        if (std::int64_t(out_col[k]) == r) diag_[std::size_t(r)] = out_val[k];
+      len_[std::size_t(r)] = std::uint8_t(m);
       rhs_[std::size_t(r)] = b;
       x_[std::size_t(r)] = u0;  // warm start: the velocity before the solve
-    });
-    row_start_.resize(std::size_t(n + 1));
-    row_start_[0] = 0;
-    for (std::int64_t r = 0; r < n; ++r) row_start_[std::size_t(r + 1)] = row_start_[std::size_t(r)] + scratch_len_[std::size_t(r)];
-    col_.resize(std::size_t(row_start_[std::size_t(n)]));
-    val_.resize(col_.size());
-    diag_.resize(std::size_t(n));
-    parallel::parallel_for(0, n, [&](std::int64_t r) {
-      const std::int64_t at = row_start_[std::size_t(r)];
-      for (int k = 0; k < scratch_len_[std::size_t(r)]; ++k) {
-        const std::int64_t c = scratch_col_[std::size_t(r * kMaxRow + k)];
-        const double v = scratch_val_[std::size_t(r * kMaxRow + k)];
-        col_[std::size_t(at + k)] = c;
-        val_[std::size_t(at + k)] = v;
-        if (c == r) diag_[std::size_t(r)] = v;
-      }
     });
   }
 
@@ -426,9 +481,10 @@ class ViscositySolver {
     return parallel::parallel_sum<double>(0, n, kGrain, [&](std::int64_t lo, std::int64_t hi) {
       double s = 0;
       for (std::int64_t r = lo; r < hi; ++r) {
+        const std::uint32_t* col = col_.data() + r * kWidth;
+        const double* val = val_.data() + r * kWidth;
         double v = 0;
-        for (std::int64_t k = row_start_[std::size_t(r)]; k < row_start_[std::size_t(r + 1)]; ++k)
-          v += val_[std::size_t(k)] * x[col_[std::size_t(k)]];
+        for (int k = 0; k < len_[std::size_t(r)]; ++k) v += val[k] * x[col[k]];
         y[r] = v;
         s += x[r] * v;
       }
@@ -507,13 +563,12 @@ class ViscositySolver {
   std::vector<double> kappa_cell_;                 ///< per cell: diagonal samples
   std::array<std::vector<double>, kPairs> kappa_edge_;  ///< per pair: off-diagonal samples
   std::array<std::vector<std::int32_t>, Dim> index_;   ///< per face: unknown number or -1
-  std::vector<std::int64_t> unknown_face_;
+  std::vector<std::uint8_t> active_, reach_, mask_scratch_;  ///< per cell: see mark_active()
+  std::vector<std::uint32_t> unknown_face_;
   std::vector<std::uint8_t> unknown_axis_;
-  std::vector<std::int64_t> row_start_, col_;
+  std::vector<std::uint32_t> col_;  ///< kWidth slots per row
+  std::vector<std::uint8_t> len_;   ///< used slots per row
   std::vector<double> val_, rhs_, diag_, x_, r_, z_, p_, q_;
-  std::vector<std::int64_t> scratch_col_;
-  std::vector<double> scratch_val_;
-  std::vector<int> scratch_len_;
 };
 
 }  // namespace slurry::flip
