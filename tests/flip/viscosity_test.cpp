@@ -1,7 +1,8 @@
 // Viscosity of the FLIP liquid (viscosity.h, Batty & Bridson 2008): plane Poiseuille flow in 2D
-// and the flow through a square duct in 3D against their analytic profiles, the damping of a
-// standing wave against Lamb's rate 2 nu k^2, a very viscous column that spreads without
-// blowing up or losing volume, and the scene key's bad values.
+// and the flow through a square duct in 3D against their analytic profiles, free-slip walls
+// without shear, a very viscous column that spreads without blowing up or losing volume, and
+// the scene key's bad values. (The standing wave's damping against Lamb is in
+// viscosity_validation_test.cpp: it needs fine grids.)
 #include <gtest/gtest.h>
 
 #include <algorithm>
