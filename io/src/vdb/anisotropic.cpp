@@ -275,8 +275,9 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
     });
   }
 
-  // 2. The field on blocks of 8^3 voxels: kernels sorted by the block of their centre; a block
-  //    sums the kernels of the blocks within `rb` of it, in their sorted order.
+  // 2. The field on blocks of 8^3 voxels: kernels sorted by the block of their centre (then by
+  //    index); each kernel listed under every block its voxel range reaches, in that order, so a
+  //    block sums its kernels in ascending order of their centres' blocks.
   constexpr int B = FieldBlocks::kSize;
   float reach_max = 0;
   for (const auto& ker : kernel) reach_max = std::max(reach_max, ker.reach);
@@ -287,77 +288,73 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   std::vector<std::uint64_t> keys;
   std::vector<std::uint32_t> order;
   sort_by_cell(centres, blocks, keys, order);
-  const std::vector<std::uint32_t> filled = runs(keys);
-  std::vector<std::uint64_t> candidates;
-  for (std::size_t f = 0; f + 1 < filled.size(); ++f) {
-    const auto c = CellGrid::unpack(keys[filled[f]]);
-    for (std::int64_t dz = -rb; dz <= rb; ++dz)
-      for (std::int64_t dy = -rb; dy <= rb; ++dy)
-        for (std::int64_t dx = -rb; dx <= rb; ++dx)
-          candidates.push_back(pack(c[0] + dx, c[1] + dy, c[2] + dz));
-  }
-  std::sort(candidates.begin(), candidates.end());
-  candidates.erase(std::unique(candidates.begin(), candidates.end()), candidates.end());
-  std::vector<float> value(candidates.size() * B * B * B, 0.0f);
-  std::vector<std::uint8_t> touched(candidates.size(), 0);
   const float inv_h = float(1.0 / h);
-  parallel::parallel_tasks(0, std::int64_t(candidates.size()), [&](std::int64_t bi) {
-    const auto bc = CellGrid::unpack(candidates[std::size_t(bi)]);
+  /// Kernel i's voxels: [lo, hi] per axis (empty when lo > hi on an axis).
+  const auto voxel_range = [&](const Kernel& ker, std::int64_t lo[3], std::int64_t hi[3]) {
+    const float P[3] = {ker.centre[0] * inv_h, ker.centre[1] * inv_h, ker.centre[2] * inv_h};
+    const float r = ker.reach * inv_h;
+    for (int d = 0; d < 3; ++d) {
+      lo[d] = std::int64_t(std::ceil(P[d] - r));
+      hi[d] = std::int64_t(std::floor(P[d] + r));
+    }
+  };
+  const auto block_of = [](std::int64_t v) { return v >= 0 ? v / B : -((-v + B - 1) / B); };
+  std::vector<std::uint64_t> target;   // block key of each (block, kernel) pair
+  std::vector<std::uint32_t> listed;   // the kernel
+  target.reserve(n + n / 2), listed.reserve(n + n / 2);
+  for (std::size_t q = 0; q < n; ++q) {
+    std::int64_t lo[3], hi[3], b0[3], b1[3];
+    voxel_range(kernel[order[q]], lo, hi);
+    if (lo[0] > hi[0] || lo[1] > hi[1] || lo[2] > hi[2]) continue;
+    for (int d = 0; d < 3; ++d) b0[d] = block_of(lo[d]) - blocks.lo[d], b1[d] = block_of(hi[d]) - blocks.lo[d];
+    for (std::int64_t z = b0[2]; z <= b1[2]; ++z)
+      for (std::int64_t y = b0[1]; y <= b1[1]; ++y)
+        for (std::int64_t x = b0[0]; x <= b1[0]; ++x) target.push_back(pack(x, y, z)), listed.push_back(order[q]);
+  }
+  radix_sort_pairs(target, listed);  // stable: within a block, the kernels' order above
+  const std::vector<std::uint32_t> lists = runs(target);
+  const std::size_t nb = lists.size() - 1;
+  out.value.assign(nb * B * B * B, 0.0f);
+  out.origin.resize(nb);
+  parallel::parallel_tasks(0, std::int64_t(nb), [&](std::int64_t bi) {
+    const auto bc = CellGrid::unpack(target[lists[std::size_t(bi)]]);
     // Index-space origin of the block.
     const std::int64_t o[3] = {(bc[0] + blocks.lo[0]) * B, (bc[1] + blocks.lo[1]) * B,
                                (bc[2] + blocks.lo[2]) * B};
-    float* v = value.data() + std::size_t(bi) * B * B * B;
-    bool any = false;
-    for (std::int64_t dz = -rb; dz <= rb; ++dz)
-      for (std::int64_t dy = -rb; dy <= rb; ++dy) {
-        const auto lo = std::lower_bound(keys.begin(), keys.end(), pack(bc[0] - rb, bc[1] + dy, bc[2] + dz));
-        const auto hi = std::lower_bound(lo, keys.end(), pack(bc[0] + rb + 1, bc[1] + dy, bc[2] + dz));
-        for (auto it = lo; it != hi; ++it) {
-          const Kernel& ker = kernel[order[std::size_t(it - keys.begin())]];
-          const float P[3] = {ker.centre[0] * inv_h, ker.centre[1] * inv_h, ker.centre[2] * inv_h};
-          const float r = ker.reach * inv_h;
-          std::int64_t lo_i[3], hi_i[3];
-          bool empty = false;
-          for (int d = 0; d < 3; ++d) {
-            lo_i[d] = std::max<std::int64_t>(o[d], std::int64_t(std::ceil(P[d] - r)));
-            hi_i[d] = std::min<std::int64_t>(o[d] + B - 1, std::int64_t(std::floor(P[d] + r)));
-            empty = empty || lo_i[d] > hi_i[d];
-          }
-          if (empty) continue;
-          any = true;
-          // Map scaled to index space: q = M h (i - P).
-          float M[9];
-          for (int m = 0; m < 9; ++m) M[m] = ker.map[std::size_t(m)] * float(h);
-          for (std::int64_t x = lo_i[0]; x <= hi_i[0]; ++x) {
-            const float dxv = float(x) - P[0];
-            for (std::int64_t y = lo_i[1]; y <= hi_i[1]; ++y) {
-              const float dyv = float(y) - P[1];
-              const float a0 = M[0] * dxv + M[1] * dyv, a1 = M[3] * dxv + M[4] * dyv,
-                          a2 = M[6] * dxv + M[7] * dyv;
-              float* row = v + ((x - o[0]) * B + (y - o[1])) * B;
-              for (std::int64_t z = lo_i[2]; z <= hi_i[2]; ++z) {
-                const float dzv = float(z) - P[2];
-                const float q0 = a0 + M[2] * dzv, q1 = a1 + M[5] * dzv, q2 = a2 + M[8] * dzv;
-                const float q = q0 * q0 + q1 * q1 + q2 * q2;
-                if (q < 1.0f) {
-                  const float t = 1.0f - q;
-                  row[z - o[2]] += ker.weight * t * t * t;
-                }
-              }
+    out.origin[std::size_t(bi)] = {std::int32_t(o[0]), std::int32_t(o[1]), std::int32_t(o[2])};
+    float* v = out.value.data() + std::size_t(bi) * B * B * B;
+    for (std::uint32_t at = lists[std::size_t(bi)]; at < lists[std::size_t(bi) + 1]; ++at) {
+      const Kernel& ker = kernel[listed[at]];
+      const float P[3] = {ker.centre[0] * inv_h, ker.centre[1] * inv_h, ker.centre[2] * inv_h};
+      std::int64_t lo_i[3], hi_i[3];
+      voxel_range(ker, lo_i, hi_i);
+      for (int d = 0; d < 3; ++d) {
+        lo_i[d] = std::max<std::int64_t>(o[d], lo_i[d]);
+        hi_i[d] = std::min<std::int64_t>(o[d] + B - 1, hi_i[d]);
+      }
+      // Map scaled to index space: q = M h (i - P).
+      float M[9];
+      for (int m = 0; m < 9; ++m) M[m] = ker.map[std::size_t(m)] * float(h);
+      for (std::int64_t x = lo_i[0]; x <= hi_i[0]; ++x) {
+        const float dxv = float(x) - P[0];
+        for (std::int64_t y = lo_i[1]; y <= hi_i[1]; ++y) {
+          const float dyv = float(y) - P[1];
+          const float a0 = M[0] * dxv + M[1] * dyv, a1 = M[3] * dxv + M[4] * dyv,
+                      a2 = M[6] * dxv + M[7] * dyv;
+          float* row = v + ((x - o[0]) * B + (y - o[1])) * B;
+          for (std::int64_t z = lo_i[2]; z <= hi_i[2]; ++z) {
+            const float dzv = float(z) - P[2];
+            const float q0 = a0 + M[2] * dzv, q1 = a1 + M[5] * dzv, q2 = a2 + M[8] * dzv;
+            const float q = q0 * q0 + q1 * q1 + q2 * q2;
+            if (q < 1.0f) {
+              const float t = 1.0f - q;
+              row[z - o[2]] += ker.weight * t * t * t;
             }
           }
         }
       }
-    touched[std::size_t(bi)] = any ? 1 : 0;
+    }
   });
-  for (std::size_t b = 0; b < candidates.size(); ++b) {
-    if (!touched[b]) continue;
-    const auto bc = CellGrid::unpack(candidates[b]);
-    out.origin.push_back({std::int32_t((bc[0] + blocks.lo[0]) * B), std::int32_t((bc[1] + blocks.lo[1]) * B),
-                          std::int32_t((bc[2] + blocks.lo[2]) * B)});
-    out.value.insert(out.value.end(), value.begin() + std::ptrdiff_t(b * B * B * B),
-                     value.begin() + std::ptrdiff_t((b + 1) * B * B * B));
-  }
   return out;
 }
 
