@@ -487,14 +487,21 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
   double iso = level_for(double(points.size()) * particle_volume);
   std::vector<std::size_t> droplets;
   if (!flat) {
-    const openvdb::tools::GridSampler<openvdb::FloatGrid, openvdb::tools::BoxSampler> sampler(*field);
-    for (std::size_t i = 0; i < points.size(); ++i) {
-      const auto& p = points.position[i];
-      const int n = blocks.neighbours[i];
-      const double f = sampler.wsSample(openvdb::Vec3R(p[0], p[1], p[2]));
-      if ((n < detail::AnisotropyConstants{}.min_neighbours && f < iso) || f < kFarOutside * iso)
-        droplets.push_back(i);
-    }
+    std::vector<std::uint8_t> is_droplet(points.size(), 0);
+    slurry::parallel::parallel_chunks(0, std::int64_t(points.size()), [&](std::int64_t b, std::int64_t e) {
+      const openvdb::FloatGrid::ConstAccessor acc = field->getConstAccessor();
+      const openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::BoxSampler> sampler(
+          acc, field->transform());
+      for (std::int64_t i = b; i < e; ++i) {
+        const auto& p = points.position[std::size_t(i)];
+        const int n = blocks.neighbours[std::size_t(i)];
+        const double f = sampler.wsSample(openvdb::Vec3R(p[0], p[1], p[2]));
+        is_droplet[std::size_t(i)] =
+            (n < detail::AnisotropyConstants{}.min_neighbours && f < iso) || f < kFarOutside * iso;
+      }
+    });
+    for (std::size_t i = 0; i < points.size(); ++i)
+      if (is_droplet[i]) droplets.push_back(i);
     if (!droplets.empty()) iso = level_for(double(points.size() - droplets.size()) * particle_volume);
   }
   // A5: iso - field, negative inside, meshed at 0. Where the field has a plateau near the level
