@@ -13,42 +13,19 @@
 #include "slurry/engine/flip/cell_sort.h"
 #include "slurry/engine/flip/flip_solver.h"
 #include "slurry/transfer/parallel.h"
+#include "liquid_scene.h"
 
 namespace {
 
 using slurry::Scene;
 using Sim2 = slurry::flip::FlipSolver<double, 2>;
 
-/// A 2D double-precision FLIP scene over [0, w] x [0, h] with one liquid; bodies are the caller's.
 Scene liquid_scene(double w, double h, double dx, slurry::TransferKind transfer) {
-  Scene s;
-  s.source = "test";
-  s.solver.type = slurry::SolverType::FLIP;
-  s.solver.dimension = 2;
-  s.solver.precision = slurry::Precision::Double;
-  s.solver.transfer = transfer;
-  s.solver.kernel = slurry::KernelKind::Linear;
-  s.solver.cfl = 1;
-  s.solver.max_dt = 1.0 / 120;
-  s.solver.pressure.tolerance = 1e-8;
-  s.domain.max = {w, h, 0};
-  s.domain.dx = dx;
-  slurry::MaterialParams m;
-  m.name = "water";
-  m.model = slurry::ElasticModel::Fluid;
-  m.density = 1000;
-  s.materials = {m};
-  return s;
+  return slurry_test::liquid_scene(w, h, dx, transfer, 1.0 / 120, "water");
 }
 
 slurry::BodyParams box(double x0, double y0, double x1, double y1, double ppc = 4) {
-  slurry::BodyParams b;
-  b.shape = slurry::Shape::Box;
-  b.min = {x0, y0, 0};
-  b.max = {x1, y1, 0};
-  b.material = "water";
-  b.particles_per_cell = ppc;
-  return b;
+  return slurry_test::liquid_box(x0, y0, x1, y1, "water", ppc);
 }
 
 // A pool at rest stays at rest, and its pressure is hydrostatic, p = rho g (H - y).

@@ -15,6 +15,7 @@
 #include "slurry/engine/flip/flip_solver.h"
 #include "slurry/engine/flip/viscosity.h"
 #include "slurry/engine/scene/scene.h"
+#include "liquid_scene.h"
 #include "slurry/io/scene_file.h"
 
 namespace {
@@ -127,35 +128,11 @@ TEST(FlipViscosity, FreeSlipWallsExertNoShear) {
 
 /// A 2D double-precision FLIP scene over [0, w] x [0, h] with one liquid of viscosity mu.
 Scene viscous_scene(double w, double h, double dx, double mu) {
-  Scene s;
-  s.source = "test";
-  s.solver.type = slurry::SolverType::FLIP;
-  s.solver.dimension = 2;
-  s.solver.precision = slurry::Precision::Double;
-  s.solver.transfer = slurry::TransferKind::APIC;
-  s.solver.kernel = slurry::KernelKind::Linear;
-  s.solver.cfl = 1;
-  s.solver.max_dt = 1.0 / 240;
-  s.solver.pressure.tolerance = 1e-8;
-  s.domain.max = {w, h, 0};
-  s.domain.dx = dx;
-  slurry::MaterialParams m;
-  m.name = "liquid";
-  m.model = slurry::ElasticModel::Fluid;
-  m.density = 1000;
-  m.viscosity = mu;
-  s.materials = {m};
-  return s;
+  return slurry_test::liquid_scene(w, h, dx, slurry::TransferKind::APIC, 1.0 / 240, "liquid", mu);
 }
 
 slurry::BodyParams box(double x0, double y0, double x1, double y1, double ppc = 4) {
-  slurry::BodyParams b;
-  b.shape = slurry::Shape::Box;
-  b.min = {x0, y0, 0};
-  b.max = {x1, y1, 0};
-  b.material = "liquid";
-  b.particles_per_cell = ppc;
-  return b;
+  return slurry_test::liquid_box(x0, y0, x1, y1, "liquid", ppc);
 }
 
 // A very viscous column (mu = 1000 Pa s, nu = 1 m^2/s: a thick tar at the 1 m scale, its

@@ -8,37 +8,17 @@
 #include <vector>
 
 #include "slurry/engine/flip/flip_solver.h"
+#include "liquid_scene.h"
 
 namespace {
 
 using slurry::Scene;
 
-/// A 2D double-precision FLIP scene over [0, w] x [0, h] with one liquid of viscosity mu.
+/// A 2D double-precision FLIP scene over [0, w] x [0, h] with one liquid of viscosity mu, a body
+/// [0, w] x [0, 0] for the caller to raise.
 Scene viscous_scene(double w, double h, double dx, double mu) {
-  Scene s;
-  s.source = "test";
-  s.solver.type = slurry::SolverType::FLIP;
-  s.solver.dimension = 2;
-  s.solver.precision = slurry::Precision::Double;
-  s.solver.transfer = slurry::TransferKind::APIC;
-  s.solver.kernel = slurry::KernelKind::Linear;
-  s.solver.cfl = 1;
-  s.solver.max_dt = 1.0 / 240;
-  s.solver.pressure.tolerance = 1e-8;
-  s.domain.max = {w, h, 0};
-  s.domain.dx = dx;
-  slurry::MaterialParams m;
-  m.name = "liquid";
-  m.model = slurry::ElasticModel::Fluid;
-  m.density = 1000;
-  m.viscosity = mu;
-  s.materials = {m};
-  slurry::BodyParams b;
-  b.shape = slurry::Shape::Box;
-  b.max = {w, 0, 0};
-  b.material = "liquid";
-  b.particles_per_cell = 4;
-  s.bodies = {b};
+  Scene s = slurry_test::liquid_scene(w, h, dx, slurry::TransferKind::APIC, 1.0 / 240, "liquid", mu);
+  s.bodies = {slurry_test::liquid_box(0, 0, w, 0, "liquid")};
   return s;
 }
 

@@ -1,0 +1,44 @@
+#pragma once
+// The scenes the FLIP tests build: one liquid in a 2D double-precision FLIP domain [0, w] x [0, h]
+// (linear kernel, cfl 1, pressure tolerance 1e-8) and boxes of it.
+#include "slurry/engine/scene/scene.h"
+
+namespace slurry_test {
+
+/// One liquid `name` of density 1000 and dynamic viscosity `viscosity`; bodies are the caller's.
+inline slurry::Scene liquid_scene(double w, double h, double dx, slurry::TransferKind transfer, double max_dt,
+                                  const char* name, double viscosity = 0) {
+  slurry::Scene s;
+  s.source = "test";
+  s.solver.type = slurry::SolverType::FLIP;
+  s.solver.dimension = 2;
+  s.solver.precision = slurry::Precision::Double;
+  s.solver.transfer = transfer;
+  s.solver.kernel = slurry::KernelKind::Linear;
+  s.solver.cfl = 1;
+  s.solver.max_dt = max_dt;
+  s.solver.pressure.tolerance = 1e-8;
+  s.domain.max = {w, h, 0};
+  s.domain.dx = dx;
+  slurry::MaterialParams m;
+  m.name = name;
+  m.model = slurry::ElasticModel::Fluid;
+  m.density = 1000;
+  m.viscosity = viscosity;
+  s.materials = {m};
+  return s;
+}
+
+/// A box [x0, x1] x [y0, y1] of `material`, seeded at `ppc` particles per cell.
+inline slurry::BodyParams liquid_box(double x0, double y0, double x1, double y1, const char* material,
+                                     double ppc = 4) {
+  slurry::BodyParams b;
+  b.shape = slurry::Shape::Box;
+  b.min = {x0, y0, 0};
+  b.max = {x1, y1, 0};
+  b.material = material;
+  b.particles_per_cell = ppc;
+  return b;
+}
+
+}  // namespace slurry_test
