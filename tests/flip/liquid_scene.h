@@ -1,6 +1,9 @@
 #pragma once
 // The scenes the FLIP tests build: one liquid in a 2D double-precision FLIP domain [0, w] x [0, h]
 // (linear kernel, cfl 1, pressure tolerance 1e-8) and boxes of it.
+#include <cmath>
+#include <cstddef>
+
 #include "slurry/engine/scene/scene.h"
 
 namespace slurry_test {
@@ -39,6 +42,22 @@ inline slurry::BodyParams liquid_box(double x0, double y0, double x1, double y1,
   b.material = material;
   b.particles_per_cell = ppc;
   return b;
+}
+
+/// Sets the particles' velocity (and APIC's affine vectors) to the linear standing wave of mode k
+/// in water of depth h: the potential flow phi = (a / k) cos(k x) cosh(k y), a = amplitude
+/// omega / sinh(k h), so u = -a sin(kx) cosh(ky), v = a cos(kx) sinh(ky).
+template <class Particles>
+void standing_wave_velocity(Particles& P, double k, double h, double omega, double amplitude) {
+  const double a = amplitude * omega / std::sinh(k * h);
+  for (std::size_t p = 0; p < P.size(); ++p) {
+    const double x = P.x[p][0], y = P.x[p][1];
+    P.v[p] = {-a * std::sin(k * x) * std::cosh(k * y), a * std::cos(k * x) * std::sinh(k * y)};
+    if (P.affine) {
+      P.c[0][p] = {-a * k * std::cos(k * x) * std::cosh(k * y), -a * k * std::sin(k * x) * std::sinh(k * y)};
+      P.c[1][p] = {-a * k * std::sin(k * x) * std::sinh(k * y), a * k * std::cos(k * x) * std::cosh(k * y)};
+    }
+  }
 }
 
 }  // namespace slurry_test

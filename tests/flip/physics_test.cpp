@@ -169,15 +169,7 @@ double standing_wave_period_error(double dx) {
   Sim2 sim(s);
   const double k = M_PI / L, omega = std::sqrt(g * k * std::tanh(k * h)), period = 2 * M_PI / omega;
   auto& P = sim.particles();
-  for (std::size_t p = 0; p < P.size(); ++p) {
-    const double x = P.x[p][0], y = P.x[p][1], a = amp * omega / std::sinh(k * h);
-    // phi = (a / k) cos(k x) cosh(k y): u = -a sin(kx) cosh(ky), v = a cos(kx) sinh(ky).
-    P.v[p] = {-a * std::sin(k * x) * std::cosh(k * y), a * std::cos(k * x) * std::sinh(k * y)};
-    if (P.affine) {
-      P.c[0][p] = {-a * k * std::cos(k * x) * std::cosh(k * y), -a * k * std::sin(k * x) * std::sinh(k * y)};
-      P.c[1][p] = {-a * k * std::sin(k * x) * std::sinh(k * y), a * k * std::cos(k * x) * std::cosh(k * y)};
-    }
-  }
+  slurry_test::standing_wave_velocity(P, k, h, omega, amp);
   auto x_cm = [&] {
     double sum = 0;
     for (const auto& x : sim.particles().x) sum += x[0];
