@@ -275,7 +275,9 @@ void FlipSolver<T, Dim>::apply_viscosity(T dt) {
         q[d] += m % 3 - 1;
         inside = inside && q[d] >= 0 && q[d] < grid_.res[d];
       }
-      if (inside && start[grid_.cell(q) + 1] > start[grid_.cell(q)]) mu = std::max(mu, cell_mu_[std::size_t(grid_.cell(q))]);
+      if (!inside) continue;
+      const std::int64_t k = grid_.cell(q);
+      if (start[k + 1] > start[k]) mu = std::max(mu, cell_mu_[std::size_t(k)]);
     }
     filled[std::size_t(c)] = mu;
   });

@@ -202,7 +202,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
       // The neighbourhood's particles, gathered once for the cell's particles, in the order of
       // the rows (the sums below add them in that order).
       thread_local std::vector<float> gx, gy, gz;
-      thread_local std::vector<double> ex, ey, ez, er2;
+      thread_local std::vector<double> er2;
       thread_local std::vector<std::uint32_t> gj;
       gx.clear(), gy.clear(), gz.clear(), gj.clear();
       for (const auto& [b, e] : rows)
@@ -212,14 +212,13 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
           gx.push_back(xj[0]), gy.push_back(xj[1]), gz.push_back(xj[2]), gj.push_back(j);
         }
       const std::size_t m_all = gj.size();
-      ex.resize(m_all), ey.resize(m_all), ez.resize(m_all), er2.resize(m_all);
+      er2.resize(m_all);
       for (std::uint32_t a = cells[std::size_t(c)]; a < cells[std::size_t(c) + 1]; ++a) {
         const std::uint32_t i = order[a];
         const auto& xi = points.position[i];
         const double xi0 = xi[0], xi1 = xi[1], xi2 = xi[2];
         for (std::size_t q = 0; q < m_all; ++q) {
           const double d0 = double(gx[q]) - xi0, d1 = double(gy[q]) - xi1, d2 = double(gz[q]) - xi2;
-          ex[q] = d0, ey[q] = d1, ez[q] = d2;
           er2[q] = d0 * d0 + d1 * d1 + d2 * d2;
         }
         double W = 0, mean[3] = {0, 0, 0}, second[6] = {0, 0, 0, 0, 0, 0};
@@ -227,7 +226,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
         for (std::size_t q = 0; q < m_all; ++q) {
           const double r2 = er2[q];
           if (r2 >= R * R) continue;
-          const double d[3] = {ex[q], ey[q], ez[q]};
+          const double d[3] = {double(gx[q]) - xi0, double(gy[q]) - xi1, double(gz[q]) - xi2};
           const double r = std::sqrt(r2) / R, w = 1 - r * r * r;
           W += w;
           for (int m = 0; m < 3; ++m) mean[m] += w * d[m];

@@ -377,6 +377,9 @@ double enclosed(const TriangleMesh& m) {
   return v / 6;
 }
 
+/// Triangles of a droplet (a regular icosahedron), appended after the body's.
+constexpr std::size_t kDropletTriangles = 20;
+
 /// Appends to `mesh` a regular icosahedron of volume `volume` around each of the points
 /// `which` (outward triangles).
 void add_droplets(TriangleMesh& mesh, const PointCloud& points, const std::vector<std::size_t>& which,
@@ -385,7 +388,7 @@ void add_droplets(TriangleMesh& mesh, const PointCloud& points, const std::vecto
   // ratio, scaled by 1 / sqrt(1 + g^2); its volume is 2.5362 R^3 for circumradius R.
   const double g = (1 + std::sqrt(5.0)) / 2, norm = 1 / std::sqrt(1 + g * g);
   const double R = std::cbrt(volume / (5.0 / 12.0 * (3 + std::sqrt(5.0)) * std::pow(2 * norm, 3)));
-  static const int faces[20][3] = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
+  static const int faces[kDropletTriangles][3] = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
                                    {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
                                    {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
                                    {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
@@ -401,16 +404,16 @@ void add_droplets(TriangleMesh& mesh, const PointCloud& points, const std::vecto
   }
 }
 
-/// Whether `p` lies inside the convex droplet whose 20 outward triangles start at `first`.
+/// Whether `p` lies inside the convex droplet whose kDropletTriangles outward triangles start at
+/// `first`.
 bool droplet_contains(const TriangleMesh& mesh, std::size_t first, const openvdb::Vec3d& p) {
-  for (std::size_t f = first; f < first + 20; ++f) {
+  const auto vertex = [&](std::int32_t v) {
+    const auto& x = mesh.vertices[std::size_t(v)];
+    return openvdb::Vec3d(x[0], x[1], x[2]);
+  };
+  for (std::size_t f = first; f < first + kDropletTriangles; ++f) {
     const auto& t = mesh.triangles[f];
-    const openvdb::Vec3d a(mesh.vertices[std::size_t(t[0])][0], mesh.vertices[std::size_t(t[0])][1],
-                           mesh.vertices[std::size_t(t[0])][2]);
-    const openvdb::Vec3d b(mesh.vertices[std::size_t(t[1])][0], mesh.vertices[std::size_t(t[1])][1],
-                           mesh.vertices[std::size_t(t[1])][2]);
-    const openvdb::Vec3d c(mesh.vertices[std::size_t(t[2])][0], mesh.vertices[std::size_t(t[2])][1],
-                           mesh.vertices[std::size_t(t[2])][2]);
+    const openvdb::Vec3d a = vertex(t[0]), b = vertex(t[1]), c = vertex(t[2]);
     if ((b - a).cross(c - a).dot(p - a) > 0) return false;
   }
   return true;
@@ -575,7 +578,8 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
         const std::int32_t t = band.triangle[at];
         bool inside = acc.getValue(c) > float(iso);  // where iso - field, meshed at 0, is negative
         if (!inside && t >= 0 && std::size_t(t) >= body_triangles) {
-          const std::size_t first = body_triangles + (std::size_t(t) - body_triangles) / 20 * 20;
+          const std::size_t first =
+              body_triangles + (std::size_t(t) - body_triangles) / kDropletTriangles * kDropletTriangles;
           inside = droplet_contains(out.mesh, first, ls->indexToWorld(c));
         }
         const float d = std::min(band.distance[at], float(kHalfWidth));

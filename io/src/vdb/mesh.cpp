@@ -95,9 +95,7 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
     index[std::size_t(i)] = std::uint32_t(i);
   });
   radix_sort_pairs(keys, index);
-  std::vector<std::pair<std::int64_t, std::uint32_t>> sorted(n);
-  for (std::size_t i = 0; i < n; ++i) sorted[i] = {std::int64_t(keys[i]), index[i]};
-  // Where each cell's particles start in `sorted`, when the cells of the particles' box are few
+  // Where each cell's particles start in `keys`, when the cells of the particles' box are few
   // enough for a table (else a binary search per row).
   const double cell_count = double(dims[0]) * double(dims[1]) * double(dims[2]);
   std::vector<std::uint32_t> first;
@@ -107,8 +105,8 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
     for (std::size_t c = 0; c + 1 < first.size(); ++c) first[c + 1] += first[c];
   }
   const auto row_begin = [&](std::int64_t k) {
-    if (!first.empty()) return sorted.begin() + std::ptrdiff_t(first[std::size_t(k)]);
-    return std::lower_bound(sorted.begin(), sorted.end(), std::make_pair(k, std::uint32_t(0)));
+    if (!first.empty()) return std::size_t(first[std::size_t(k)]);
+    return std::size_t(std::lower_bound(keys.begin(), keys.end(), std::uint64_t(k)) - keys.begin());
   };
 
   slurry::parallel::parallel_for(0, std::int64_t(vertices.size()), [&](std::int64_t vi) {
@@ -124,20 +122,20 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
         if (a < 0 || b < 0 || a >= dims[0] || b >= dims[1]) continue;
         const std::int64_t e0 = std::max<std::int64_t>(c[2] - 1, 0), e1 = std::min(c[2] + 1, dims[2] - 1);
         if (e0 > e1) continue;
-        auto it = row_begin(key({a, b, e0}));
-        const std::int64_t k_end = key({a, b, e1});
-          for (; it != sorted.end() && it->first <= k_end; ++it) {
-            const auto& p = points.position[it->second];
-            const double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
-            const double r2 = dx * dx + dy * dy + dz * dz;
-            if (r2 < nearest) nearest = r2, nearest_index = it->second;
-            if (r2 >= h * h) continue;
-            const double s = 1 - r2 / (h * h),
-                         w = s * s * s;  // poly6 (Mueller et al. 2003, eq. 20), unnormalized
-            w_sum += w;
-            for (int d = 0; d < 3; ++d) u[d] += w * points.velocity[it->second][d];
-          }
+        const std::uint64_t k_end = std::uint64_t(key({a, b, e1}));
+        for (std::size_t t = row_begin(key({a, b, e0})); t < n && keys[t] <= k_end; ++t) {
+          const std::uint32_t pi = index[t];
+          const auto& p = points.position[pi];
+          const double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
+          const double r2 = dx * dx + dy * dy + dz * dz;
+          if (r2 < nearest) nearest = r2, nearest_index = pi;
+          if (r2 >= h * h) continue;
+          const double s = 1 - r2 / (h * h),
+                       w = s * s * s;  // poly6 (Mueller et al. 2003, eq. 20), unnormalized
+          w_sum += w;
+          for (int d = 0; d < 3; ++d) u[d] += w * points.velocity[pi][d];
         }
+      }
     auto& o = out[std::size_t(vi)];
     if (w_sum > 0) {
       for (int d = 0; d < 3; ++d) o[d] = float(u[d] / w_sum);

@@ -7,6 +7,14 @@
 
 namespace slurry::transfer {
 
+/// The row-major index of coordinates i in a lattice of res[d] points per axis.
+template <int Dim, class Coord, class Res>
+std::int64_t lattice_index(const Coord& i, const Res& res) {
+  std::int64_t k = i[0];
+  for (int d = 1; d < Dim; ++d) k = k * res[d] + i[d];
+  return k;
+}
+
 /// The coordinates of row-major index k in a lattice of res[d] points per axis.
 template <int Dim, class Res>
 Eigen::Matrix<int, Dim, 1> lattice_coord(std::int64_t k, const Res& res) {

@@ -80,11 +80,7 @@ struct MacGrid {
   }
 
   /// Row-major cell index, last axis fastest.
-  std::int64_t cell(const IVec& i) const {
-    std::int64_t k = i[0];
-    for (int d = 1; d < Dim; ++d) k = k * res[d] + i[d];
-    return k;
-  }
+  std::int64_t cell(const IVec& i) const { return transfer::lattice_index<Dim>(i, res); }
   /// Stride of the cell index along axis d.
   std::int64_t cell_stride(int d) const {
     std::int64_t s = 1;
@@ -95,12 +91,7 @@ struct MacGrid {
   IVec cell_coord(std::int64_t k) const { return transfer::lattice_coord<Dim>(k, res); }
 
   /// Axis-d face i separates cells i - e_d and i; it sits at origin + dx (i + 1/2 - 1/2 e_d).
-  std::int64_t face(int d, const IVec& i) const {
-    const IVec fr = face_res(d);
-    std::int64_t k = i[0];
-    for (int a = 1; a < Dim; ++a) k = k * fr[a] + i[a];
-    return k;
-  }
+  std::int64_t face(int d, const IVec& i) const { return transfer::lattice_index<Dim>(i, face_res(d)); }
   /// Stride of the axis-d face index along axis a.
   std::int64_t face_stride(int d, int a) const {
     const IVec fr = face_res(d);

@@ -105,7 +105,6 @@ class ViscositySolver {
   ViscosityReport solve(Grid& g, T dt, double rho, double mu_uniform, const std::vector<T>& mu_cell = {}) {
     ViscosityReport rep;
     setup(g);
-    no_slip_walls_ = no_slip_walls;
     mark_active(g);
     supersample(g);
     const double scale = double(dt) / rho;
@@ -168,11 +167,7 @@ class ViscositySolver {
     r[pair_b_[p]] += 1;
     return r;
   }
-  static std::int64_t linear(const IVec& i, const IVec& box) {
-    std::int64_t k = i[0];
-    for (int a = 1; a < Dim; ++a) k = k * box[a] + i[a];
-    return k;
-  }
+  static std::int64_t linear(const IVec& i, const IVec& box) { return transfer::lattice_index<Dim>(i, box); }
 
   /// The cells near the liquid, where the work is done. A supersampling point's phi is a convex
   /// combination of the phi of its cell and of neighbours within one cell, so H > 0 (phi <
@@ -233,27 +228,23 @@ class ViscositySolver {
       for (int o = 0; o < (1 << Dim); ++o) {
         IVec s;
         for (int a = 0; a < Dim; ++a) s[a] = (o >> a) & 1;
-        T h = kSolid;
-        if (!solid) {
-          T phi = T(0);
-          for (int corner = 0; corner < (1 << Dim); ++corner) {
-            IVec j = i;
-            T w = T(1);
-            for (int a = 0; a < Dim; ++a) {
-              const bool far = (corner >> a) & 1;  // the neighbour on the point's side
-              if (far) {
-                const int nb = i[a] + (s[a] ? 1 : -1);
-                if (nb >= 0 && nb < res_[a]) j[a] = nb;
-                w *= T(0.25);
-              } else {
-                w *= T(0.75);
-              }
+        T phi = T(0);
+        for (int corner = 0; corner < (1 << Dim); ++corner) {
+          IVec j = i;
+          T w = T(1);
+          for (int a = 0; a < Dim; ++a) {
+            const bool far = (corner >> a) & 1;  // the neighbour on the point's side
+            if (far) {
+              const int nb = i[a] + (s[a] ? 1 : -1);
+              if (nb >= 0 && nb < res_[a]) j[a] = nb;
+              w *= T(0.25);
+            } else {
+              w *= T(0.75);
             }
-            phi += w * g.phi[std::size_t(g.cell(j))];
           }
-          h = std::clamp(T(0.5) - phi / half_dx, T(0), T(1));
+          phi += w * g.phi[std::size_t(g.cell(j))];
         }
-        fine_[std::size_t(linear(IVec(2 * i + s), fine_res_))] = h;
+        fine_[std::size_t(linear(IVec(2 * i + s), fine_res_))] = std::clamp(T(0.5) - phi / half_dx, T(0), T(1));
       }
     });
   }
@@ -374,7 +365,7 @@ class ViscositySolver {
           IVec hi = j, lo = j;
           lo[other] -= 1;
           const bool hi_in = hi[other] < res_[other], lo_in = lo[other] >= 0;
-          if (!(hi_in && lo_in) && !no_slip_walls_) continue;  // free slip: the mirror u_ghost = u_inside
+          if (!(hi_in && lo_in) && !no_slip_walls) continue;  // free slip: the mirror u_ghost = u_inside
           if (hi_in) t[n++] = {u_axis, g.face(u_axis, hi), (lo_in ? 1 : 2) / dx_};
           if (lo_in) t[n++] = {u_axis, g.face(u_axis, lo), -(hi_in ? 1 : 2) / dx_};
         }
@@ -557,7 +548,6 @@ class ViscositySolver {
 
   IVec res_ = IVec::Zero(), fine_res_ = IVec::Zero();
   double dx_ = 1;
-  bool no_slip_walls_ = true;
   std::array<int, kPairs> pair_a_{}, pair_b_{};
   std::vector<T> fine_;                            ///< H (or kSolid) at the supersampling points
   std::vector<double> kappa_cell_;                 ///< per cell: diagonal samples
