@@ -343,9 +343,10 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.number("density", m.density);
     r.choice("plasticity", kPlastic, m.plasticity);
     // Keys that belong to another model are errors, not silently ignored. The FLIP liquid is
-    // incompressible: density and viscosity are its parameters.
+    // incompressible: density, viscosity and surface tension are its parameters.
     if (s.solver.type == SolverType::FLIP) {
       r.number("viscosity", m.viscosity);
+      r.number("surface_tension", m.surface_tension);
     } else if (m.model == ElasticModel::Fluid) {
       r.number("bulk_modulus", m.bulk_modulus);
       r.number("gamma", m.gamma);

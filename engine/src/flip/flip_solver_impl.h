@@ -63,6 +63,7 @@ FlipSolver<T, Dim>::FlipSolver(const Scene& scene) : scene_(scene) {
     mixed_viscosity_ = mixed_viscosity_ || m.viscosity != scene_.materials[0].viscosity;
   }
   viscosity_.no_slip_walls = scene_.boundaries.walls == Condition::Sticky;
+  sigma_ = T(scene_.materials[0].surface_tension);
 
   // The nominal density of particles: the densest body or emitter.
   double ppc = 0;
@@ -119,7 +120,7 @@ std::size_t FlipSolver<T, Dim>::bytes() const {
                   sort_.start.capacity() * sizeof(std::uint32_t);
   const std::size_t cells = std::size_t(grid_.num_cells());
   b += cells * (2 + 2 * sizeof(T)) + holes_.capacity();
-  b += pressure_.bytes() + extrapolator_.bytes() + viscosity_.bytes() + cell_mu_.capacity() * sizeof(T);  // the pressure solve's vectors are most of the grid's memory
+  b += pressure_.bytes() + extrapolator_.bytes() + viscosity_.bytes() + surface_tension_.bytes() + cell_mu_.capacity() * sizeof(T);  // the pressure solve's vectors are most of the grid's memory
   for (int d = 0; d < Dim; ++d)
     b += (grid_.u[d].capacity() + grid_.weight[d].capacity() + grid_.u_solid[d].capacity() +
           weight_sum_[d].capacity() + old_u_[d].capacity()) * sizeof(T) + grid_.valid[d].capacity();
@@ -130,6 +131,7 @@ template <class T, int Dim>
 T FlipSolver<T, Dim>::stable_dt() const {
   T dt = T(scene_.solver.max_dt);
   if (max_speed_ > T(0)) dt = std::min(dt, T(scene_.solver.cfl) * grid_.dx / max_speed_);
+  if (sigma_ > T(0)) dt = std::min(dt, SurfaceTension<T, Dim>::max_dt(grid_.dx, density(), sigma_));
   return dt;
 }
 
@@ -240,6 +242,10 @@ void FlipSolver<T, Dim>::build_boundaries(T t) {
   if (!solids_.empty() || !faces_ready_) solids_.update_faces(grid_, t);
   faces_ready_ = true;
   label_cells(grid_, particles_, sort_, solids_, t, particle_radius_, holes_);
+  if (sigma_ > T(0)) {
+    surface_tension_.compute(grid_, particles_, sort_, sigma_);
+    pressure_.set_surface_pressure(surface_tension_.pressure().data());
+  }
 }
 
 template <class T, int Dim>

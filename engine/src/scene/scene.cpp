@@ -174,6 +174,12 @@ void Scene::validate_flip() const {
       fail(source, p + ".plasticity", "a \"fluid\" material takes no plasticity (expected \"none\")");
     if (!(std::isfinite(materials[i].viscosity) && materials[i].viscosity >= 0))
       fail(source, p + ".viscosity", "expected a finite number >= 0, got " + fmt_num(materials[i].viscosity));
+    if (!(std::isfinite(materials[i].surface_tension) && materials[i].surface_tension >= 0))
+      fail(source, p + ".surface_tension", "expected a finite number >= 0 (N/m), got " + fmt_num(materials[i].surface_tension));
+    if (i > 0 && materials[i].surface_tension != materials[0].surface_tension)
+      fail(source, p + ".surface_tension",
+           "the FLIP solver takes one surface tension for all liquids: expected " + fmt_num(materials[0].surface_tension) +
+               " (materials[0].surface_tension), got " + fmt_num(materials[i].surface_tension));
     if (i > 0 && materials[i].density != materials[0].density)
       fail(source, p + ".density",
            "the FLIP solver takes one density for all liquids: expected " + fmt_num(materials[0].density) +
@@ -340,6 +346,9 @@ void Scene::validate() const {
     for (std::size_t j = 0; j < i; ++j)
       if (materials[j].name == m.name) fail(source, p + ".name", "duplicate material name \"" + m.name + "\"");
     c.positive(p + ".density", m.density);
+    if (!flip && m.surface_tension != 0)
+      fail(source, p + ".surface_tension",
+           "the surface tension of a liquid is a key of solver.type \"flip\" (expected 0, got " + fmt_num(m.surface_tension) + ")");
     if (!flip && m.viscosity != 0)
       fail(source, p + ".viscosity", "the viscosity of a liquid is a key of solver.type \"flip\" (expected 0, got " +
                                          fmt_num(m.viscosity) + ")");

@@ -11,14 +11,17 @@
 ///   save_velocities  FLIP keeps the face velocities for the delta update
 ///   gravity          u += dt g
 ///   boundaries       solid face fractions and velocities (moving colliders: at t + dt),
-///                    cell labels and the liquid level set phi from the particles
+///                    cell labels and the liquid level set phi from the particles; with
+///                    surface tension (surface_tension > 0) also the surface's curvature, from
+///                    a smooth level set of the particles (surface_tension.h)
 ///   viscosity        implicit viscous stress (viscosity.h, Batty & Bridson 2008); only when a
 ///                    material has viscosity > 0. After gravity and before the projection, as
 ///                    in the paper: the projection then removes the divergence the viscous step
 ///                    leaves. Where liquids of different viscosity mix, a cell's viscosity is
 ///                    the mean over its particles' materials (a cell without particles takes
 ///                    the largest of its neighbours'), so it varies in space with the particles
-///   project          pressure projection (pressure.h: PCG, ghost fluid, variational solids)
+///   project          pressure projection (pressure.h: PCG, ghost fluid, variational solids;
+///                    the free surface at p = sigma kappa with surface tension, else p = 0)
 ///   extrapolate      face velocities into the air (extrapolate.h)
 ///   enforce_solids   closed faces take the solid's velocity
 ///   transfer_to_particles  G2P: PIC, FLIP (blend ratio) or APIC (affine vectors)
@@ -27,8 +30,9 @@
 ///                    transfer_to_particles' pass (its timer then holds both)
 ///   reseed           particles per cell between solver.reseed bounds
 ///
-/// The substep is min(solver.max_dt, cfl dx / max |v_p|) with cfl up to 5, clipped so frames
-/// land on multiples of 1 / fps. Every phase is parallel over independent items with a fixed
+/// The substep is min(solver.max_dt, cfl dx / max |v_p|) with cfl up to 5, and with surface
+/// tension at most Brackbill's capillary limit (surface_tension.h), clipped so frames land on
+/// multiples of 1 / fps. Every phase is parallel over independent items with a fixed
 /// summation order: frames are bitwise identical for any thread count.
 #include <Eigen/Core>
 #include <array>
@@ -46,6 +50,7 @@
 #include "slurry/engine/flip/pressure.h"
 #include "slurry/engine/flip/seeding.h"
 #include "slurry/engine/flip/solids.h"
+#include "slurry/engine/flip/surface_tension.h"
 #include "slurry/engine/flip/viscosity.h"
 #include "slurry/engine/solver.h"
 #include "slurry/engine/substeps.h"
@@ -179,6 +184,8 @@ class FlipSolver final : public Solver {
   ProjectionReport last_projection_;
   ViscositySolver<T, Dim> viscosity_;
   ViscosityReport last_viscosity_;
+  SurfaceTension<T, Dim> surface_tension_;
+  T sigma_ = 0;                  // surface tension (N/m), 0 = none
   bool viscous_ = false;         // a material has viscosity > 0
   bool mixed_viscosity_ = false; // materials of different viscosities: mu per cell (cell_mu_)
   std::vector<T> material_mu_, cell_mu_, viscosity_scratch_;

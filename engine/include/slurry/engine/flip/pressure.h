@@ -323,6 +323,7 @@ class PressureSolver {
         const bool unknown = diag_[std::size_t(at)] > 0;
         const double target = unknown ? double(target_flux(c, std::as_const(i))) : 0.0;
         b[at] = unknown ? -scale * (double(open_flux_sum(g, c, i)) - target) : 0.0;
+        if (unknown && surface_pressure_) b[at] += surface_rhs(g, c, i);
         p[at] = unknown ? double(g.pressure[std::size_t(c)]) : 0.0;
       }
     });
@@ -389,9 +390,11 @@ class PressureSolver {
             dp = p[b_at] - p[a_at];
           } else if (ua) {
             // b is air (an open face next to an unknown is fluid or air): ghost p_b.
-            dp = -p[a_at] / theta(g, a_cell, b_cell);
+            const double th = theta(g, a_cell, b_cell);
+            dp = (surface_pressure(a_cell, b_cell, th) - p[a_at]) / th;
           } else {
-            dp = p[b_at] / theta(g, b_cell, a_cell);
+            const double th = theta(g, b_cell, a_cell);
+            dp = (p[b_at] - surface_pressure(b_cell, a_cell, th)) / th;
           }
           g.u[d][fs] = T(double(g.u[d][fs]) - coef * dp);
           g.valid[d][fs] = 1;
@@ -455,6 +458,13 @@ class PressureSolver {
     return s;
   }
 
+  /// The liquid's pressure at its free surface for the next project(): `p` holds sigma kappa at
+  /// the cell centres on either side of the surface (surface_tension.h), interpolated to where
+  /// the surface crosses each face; null (the default) for p = 0. The ghost pressure of an air
+  /// neighbour a of fluid cell c becomes p_c + (p_gamma - p_c) / theta: the diagonal is
+  /// unchanged and the right-hand side gains w p_gamma / theta.
+  void set_surface_pressure(const T* p) { surface_pressure_ = p; }
+
   /// Free-surface fraction between fluid cell c and air cell a: theta = phi_c / (phi_c - phi_a)
   /// when phi changes sign between them, clamped to [kThetaMin, 1]; 1 without ghost fluid.
   double theta(const Grid& g, std::int64_t c, std::int64_t a) const {
@@ -465,6 +475,30 @@ class PressureSolver {
   }
 
  private:
+  /// p_gamma on the face from fluid cell c to air cell a, theta of the way from c (0 without a
+  /// surface pressure).
+  double surface_pressure(std::int64_t c, std::int64_t a, double th) const {
+    if (!surface_pressure_) return 0.0;
+    return (1.0 - th) * double(surface_pressure_[std::size_t(c)]) + th * double(surface_pressure_[std::size_t(a)]);
+  }
+
+  /// The surface pressure's share of fluid cell c's right-hand side: sum over its open faces
+  /// to air of w p_gamma / theta.
+  double surface_rhs(const Grid& g, std::int64_t c, const IVec& i) const {
+    double s = 0;
+    for (int d = 0; d < Dim; ++d) {
+      const std::int64_t lower = g.face(d, i);
+      for (int side = 0; side < 2; ++side) {
+        const std::int64_t nb = side ? c + g.cell_stride(d) : c - g.cell_stride(d);
+        const double w = double(g.open_weight(d, i[d] + side, side ? lower + face_up_[d] : lower, side ? nb : c));
+        if (w <= 0 || g.label[std::size_t(nb)] != Grid::Air) continue;
+        const double th = theta(g, c, nb);
+        s += w * surface_pressure(c, nb, th) / th;
+      }
+    }
+    return s;
+  }
+
   /// Index of the first element of row `row` of a row-major box (last axis along the row).
   static IVec row_coord(const IVec& box, std::int64_t row) {
     IVec i = IVec::Zero();
@@ -1087,6 +1121,7 @@ class PressureSolver {
   std::array<std::int64_t, Dim> stride_{};
   std::array<std::int64_t, Dim> row_step_{};  ///< rows between a cell and its +e_d neighbour (d < Dim - 1)
   bool ghost_fluid_ = true;
+  const T* surface_pressure_ = nullptr;  // sigma kappa per cell, or null (set_surface_pressure)
   bool mic_built_ = false, multigrid_built_ = false;
   int mic_blocks_ = 0;
   std::vector<int> block_start_;

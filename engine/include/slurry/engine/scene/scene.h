@@ -145,6 +145,9 @@ struct MaterialParams {
   /// FLIP only: dynamic viscosity mu (Pa s) of the liquid, finite and >= 0; 0 = inviscid (the
   /// viscosity solve is skipped). Water 1e-3, honey 2-10, thick tar 1e3 and more.
   double viscosity = 0;
+  /// FLIP only: surface tension sigma (N/m) of the liquid against air, finite and >= 0; 0 = none
+  /// (skipped). Water 0.0728, ethanol 0.022, mercury 0.485. All liquids of a scene share one.
+  double surface_tension = 0;
 };
 
 struct BodyParams {

@@ -1,0 +1,37 @@
+// Surface tension at finer grids than CI's flip_surface_tension_tests (label `validation`): the
+// Laplace pressure and Rayleigh's mode-2 period of a disk of 32 cells' radius and a ball of 12,
+// within the same 5%.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+
+#include "surface_tension_drop.h"
+
+namespace {
+
+TEST(FlipSurfaceTensionValidation, LaplacePressureConverges) {
+  for (int cells : {16, 32}) {
+    const auto r = slurry_test::drop_at_rest<2>(cells, 2.0);
+    std::printf("[ figure ] 2D disk, R = %d dx: Laplace pressure error %.3f%%\n", cells, 100 * r.pressure_error());
+    EXPECT_LT(std::abs(r.pressure_error()), 0.05);
+  }
+  for (int cells : {8, 12}) {
+    const auto r = slurry_test::drop_at_rest<3>(cells, 1.0);
+    std::printf("[ figure ] 3D ball, R = %d dx: Laplace pressure error %.3f%%\n", cells, 100 * r.pressure_error());
+    EXPECT_LT(std::abs(r.pressure_error()), 0.05);
+  }
+}
+
+TEST(FlipSurfaceTensionValidation, RayleighPeriodAtFinerGrids) {
+  const auto d = slurry_test::oscillating_drop<2>(32, 0.05, 2);
+  std::printf("[ figure ] 2D disk, R = 32 dx: period %.4f s, Rayleigh %.4f s, error %.3f%%\n", d.period, d.rayleigh,
+              100 * (d.period / d.rayleigh - 1));
+  EXPECT_LT(std::abs(d.period / d.rayleigh - 1), 0.05);
+  const auto b = slurry_test::oscillating_drop<3>(12, 0.05, 2);
+  std::printf("[ figure ] 3D ball, R = 12 dx: period %.4f s, Rayleigh %.4f s, error %.3f%%\n", b.period, b.rayleigh,
+              100 * (b.period / b.rayleigh - 1));
+  EXPECT_LT(std::abs(b.period / b.rayleigh - 1), 0.05);
+}
+
+}  // namespace
