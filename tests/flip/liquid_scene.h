@@ -3,8 +3,11 @@
 // (linear kernel, cfl 1, pressure tolerance 1e-8) and boxes of it.
 #include <cmath>
 #include <cstddef>
+#include <string>
 
+#include "slurry/engine/errors.h"
 #include "slurry/engine/scene/scene.h"
+#include "slurry/io/scene_file.h"
 
 namespace slurry_test {
 
@@ -58,6 +61,23 @@ void standing_wave_velocity(Particles& P, double k, double h, double omega, doub
       P.c[1][p] = {-a * k * std::sin(k * x) * std::sinh(k * y), a * k * std::cos(k * x) * std::cosh(k * y)};
     }
   }
+}
+
+/// A 2D scene file's text: `solver` (a JSON object), `materials` (JSON objects, the first named
+/// "a"), one box of "a"; for the bad-key tests.
+inline std::string material_scene_text(const std::string& solver, const std::string& materials) {
+  return R"({"domain": {"min": [0, 0], "max": [1, 1], "dx": 0.05}, "solver": )" + solver + R"(, "materials": [)" +
+         materials + R"(], "bodies": [{"shape": "box", "min": [0, 0], "max": [1, 0.4], "material": "a"}]})";
+}
+
+/// The SceneError parse_scene() throws for `text` (as "bad.json"), or "accepted".
+inline std::string scene_error(const std::string& text) {
+  try {
+    slurry::parse_scene(text, "bad.json");
+  } catch (const slurry::SceneError& e) {
+    return std::string(e.what());
+  }
+  return std::string("accepted");
 }
 
 }  // namespace slurry_test

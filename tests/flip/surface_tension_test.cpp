@@ -12,6 +12,7 @@
 
 #include "slurry/engine/flip/flip_solver.h"
 #include "slurry/engine/scene/scene.h"
+#include "liquid_scene.h"
 #include "slurry/io/scene_file.h"
 #include "surface_tension_drop.h"
 
@@ -20,28 +21,25 @@ namespace {
 using slurry::Scene;
 using slurry_test::DropRun;
 
-TEST(FlipSurfaceTension, LaplacePressureInADiskAtRest) {
-  const DropRun r = slurry_test::drop_at_rest<2>(/*cells across the radius*/ 16, /*seconds*/ 2.0);
-  std::printf("[ figure ] 2D disk, R = 16 dx: mean pressure inside %.5f Pa, Laplace sigma / R = %.5f Pa, error %.3f%%; "
-              "pressure spread (max - min) %.3f%%; largest speed %.3g m/s = %.3g of sqrt(sigma / (rho R)); %d steps\n",
-              r.mean_pressure, r.laplace, 100 * r.pressure_error(), 100 * r.pressure_spread / r.laplace, r.max_speed,
+/// Prints and checks a drop at rest: its pressure within 5% of Laplace's; its largest speed, the
+/// relaxation of the seeding's staircase through capillary waves (undamped without viscosity),
+/// bounded: 0.12 (2D) and 0.15 (3D) of the capillary speed measured, not growing.
+void check_drop_at_rest(const DropRun& r, const char* what) {
+  std::printf("[ figure ] %s: mean pressure inside %.5f Pa, Laplace %.5f Pa, error %.3f%%; pressure spread (max - min) "
+              "%.3f%%; largest speed %.3g m/s = %.3g of sqrt(sigma / (rho R)); %d steps\n",
+              what, r.mean_pressure, r.laplace, 100 * r.pressure_error(), 100 * r.pressure_spread / r.laplace, r.max_speed,
               r.max_speed / r.capillary_speed, r.steps);
   EXPECT_LT(std::abs(r.pressure_error()), 0.05);
-  // The staircase of the seeding relaxes through capillary waves, undamped without viscosity:
-  // bounded (0.12 and 0.15 measured), not growing.
   EXPECT_LT(r.max_speed, 0.25 * r.capillary_speed);
 }
 
+TEST(FlipSurfaceTension, LaplacePressureInADiskAtRest) {
+  check_drop_at_rest(slurry_test::drop_at_rest<2>(/*cells across the radius*/ 16, /*seconds*/ 2.0),
+                     "2D disk, R = 16 dx (Laplace sigma / R)");
+}
+
 TEST(FlipSurfaceTension, LaplacePressureInABallAtRest) {
-  const DropRun r = slurry_test::drop_at_rest<3>(8, 1.0);
-  std::printf("[ figure ] 3D ball, R = 8 dx: mean pressure inside %.5f Pa, Laplace 2 sigma / R = %.5f Pa, error %.3f%%; "
-              "pressure spread (max - min) %.3f%%; largest speed %.3g m/s = %.3g of sqrt(sigma / (rho R)); %d steps\n",
-              r.mean_pressure, r.laplace, 100 * r.pressure_error(), 100 * r.pressure_spread / r.laplace, r.max_speed,
-              r.max_speed / r.capillary_speed, r.steps);
-  EXPECT_LT(std::abs(r.pressure_error()), 0.05);
-  // The staircase of the seeding relaxes through capillary waves, undamped without viscosity:
-  // bounded (0.12 and 0.15 measured), not growing.
-  EXPECT_LT(r.max_speed, 0.25 * r.capillary_speed);
+  check_drop_at_rest(slurry_test::drop_at_rest<3>(8, 1.0), "3D ball, R = 8 dx (Laplace 2 sigma / R)");
 }
 
 // Spurious currents (Francois et al. 2006, "A balanced-force algorithm for continuous and sharp
@@ -99,19 +97,9 @@ TEST(FlipSurfaceTension, TheStepRespectsTheCapillaryLimit) {
 }
 
 TEST(FlipSurfaceTension, BadSurfaceTensionIsRefusedNamingTheKey) {
-  const auto scene = [](const std::string& solver, const std::string& materials) {
-    return R"({"domain": {"min": [0, 0], "max": [1, 1], "dx": 0.05}, "solver": )" + solver + R"(, "materials": [)" +
-           materials + R"(], "bodies": [{"shape": "box", "min": [0, 0], "max": [1, 0.4], "material": "a"}]})";
-  };
+  const auto scene = slurry_test::material_scene_text;
+  const auto message = slurry_test::scene_error;
   const std::string flip = R"({"type": "flip", "dimension": 2})";
-  const auto message = [](const std::string& text) {
-    try {
-      slurry::parse_scene(text, "bad.json");
-    } catch (const slurry::SceneError& e) {
-      return std::string(e.what());
-    }
-    return std::string("accepted");
-  };
   const auto has = [](const std::string& text, const std::string& part) {
     EXPECT_NE(text.find(part), std::string::npos) << text;
   };

@@ -174,20 +174,9 @@ TEST(FlipViscosity, ViscousColumnSpreadsAndKeepsVolume) {
 // The scene key: a negative or missing-range viscosity is refused naming the key; on an MPM
 // material it is an unknown key, as every key of another solver.
 TEST(FlipViscosity, BadViscosityIsRefusedNamingTheKey) {
-  const auto scene = [](const std::string& solver, const std::string& material) {
-    return R"({"domain": {"min": [0, 0], "max": [1, 1], "dx": 0.05}, "solver": )" + solver +
-           R"(, "materials": [)" + material +
-           R"(], "bodies": [{"shape": "box", "min": [0, 0], "max": [1, 0.4], "material": "a"}]})";
-  };
+  const auto scene = slurry_test::material_scene_text;
+  const auto message = slurry_test::scene_error;
   const std::string flip = R"({"type": "flip", "dimension": 2})";
-  const auto message = [](const std::string& text) {
-    try {
-      slurry::parse_scene(text, "bad.json");
-    } catch (const slurry::SceneError& e) {
-      return std::string(e.what());
-    }
-    return std::string("accepted");
-  };
   EXPECT_NE(message(scene(flip, R"({"name": "a", "model": "fluid", "viscosity": -1})"))
                 .find("materials[0].viscosity: expected a finite number >= 0, got -1"),
             std::string::npos);
