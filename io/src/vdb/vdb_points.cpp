@@ -67,6 +67,13 @@ void write_vdb_points(const std::filesystem::path& path, const PointCloud& point
     vp::populateAttribute(grid->tree(), index->tree(), "id",
                           vp::PointAttributeVector<std::int32_t>(id));
   }
+  if (!points.type.empty()) {
+    if (points.type.size() != n)
+      throw IoError(path.string() + ": " + std::to_string(points.type.size()) + " types for " + std::to_string(n) + " points");
+    const std::vector<std::int32_t> type(points.type.begin(), points.type.end());
+    vp::appendAttribute<std::int32_t>(grid->tree(), "type");
+    vp::populateAttribute(grid->tree(), index->tree(), "type", vp::PointAttributeVector<std::int32_t>(type));
+  }
   vp::appendAttribute<float>(grid->tree(), "pscale", float(radius));
   detail::write_grids_atomically(path, openvdb::GridPtrVec{grid});
 }
