@@ -172,7 +172,8 @@ LevelSet read_vdb_level_set(const std::filesystem::path& path, const std::string
 /// other VDB point readers expect. Atomic.
 void write_vdb_points(const std::filesystem::path& path, const PointCloud& points, double radius,
                       double voxel_size);
-/// Reads the PointDataGrid called `name` back, points in ascending id order if they have ids;
+/// Reads the PointDataGrid called `name` back (P, v, id, type when it has them), points in
+/// ascending id order if they have ids;
 /// `pscale` (if not null) receives each point's radius. Throws IoError.
 PointCloud read_vdb_points(const std::filesystem::path& path, std::vector<float>* pscale = nullptr,
                            const std::string& name = "points");

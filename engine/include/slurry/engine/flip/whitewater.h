@@ -156,7 +156,9 @@ class Whitewater {
 
   /// One substep from t to t + dt, on the grid of this substep (labels and phi of the liquid at
   /// t, face velocities after the projection): classifies the particles by the depth at t, moves
-  /// them over dt, ages the foam, generates this substep's new particles, applies the limit.
+  /// them over dt as that type, ages the foam, classifies them again where they ended (so a
+  /// type is never a substep late), removes the dead, generates this substep's new particles,
+  /// applies the limit.
   /// `substep` is the substep's index (a counter of the hash). x_lo, x_hi: the domain's inner box.
   void step(const Grid& g, const Solids<T, Dim>& solids, double t, T dt, std::int64_t substep, const Vec& x_lo,
             const Vec& x_hi) {
@@ -165,6 +167,7 @@ class Whitewater {
     depth_field(g);
     classify(g);
     move(g, dt);
+    classify(g);  // where they ended: the frame's types, and no spray counted inside the liquid
     remove(solids, T(t) + dt, x_lo, x_hi, T(1e-3) * g.dx);
     generate(g, dt, substep);
     limit();
