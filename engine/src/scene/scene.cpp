@@ -692,10 +692,10 @@ ResourceEstimate Scene::estimate() const {
   const double node_bytes = flip ? real * (3 * dim + 8) + 4 : real * (2 + 2 * dim) * (solver.integrator == Integrator::Implicit ? 4 : 1);
   const double element_bytes = 200 + (solver.integrator == Integrator::Implicit ? 12.0 * (dim + 1) * dim * (dim + 1) * dim : 0);
   e.bytes = e.particles * particle_bytes + e.grid_nodes * node_bytes + e.elements * element_bytes;
-  // FLIP whitewater at its cap: position, velocity, birth and death times, id and type per
-  // particle, twice over (the compaction's spare), plus its depth field per cell.
+  // FLIP whitewater at its cap: position, velocity, lifetime, id and type per particle, twice
+  // over (vector growth), plus its per-cell velocity, depth, layers and counts (whitewater.h).
   if (flip && solver.whitewater.enabled)
-    e.bytes += double(solver.whitewater.max_particles) * 2 * (real * 2 * dim + 2 * 8 + 4 + 1) + cells * (real + 1);
+    e.bytes += double(solver.whitewater.max_particles) * 2 * (real * (2 * dim + 1) + 4 + 1) + cells * (real * (dim + 1) + 6);
   return e;
 }
 
