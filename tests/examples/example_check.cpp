@@ -196,7 +196,8 @@ int main(int argc, char** argv) {
       std::snprintf(name, sizeof name, "whitewater_%04d.ply", f);
       const fs::path file = frame_dir / name;
       if (!fs::exists(file)) fail(file.string() + ": missing (the scene enables solver.whitewater)");
-      const auto& v = slurry::io::read_ply(file).table("vertex");
+      const slurry::io::PlyData data = slurry::io::read_ply(file);
+      const auto& v = data.table("vertex");
       most = std::max(most, v.count);
       for (const auto& p : v.columns)
         for (const double x : v.column_as_double(p.name))

@@ -178,6 +178,7 @@ class Whitewater {
   const WhitewaterParams& params() const { return p_; }
   /// The depth field phi_w of the last substep (cell centres).
   const std::vector<T>& depth() const { return phi_; }
+  /// Particles generated and removed so far (writable: checkpoints restore them).
   std::int64_t& generated() { return generated_; }
   std::int64_t& removed() { return removed_; }
   WhitewaterCounts counts() const {
