@@ -34,10 +34,13 @@ namespace fs = std::filesystem;
 using slurry::Scene;
 using slurry::flip::WhitewaterType;
 
+// The two builds' tests have names of their own (ctest keys its tests by name and label).
 #ifdef SLURRY_WHITEWATER_FULL
+#define WHITEWATER_SUITE FlipWhitewaterValidation
 constexpr double kDamDx = 1.0 / 48;  // full size
 constexpr double kDamEnd = 1.5;
 #else
+#define WHITEWATER_SUITE FlipWhitewater
 constexpr double kDamDx = 1.0 / 32;  // reduced for the normal suite
 constexpr double kDamEnd = 1.0;
 #endif
@@ -70,7 +73,7 @@ State rk4(State s, const Eigen::Vector3d& g, double c, double t, int steps) {
 // lengths: after 0.6 s it must lie where the closed form and the RK4 integration put it, within
 // 2% of the distance travelled (it is exact to round-off by construction; the test catches a
 // wrong sign, a missing term or an integration that depends on the substep).
-TEST(FlipWhitewater, SprayFollowsTheBallisticTrajectoryWithDrag) {
+TEST(WHITEWATER_SUITE, SprayFollowsTheBallisticTrajectoryWithDrag) {
   using WW = slurry::flip::Whitewater<double, 3>;
   slurry::flip::MacGrid<double, 3> g;
   g.resize(Eigen::Vector3i(40, 40, 40), 0.1, Eigen::Vector3d::Zero(), false);
@@ -157,7 +160,7 @@ double depth_below_air(const Grid& g, const Vec& x) {
 
 // Bubbles placed 6 cells deep in a pool at rest rise at their terminal speed relative to the
 // still liquid, k_b |g| / c_b (0.245 m/s at the defaults), and turn into foam at the surface.
-TEST(FlipWhitewater, BubblesRiseInStillLiquid) {
+TEST(WHITEWATER_SUITE, BubblesRiseInStillLiquid) {
   Scene s = slurry_test::liquid_scene(0.5, 0.5, 1.0 / 40, slurry::TransferKind::APIC, 1.0 / 240, "water");
   s.bodies = {slurry_test::liquid_box(0, 0, 0.5, 0.3, "water", 4)};
   s.solver.whitewater.enabled = true;
@@ -233,7 +236,7 @@ Census census(const slurry::flip::FlipSolver<float, 3>& sim) {
 // the liquid's own change with the substep is left; the figures at three single instants are
 // printed too (the splash's timing shifts a little with the liquid). Also: no spray or foam in
 // the liquid's bulk (more than 3 cells below any air cell) at those instants.
-TEST(FlipWhitewater, CountsAndDistributionDoNotDependOnTheSubstep) {
+TEST(WHITEWATER_SUITE, CountsAndDistributionDoNotDependOnTheSubstep) {
   const std::vector<double> instants = {0.5 * kDamEnd, 0.75 * kDamEnd, kDamEnd};
   std::vector<std::vector<Census>> at_instants, at_frames;
   for (const double max_dt : {1.0 / 240, 1.0 / 480}) {
@@ -329,7 +332,7 @@ TEST(FlipWhitewater, CountsAndDistributionDoNotDependOnTheSubstep) {
 // substeps of 1/120, 1/240 and 1/480 s. Generation is a rate per second and the motion exact or
 // of second order, so the number generated, the particle-seconds spent as each type and the
 // histogram at the end agree within a few percent (the Poisson noise of ~10^4 draws is 1%).
-TEST(FlipWhitewater, FrozenLiquidGivesTheSameStatisticsAtEverySubstep) {
+TEST(WHITEWATER_SUITE, FrozenLiquidGivesTheSameStatisticsAtEverySubstep) {
   using Grid = slurry::flip::MacGrid<double, 3>;
   Grid g;
   const double dx = 0.05;
@@ -423,7 +426,7 @@ std::vector<unsigned char> whitewater_bytes(int threads) {
   return out;
 }
 
-TEST(FlipWhitewater, BitwiseIdenticalWithOneAndTwoThreads) {
+TEST(WHITEWATER_SUITE, BitwiseIdenticalWithOneAndTwoThreads) {
   const auto a = whitewater_bytes(1), b = whitewater_bytes(2);
   ASSERT_GT(a.size(), 1000u);
   ASSERT_EQ(a.size(), b.size());
@@ -433,7 +436,7 @@ TEST(FlipWhitewater, BitwiseIdenticalWithOneAndTwoThreads) {
 // The limit: with max_particles 50 the oldest go first. Generation does not see the secondary
 // particles (one-way coupling), so the limited run's survivors are particles of the unlimited
 // run, bitwise where they are there, the newest of them among them, the oldest gone.
-TEST(FlipWhitewater, LimitRemovesTheOldestFirst) {
+TEST(WHITEWATER_SUITE, LimitRemovesTheOldestFirst) {
   Scene s = dam_break(1.0 / 24, 1.0 / 240);
   slurry::flip::FlipSolver<float, 3> unlimited(s);
   s.solver.whitewater.max_particles = 50;
@@ -462,7 +465,7 @@ TEST(FlipWhitewater, LimitRemovesTheOldestFirst) {
 
 // One-way coupling: the liquid's particles and grid are bitwise those of the same scene without
 // whitewater.
-TEST(FlipWhitewater, LiquidIsBitwiseTheSameWithoutIt) {
+TEST(WHITEWATER_SUITE, LiquidIsBitwiseTheSameWithoutIt) {
   Scene s = dam_break(1.0 / 24, 1.0 / 240);
   slurry::flip::FlipSolver<float, 3> with(s);
   s.solver.whitewater.enabled = false;
@@ -503,7 +506,7 @@ const char* kRunScene = R"({
 
 // whitewater_NNNN.ply beside every frame, with x y vx vy type id; a run resumed from frame 8's
 // checkpoint on the other thread count writes the same bytes as an uninterrupted one.
-TEST(FlipWhitewater, RunWritesWhitewaterFramesAndResumesThemByteIdentical) {
+TEST(WHITEWATER_SUITE, RunWritesWhitewaterFramesAndResumesThemByteIdentical) {
   const fs::path dir = scratch("resume");
   std::ofstream(dir / "scene.json") << kRunScene;
   const Scene scene = slurry::load_scene(dir / "scene.json");
@@ -550,7 +553,7 @@ std::string message(const std::string& whitewater, const std::string& type = "fl
 }
 
 // Every key: a bad value is refused naming the key and what was expected.
-TEST(FlipWhitewater, BadKeysAreRefusedNamingTheKey) {
+TEST(WHITEWATER_SUITE, BadKeysAreRefusedNamingTheKey) {
   struct Case {
     const char* json;
     const char* expected;
@@ -599,7 +602,7 @@ TEST(FlipWhitewater, BadKeysAreRefusedNamingTheKey) {
 }
 
 // Every key is in docs/scene-reference.md with the code's default.
-TEST(FlipWhitewater, DocumentedDefaultsAreTheCode) {
+TEST(WHITEWATER_SUITE, DocumentedDefaultsAreTheCode) {
   std::ifstream in(std::string(SLURRY_SOURCE_DIR) + "/docs/scene-reference.md");
   ASSERT_TRUE(in) << "docs/scene-reference.md";
   const std::string doc((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
