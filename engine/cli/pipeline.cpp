@@ -196,7 +196,7 @@ std::string FrameOutputWriter::operator()(const FrameReport& r) const {
   if (!active() || !r.frame_data) return "";
   const auto t0 = std::chrono::steady_clock::now();
   const io::FrameOutputReport out =
-      io::write_frame_outputs(*r.frame_data, r.frame, r.file.parent_path(), state_->outputs);
+      io::write_frame_outputs(*r.frame_data, r.frame, r.file.parent_path(), state_->outputs, r.whitewater_data);
   const double took = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   char line[160];
   std::snprintf(line, sizeof line,

@@ -40,7 +40,7 @@ struct PipelineModule {
   int (*run_surface_command)(const SurfaceCommand&);
   FrameOutputFn (*frame_output_writer)(const Scene&);
 };
-constexpr int kPipelineAbi = 1;
+constexpr int kPipelineAbi = 2;
 
 /// The module, opened at the first call: SLURRY_PIPELINE_MODULE if set, else the path the
 /// build placed it at relative to the executable (SLURRY_PIPELINE_MODULE_RELPATH). Throws

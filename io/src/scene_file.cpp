@@ -321,6 +321,27 @@ Scene parse_scene(std::string_view text, const std::string& source) {
         q.integer("min_per_cell", s.solver.reseed.min_per_cell);
         q.integer("max_per_cell", s.solver.reseed.max_per_cell);
       });
+      r.object("whitewater", [&](ObjectReader& q) {  // ranges checked by validate_flip
+        auto& w = s.solver.whitewater;
+        q.boolean("enabled", w.enabled);
+        q.integer("seed", w.seed);
+        q.number("trapped_air_rate", w.trapped_air_rate);
+        q.number("wave_crest_rate", w.wave_crest_rate);
+        q.number("trapped_air_min", w.trapped_air_min);
+        q.number("trapped_air_max", w.trapped_air_max);
+        q.number("wave_crest_min", w.wave_crest_min);
+        q.number("wave_crest_max", w.wave_crest_max);
+        q.number("kinetic_energy_min", w.kinetic_energy_min);
+        q.number("kinetic_energy_max", w.kinetic_energy_max);
+        q.number("lifetime_min", w.lifetime_min);
+        q.number("lifetime_max", w.lifetime_max);
+        q.number("spray_drag", w.spray_drag);
+        q.number("bubble_buoyancy", w.bubble_buoyancy);
+        q.number("bubble_drag", w.bubble_drag);
+        q.number("spray_distance", w.spray_distance);
+        q.number("bubble_depth", w.bubble_depth);
+        q.integer("max_particles", w.max_particles);
+      });
     }
     r.number("cg_tolerance", s.solver.cg_tolerance);
     r.integer("cg_max_iterations", s.solver.cg_max_iterations);

@@ -187,6 +187,33 @@ int main(int argc, char** argv) {
     msg << " m/s that gravity and the initial and collider speeds allow";
     fail(msg.str());
   }
+  // FLIP whitewater: whitewater_NNNN.ply beside every frame, finite, inside the domain, types
+  // 0 (spray), 1 (foam) or 2 (bubble), and some of it by the last frame.
+  if (scene.solver.type == slurry::SolverType::FLIP && scene.solver.whitewater.enabled) {
+    std::size_t most = 0, counts[3] = {0, 0, 0};
+    for (int f = 0; f <= last; ++f) {
+      char name[40];
+      std::snprintf(name, sizeof name, "whitewater_%04d.ply", f);
+      const fs::path file = frame_dir / name;
+      if (!fs::exists(file)) fail(file.string() + ": missing (the scene enables solver.whitewater)");
+      const slurry::io::PlyData data = slurry::io::read_ply(file);
+      const auto& v = data.table("vertex");
+      most = std::max(most, v.count);
+      for (const auto& p : v.columns)
+        for (const double x : v.column_as_double(p.name))
+          if (!std::isfinite(x)) fail(file.string() + ": property " + p.name + " is not finite");
+      for (int d = 0; d < dim; ++d)
+        for (const double x : v.column_as_double(axes[d]))
+          if (x < scene.domain.min[d] || x > scene.domain.max[d]) fail(file.string() + ": a particle outside the domain");
+      for (const double t : v.column_as_double("type")) {
+        if (t != 0 && t != 1 && t != 2) fail(file.string() + ": type " + std::to_string(t) + " (expected 0, 1 or 2)");
+        if (f == last) ++counts[int(t)];
+      }
+    }
+    std::printf("%s: whitewater at most %zu particles; last frame %zu spray, %zu foam, %zu bubbles\n", scene_path.c_str(), most,
+                counts[0], counts[1], counts[2]);
+    if (most == 0) fail(scene_path + ": whitewater enabled, but no frame holds any");
+  }
   fs::remove_all(frame_dir);
   std::printf("example_check: passed\n");
   return 0;

@@ -93,6 +93,7 @@ FlipSolver<T, Dim>::FlipSolver(const Scene& scene) : scene_(scene) {
     for (const auto& x : xs) P.push_back(solids_.push_out(x, T(0), x_lo_, x_hi_, margin), v, mat);
   }
   for (const auto& e : scene_.emitters) emitters_.emplace_back(e, std::uint16_t(scene_.material_index(e.material)));
+  if (scene_.solver.whitewater.enabled) whitewater_ = std::make_unique<Whitewater<T, Dim>>(scene_.solver.whitewater, gravity_);
   for (const auto& v : P.v) max_speed_ = std::max(max_speed_, v.norm());
 }
 
@@ -110,6 +111,11 @@ std::string FlipSolver<T, Dim>::solver_status() const {
                   v.converged ? "" : " (not converged)");
     status += buf;
   }
+  if (whitewater_) {
+    const WhitewaterCounts c = whitewater_->counts();
+    std::snprintf(buf, sizeof buf, "; whitewater %zu spray, %zu foam, %zu bubbles", c.spray, c.foam, c.bubble);
+    status += buf;
+  }
   return status;
 }
 
@@ -120,6 +126,7 @@ std::size_t FlipSolver<T, Dim>::bytes() const {
                   sort_.start.capacity() * sizeof(std::uint32_t);
   const std::size_t cells = std::size_t(grid_.num_cells());
   b += cells * (2 + 2 * sizeof(T)) + holes_.capacity();
+  if (whitewater_) b += whitewater_->bytes();
   b += pressure_.bytes() + extrapolator_.bytes() + viscosity_.bytes() + surface_tension_.bytes() + cell_mu_.capacity() * sizeof(T);  // the pressure solve's vectors are most of the grid's memory
   for (int d = 0; d < Dim; ++d)
     b += (grid_.u[d].capacity() + grid_.weight[d].capacity() + grid_.u_solid[d].capacity() +
@@ -180,6 +187,8 @@ void FlipSolver<T, Dim>::step(T dt) {
   cfl_reached_ = std::max(cfl_reached_, max_speed_ * dt / grid_.dx);
   reseed();
   lap(kReseed);
+  if (whitewater_) whitewater_step(dt);
+  lap(kWhitewater);
   time_ += double(dt);
   ++steps_;
 }
@@ -488,6 +497,11 @@ void FlipSolver<T, Dim>::reseed() {
 }
 
 template <class T, int Dim>
+void FlipSolver<T, Dim>::whitewater_step(T dt) {
+  whitewater_->step(grid_, solids_, time_, dt, steps_, x_lo_, x_hi_);
+}
+
+template <class T, int Dim>
 T FlipSolver<T, Dim>::kinetic_energy() const {
   T e = 0;
   for (const auto& v : particles_.v) e += v.squaredNorm();
@@ -586,6 +600,17 @@ void FlipSolver<T, Dim>::save_state(const StateSink& out) const {
   w.pod(std::uint8_t(lp.converged));
   w.pod(lp.max_divergence);
   w.pod(lp.unknowns);
+  if (whitewater_) {  // only in the state of a scene with whitewater: others keep their layout
+    const auto& W = whitewater_->particles();
+    w.vec(W.x);
+    w.vec(W.v);
+    w.vec(W.life);
+    w.vec(W.id);
+    w.vec(W.type);
+    w.pod(W.next_id);
+    w.pod(whitewater_->generated());
+    w.pod(whitewater_->removed());
+  }
   w.tag(slurry::detail::kTagEnd);
 }
 
@@ -636,6 +661,21 @@ void FlipSolver<T, Dim>::load_state(std::string_view in, const std::string& what
   lp.converged = r.get<std::uint8_t>() != 0;
   r.pod(lp.max_divergence);
   r.pod(lp.unknowns);
+  if (whitewater_) {
+    auto& W = whitewater_->particles();
+    r.vec(W.x, -1, "whitewater x");
+    const auto m = std::int64_t(W.x.size());
+    r.vec(W.v, m, "whitewater v");
+    r.vec(W.life, m, "whitewater life");
+    r.vec(W.id, m, "whitewater id");
+    r.vec(W.type, m, "whitewater type");
+    r.pod(W.next_id);
+    r.pod(whitewater_->generated());
+    r.pod(whitewater_->removed());
+    slurry::detail::require_finite(r, W.v, "the whitewater velocity");
+    for (const auto k : W.type)
+      if (k > std::uint8_t(WhitewaterType::Bubble)) r.fail("a whitewater particle's type " + std::to_string(k) + " is not 0, 1 or 2");
+  }
   r.tag(slurry::detail::kTagEnd, "end");
   r.finish();
   faces_ready_ = false;  // face weights and solid velocities are rebuilt by the next substep
@@ -667,6 +707,18 @@ Frame FlipSolver<T, Dim>::frame_view(const std::vector<std::string>& attributes)
       out.borrow_column("id", P.id);
     }
   }
+  return std::move(out.data());
+}
+
+template <class T, int Dim>
+Frame FlipSolver<T, Dim>::whitewater_frame_view() const {
+  if (!whitewater_) return {};
+  const auto& W = whitewater_->particles();
+  slurry::detail::VertexFrame out("flip whitewater ", time_, scene_.source, W.size());
+  out.borrow_positions<Dim>(W.x);
+  out.borrow_velocities<Dim>(W.v);
+  out.borrow_column("type", W.type);
+  out.borrow_column("id", W.id);
   return std::move(out.data());
 }
 

@@ -17,6 +17,7 @@ Scene shadow_scene(const Scene& scene) {
   s.output.error_estimate = false;
   s.output.surface.clear();
   s.output.vdb_points = false;
+  s.solver.whitewater.enabled = false;  // secondary particles do not act on the liquid
   s.output.checkpoint_every = 0;
   s.output.per_rank = false;
   return s;

@@ -252,6 +252,13 @@ std::filesystem::path frame_file(const std::filesystem::path& directory, int fra
 
 namespace {
 
+/// whitewater_NNNN.ply: the secondary particles of FLIP whitewater (Solver::whitewater_frame_view).
+std::filesystem::path whitewater_file(const std::filesystem::path& directory, int frame) {
+  char name[40];
+  std::snprintf(name, sizeof name, "whitewater_%04d.ply", frame);
+  return directory / name;
+}
+
 /// colliders_NNNN.<extension>.
 std::filesystem::path collider_file(const std::filesystem::path& directory, int frame, const char* extension) {
   char name[40];
@@ -626,7 +633,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     const auto file = files ? frame_file(dir, f) : fs::path();
     // Gathered to rank 0 in a split run; columns may point into the particle arrays (no copy), so
     // the frame lives until the frame callback has run and the simulation has not moved on.
-    Frame frame;
+    Frame frame, whitewater;
     try {
       if (per_rank) {
         Frame part = sim->own_frame(scene.output.attributes);
@@ -637,6 +644,11 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
         frame = sim->frame_view(scene.output.attributes);
         if (z_up) to_z_up(frame);
         if (writer) io::write_ply(file, frame, format);
+        whitewater = sim->whitewater_frame_view();
+        if (!whitewater.tables.empty()) {
+          if (z_up) to_z_up(whitewater);
+          if (writer) io::write_ply(whitewater_file(dir, f), whitewater, format);
+        }
       }
       if (colliders) {
         const double t = f * scene.frame_dt();
@@ -684,6 +696,7 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
       r.particles = sim->particle_count();
       r.file = file;
       r.frame_data = writer && !per_rank && files ? &frame : nullptr;
+      r.whitewater_data = r.frame_data && !whitewater.tables.empty() ? &whitewater : nullptr;
       r.simulation = sim.get();
       r.solver = sim->solver_status();
       r.stats = stats;

@@ -126,6 +126,38 @@ bool overlap(const BodyParams& a, const BodyParams& b, int dim) {
   return true;
 }
 
+/// solver.whitewater (FLIP): every key range-checked, also while it is disabled, so that a
+/// scene does not hold a bad value that only shows when it is turned on.
+void validate_whitewater(const Scene& s) {
+  const Checker c{s.source};
+  const auto& w = s.solver.whitewater;
+  const std::string p = "solver.whitewater.";
+  if (w.seed < 0 || w.seed > 4294967295LL)
+    fail(s.source, p + "seed", "expected an integer in [0, 4294967295], got " + std::to_string(w.seed));
+  c.non_negative(p + "trapped_air_rate", w.trapped_air_rate);
+  c.non_negative(p + "wave_crest_rate", w.wave_crest_rate);
+  const auto range = [&](const char* lo_key, double lo, const char* hi_key, double hi) {
+    c.non_negative(p + lo_key, lo);
+    if (!(hi > lo))
+      fail(s.source, p + hi_key,
+           "expected a number greater than " + p + lo_key + " (" + fmt_num(lo) + "), got " + fmt_num(hi));
+  };
+  range("trapped_air_min", w.trapped_air_min, "trapped_air_max", w.trapped_air_max);
+  range("wave_crest_min", w.wave_crest_min, "wave_crest_max", w.wave_crest_max);
+  range("kinetic_energy_min", w.kinetic_energy_min, "kinetic_energy_max", w.kinetic_energy_max);
+  c.positive(p + "lifetime_min", w.lifetime_min);
+  if (!(w.lifetime_max >= w.lifetime_min))
+    fail(s.source, p + "lifetime_max",
+         "expected a number >= " + p + "lifetime_min (" + fmt_num(w.lifetime_min) + "), got " + fmt_num(w.lifetime_max));
+  c.non_negative(p + "spray_drag", w.spray_drag);
+  c.non_negative(p + "bubble_buoyancy", w.bubble_buoyancy);
+  c.positive(p + "bubble_drag", w.bubble_drag);
+  c.in_range(p + "spray_distance", w.spray_distance, 0, 2, false, false);
+  c.in_range(p + "bubble_depth", w.bubble_depth, 0.25, 3, false, false);
+  if (w.max_particles < 0 || w.max_particles > 2147483647LL)
+    fail(s.source, p + "max_particles", "expected an integer in [0, 2147483647], got " + std::to_string(w.max_particles));
+}
+
 }  // namespace
 
 std::string_view to_string(ElasticModel m) { return name_of(kElastic, m); }
@@ -164,6 +196,7 @@ void Scene::validate_flip() const {
     fail(source, "solver.reseed.max_per_cell",
          "expected 0 (off) or an integer in (min_per_cell = " + std::to_string(solver.reseed.min_per_cell) + ", 512], got " +
              std::to_string(solver.reseed.max_per_cell));
+  validate_whitewater(*this);
   for (std::size_t i = 0; i < materials.size(); ++i) {
     const std::string p = "materials[" + std::to_string(i) + "]";
     if (materials[i].model != ElasticModel::Fluid)
@@ -668,6 +701,10 @@ ResourceEstimate Scene::estimate() const {
   const double node_bytes = flip ? real * (3 * dim + 8) + 4 : real * (2 + 2 * dim) * (solver.integrator == Integrator::Implicit ? 4 : 1);
   const double element_bytes = 200 + (solver.integrator == Integrator::Implicit ? 12.0 * (dim + 1) * dim * (dim + 1) * dim : 0);
   e.bytes = e.particles * particle_bytes + e.grid_nodes * node_bytes + e.elements * element_bytes;
+  // FLIP whitewater at its cap: position, velocity, lifetime, id and type per particle, twice
+  // over (vector growth), plus its per-cell velocity, depth, layers and counts (whitewater.h).
+  if (flip && solver.whitewater.enabled)
+    e.bytes += double(solver.whitewater.max_particles) * 2 * (real * (2 * dim + 1) + 4 + 1) + cells * (real * (dim + 1) + 6);
   return e;
 }
 

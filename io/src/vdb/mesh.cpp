@@ -31,6 +31,8 @@ PointCloud point_cloud(const Frame& frame, int material) {
   }
   std::vector<double> id;
   if (v.has("id")) id = v.column_as_double("id");
+  std::vector<double> type;
+  if (v.has("type")) type = v.column_as_double("type");
   std::vector<double> mat;
   if (material >= 0 && v.has("material")) mat = v.column_as_double("material");
 
@@ -52,6 +54,7 @@ PointCloud point_cloud(const Frame& frame, int material) {
                       std::to_string(id[i]) + " is not an unsigned 32-bit integer");
       c.id.push_back(std::uint32_t(id[i]));
     }
+    if (!type.empty()) c.type.push_back(std::uint8_t(std::clamp(type[i], 0.0, 255.0)));
   }
   return c;
 }

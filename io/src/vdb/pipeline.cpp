@@ -67,7 +67,7 @@ fs::path numbered(const fs::path& dir, const std::string& stem, int index, const
 }  // namespace
 
 FrameOutputReport write_frame_outputs(const Frame& frame, int index, const fs::path& dir,
-                                      const FrameOutputs& outputs) {
+                                      const FrameOutputs& outputs, const Frame* whitewater) {
   FrameOutputReport report;
   if (outputs.vdb_points) {
     const PointCloud all = point_cloud(frame);
@@ -75,6 +75,14 @@ FrameOutputReport write_frame_outputs(const Frame& frame, int index, const fs::p
     write_vdb_points(f, all, 0.5 * outputs.params.spacing, outputs.params.voxel_size);
     report.files.push_back(f);
     report.points += all.size();
+  }
+  if (outputs.vdb_points && whitewater && !whitewater->tables.empty()) {
+    // Secondary particles are smaller than the liquid's: pscale a quarter of its spacing.
+    const PointCloud secondary = point_cloud(*whitewater);
+    const fs::path f = numbered(dir, "whitewater", index, ".vdb");
+    write_vdb_points(f, secondary, 0.25 * outputs.params.spacing, outputs.params.voxel_size);
+    report.files.push_back(f);
+    report.points += secondary.size();
   }
   if (!outputs.any_surface()) return report;
   for (const auto& g : outputs.groups) {

@@ -67,6 +67,13 @@ void write_vdb_points(const std::filesystem::path& path, const PointCloud& point
     vp::populateAttribute(grid->tree(), index->tree(), "id",
                           vp::PointAttributeVector<std::int32_t>(id));
   }
+  if (!points.type.empty()) {
+    if (points.type.size() != n)
+      throw IoError(path.string() + ": " + std::to_string(points.type.size()) + " types for " + std::to_string(n) + " points");
+    const std::vector<std::int32_t> type(points.type.begin(), points.type.end());
+    vp::appendAttribute<std::int32_t>(grid->tree(), "type");
+    vp::populateAttribute(grid->tree(), index->tree(), "type", vp::PointAttributeVector<std::int32_t>(type));
+  }
   vp::appendAttribute<float>(grid->tree(), "pscale", float(radius));
   detail::write_grids_atomically(path, openvdb::GridPtrVec{grid});
 }
@@ -85,22 +92,25 @@ PointCloud read_vdb_points(const std::filesystem::path& path, std::vector<float>
   if (!leaf) return cloud;
   const auto& descriptor = leaf->attributeSet().descriptor();
   const std::size_t P = descriptor.find("P"), v = descriptor.find("v"), id = descriptor.find("id"),
-                    ps = descriptor.find("pscale");
+                    ps = descriptor.find("pscale"), ty = descriptor.find("type");
   if (P == vp::AttributeSet::INVALID_POS)
     throw IoError(path.string() + ": the points have no \"P\" attribute");
   const bool has_v = v != vp::AttributeSet::INVALID_POS,
              has_id = id != vp::AttributeSet::INVALID_POS,
-             has_ps = ps != vp::AttributeSet::INVALID_POS;
+             has_ps = ps != vp::AttributeSet::INVALID_POS,
+             has_type = ty != vp::AttributeSet::INVALID_POS;
   for (; leaf; ++leaf) {
     vp::AttributeHandle<openvdb::Vec3f> hp(leaf->constAttributeArray(P));
     std::unique_ptr<vp::AttributeHandle<openvdb::Vec3f>> hv;
     std::unique_ptr<vp::AttributeHandle<std::int32_t>> hid;
     std::unique_ptr<vp::AttributeHandle<float>> hps;
+    std::unique_ptr<vp::AttributeHandle<std::int32_t>> hty;
     if (has_v)
       hv = std::make_unique<vp::AttributeHandle<openvdb::Vec3f>>(leaf->constAttributeArray(v));
     if (has_id)
       hid = std::make_unique<vp::AttributeHandle<std::int32_t>>(leaf->constAttributeArray(id));
     if (has_ps) hps = std::make_unique<vp::AttributeHandle<float>>(leaf->constAttributeArray(ps));
+    if (has_type) hty = std::make_unique<vp::AttributeHandle<std::int32_t>>(leaf->constAttributeArray(ty));
     for (auto it = leaf->beginIndexOn(); it; ++it) {
       const openvdb::Vec3d w =
           grid->transform().indexToWorld(hp.get(*it) + it.getCoord().asVec3d());
@@ -111,6 +121,7 @@ PointCloud read_vdb_points(const std::filesystem::path& path, std::vector<float>
       }
       if (hid) cloud.id.push_back(std::uint32_t(hid->get(*it)));
       if (hps) radius.push_back(hps->get(*it));
+      if (hty) cloud.type.push_back(std::uint8_t(std::clamp(hty->get(*it), 0, 255)));
     }
   }
   if (has_id) {  // back to id order
@@ -124,6 +135,7 @@ PointCloud read_vdb_points(const std::filesystem::path& path, std::vector<float>
       sorted.position.push_back(cloud.position[i]);
       if (has_v) sorted.velocity.push_back(cloud.velocity[i]);
       sorted.id.push_back(cloud.id[i]);
+      if (has_type) sorted.type.push_back(cloud.type[i]);
       if (has_ps) sorted_radius.push_back(radius[i]);
     }
     cloud = std::move(sorted);

@@ -199,6 +199,32 @@ TEST(Pipeline, CliWritesSurfacesPointsAndIdsAndResurfaces) {
   EXPECT_THROW(slurry::io::particles_to_level_set(nan_cloud, params), std::invalid_argument);
   fs::remove_all(dir);
 }
+
+// FLIP whitewater with vdb_points: whitewater_NNNN.vdb holds the same particles as
+// whitewater_NNNN.ply, with their ids, velocities and types.
+TEST(Pipeline, CliWritesWhitewaterPoints) {
+  const fs::path dir = fs::temp_directory_path() / ("slurry_pipeline_ww_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  std::ofstream(dir / "s.json") << R"({"domain": {"min": [0, 0, 0], "max": [1, 0.6, 0.25], "dx": 0.04},
+    "solver": {"type": "flip", "dimension": 3, "max_dt": 0.005, "whitewater": {"enabled": true}},
+    "materials": [{"name": "water", "model": "fluid"}],
+    "bodies": [{"shape": "box", "min": [0, 0, 0], "max": [0.3, 0.5, 0.25], "material": "water"}],
+    "output": {"directory": ")" + (dir / "frames").string() + R"(", "fps": 24, "frames": 12,
+               "attributes": ["position", "velocity", "id"], "vdb_points": true}})";
+  ASSERT_EQ(run(std::string(SLURRY_CLI) + " run -q " + (dir / "s.json").string()), 0);
+  const auto ply = slurry::io::read_ply(dir / "frames" / "whitewater_0012.ply");
+  const auto cloud = slurry::io::point_cloud(ply);
+  ASSERT_GT(cloud.size(), 0u);
+  std::vector<float> pscale;
+  const auto points = slurry::io::read_vdb_points(dir / "frames" / "whitewater_0012.vdb", &pscale);
+  ASSERT_EQ(points.size(), cloud.size());
+  EXPECT_EQ(points.id, cloud.id);
+  EXPECT_EQ(points.velocity, cloud.velocity);
+  EXPECT_EQ(points.type, cloud.type);
+  EXPECT_FLOAT_EQ(pscale[0], float(0.25 * 0.04 / 2));
+  fs::remove_all(dir);
+}
 #endif
 
 TEST(PipelineOutputs, DocumentedDefaultsAreTheCode) {

@@ -109,6 +109,11 @@ class Solver {
   /// then costs no copy of the particles: 21 MB on the 3D dam break). Collective where frame()
   /// is.
   virtual Frame frame_view(const std::vector<std::string>& attributes) const { return frame(attributes); }
+  /// Secondary particles kept beside the particles (FLIP whitewater, solver.whitewater) as a
+  /// frame of their own: a table "vertex" with x, y(, z), vx, vy(, vz), `type` (uchar: 0 spray,
+  /// 1 foam, 2 bubble) and `id` (uint), columns borrowed as frame_view's; a frame without tables
+  /// when the scene has none. The run loop writes it as whitewater_NNNN.ply.
+  virtual Frame whitewater_frame_view() const { return {}; }
   /// One line on the last substep's linear solve (iterations, relative residual), for the CLI's
   /// per-frame log; empty for solvers without one (explicit MPM and FEM).
   virtual std::string solver_status() const { return {}; }

@@ -53,10 +53,12 @@ struct FrameOutputReport {
 };
 
 /// Writes the outputs of particle frame `frame` (index `index`) into `dir`. A group with no
-/// particles in this frame writes no surface files. Throws IoError.
+/// particles in this frame writes no surface files. With vdb_points and a `whitewater` frame
+/// (FLIP whitewater, Solver::whitewater_frame_view), also whitewater_NNNN.vdb: OpenVDB points
+/// with P, v, id, type and pscale. Throws IoError.
 FrameOutputReport write_frame_outputs(const Frame& frame, int index,
                                       const std::filesystem::path& dir,
-                                      const FrameOutputs& outputs);
+                                      const FrameOutputs& outputs, const Frame* whitewater = nullptr);
 
 /// The frames `frame_NNNN.ply` of `dir`, sorted by index. Throws IoError if `dir` is no directory.
 std::vector<std::pair<int, std::filesystem::path>> find_frames(const std::filesystem::path& dir);

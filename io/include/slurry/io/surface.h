@@ -67,6 +67,7 @@ struct PointCloud {
   std::vector<std::array<float, 3>> position;
   std::vector<std::array<float, 3>> velocity;
   std::vector<std::uint32_t> id;
+  std::vector<std::uint8_t> type;  ///< whitewater frames' `type` (0 spray, 1 foam, 2 bubble), else empty
   std::size_t size() const { return position.size(); }
 };
 
@@ -166,11 +167,13 @@ void write_vdb(const std::filesystem::path& path, const LevelSet& level_set);
 LevelSet read_vdb_level_set(const std::filesystem::path& path, const std::string& name = "surface");
 
 /// Writes OpenVDB points (a PointDataGrid named "points", voxel size `voxel_size`) with the
-/// attributes P, v (if the cloud has velocities), id (int32, if it has ids) and pscale (float,
-/// `radius` for every point), the names Houdini and other VDB point readers expect. Atomic.
+/// attributes P, v (if the cloud has velocities), id (int32, if it has ids), type (int32, if it
+/// has types: whitewater) and pscale (float, `radius` for every point), the names Houdini and
+/// other VDB point readers expect. Atomic.
 void write_vdb_points(const std::filesystem::path& path, const PointCloud& points, double radius,
                       double voxel_size);
-/// Reads the PointDataGrid called `name` back, points in ascending id order if they have ids;
+/// Reads the PointDataGrid called `name` back (P, v, id, type when it has them), points in
+/// ascending id order if they have ids;
 /// `pscale` (if not null) receives each point's radius. Throws IoError.
 PointCloud read_vdb_points(const std::filesystem::path& path, std::vector<float>* pscale = nullptr,
                            const std::string& name = "points");

@@ -29,6 +29,10 @@
 ///                    of colliders and kept inside the domain; with the linear kernel in
 ///                    transfer_to_particles' pass (its timer then holds both)
 ///   reseed           particles per cell between solver.reseed bounds
+///   whitewater       secondary spray, foam and bubbles (whitewater.h, Ihmsen et al. 2012);
+///                    only when solver.whitewater.enabled (otherwise nothing is allocated).
+///                    Last, on the substep's grid: the liquid's labels and phi at t and its
+///                    projected velocity; one-way coupled (the liquid never sees them)
 ///
 /// The substep is min(solver.max_dt, cfl dx / max |v_p|) with cfl up to 5, and with surface
 /// tension at most Brackbill's capillary limit (surface_tension.h), clipped so frames land on
@@ -52,6 +56,7 @@
 #include "slurry/engine/flip/solids.h"
 #include "slurry/engine/flip/surface_tension.h"
 #include "slurry/engine/flip/viscosity.h"
+#include "slurry/engine/flip/whitewater.h"
 #include "slurry/engine/solver.h"
 #include "slurry/engine/substeps.h"
 
@@ -60,7 +65,9 @@ namespace slurry::flip {
 /// Named phases of a substep, for the per-phase timing (FlipSolver::phase_seconds).
 enum Phase : int {
   kEmit, kSort, kToGrid, kSave, kGravity, kBoundaries, kViscosity, kProject, kExtrapolate, kEnforce, kToParticles,
-  kAdvect, kReseed, kPhaseCount
+  kAdvect, kReseed,
+  kWhitewater,
+  kPhaseCount
 };
 const char* phase_name(int phase);
 
@@ -120,6 +127,12 @@ class FlipSolver final : public Solver {
   /// Particles added and removed by reseeding so far.
   std::int64_t reseeded_added() const { return reseed_added_; }
   std::int64_t reseeded_removed() const { return reseed_removed_; }
+  /// The secondary particles (solver.whitewater), or null when the scene has none.
+  const Whitewater<T, Dim>* whitewater() const { return whitewater_.get(); }
+  Whitewater<T, Dim>* whitewater() { return whitewater_.get(); }
+  /// The secondary particles as a frame: x, y(, z), vx, vy(, vz), type (uchar), id (uint),
+  /// borrowed; no tables without whitewater.
+  Frame whitewater_frame_view() const override;
   /// Wall seconds spent in each phase so far (index: Phase).
   const std::array<double, kPhaseCount>& phase_seconds() const { return phase_seconds_; }
   /// CPU seconds of the process (all threads) spent in each phase so far (std::clock).
@@ -144,6 +157,7 @@ class FlipSolver final : public Solver {
   void transfer_to_particles(T dt);
   void advect(T dt);
   void reseed();
+  void whitewater_step(T dt);
 
   /// advect()'s step for one particle, shared with G2P's pass for the linear kernel: the
   /// substep's constants and collider poses, computed once per substep.
@@ -189,6 +203,7 @@ class FlipSolver final : public Solver {
   bool viscous_ = false;         // a material has viscosity > 0
   bool mixed_viscosity_ = false; // materials of different viscosities: mu per cell (cell_mu_)
   std::vector<T> material_mu_, cell_mu_, viscosity_scratch_;
+  std::unique_ptr<Whitewater<T, Dim>> whitewater_;  // only when solver.whitewater.enabled
   Vec gravity_, x_lo_, x_hi_;
   T particle_volume_ = 0, particle_radius_ = 0, max_speed_ = 0;
   T cfl_reached_ = 0;  // largest max_speed dt / dx since the last take_stats()

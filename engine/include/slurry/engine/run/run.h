@@ -86,6 +86,9 @@ struct FrameReport {
   /// frame file was written (write_files false, a per-rank part, a rank other than 0). Valid
   /// during the callback.
   const Frame* frame_data = nullptr;
+  /// The secondary particles written beside it as whitewater_NNNN.ply (FLIP whitewater), in
+  /// memory; null when the scene has none or frame_data is null. Valid during the callback.
+  const Frame* whitewater_data = nullptr;
   /// The simulation at this frame, for reading its particles in memory
   /// (simulation->particles_view<float, 3>() for a 3D float scene); valid during the callback.
   const Solver* simulation = nullptr;

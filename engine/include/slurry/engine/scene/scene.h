@@ -96,6 +96,31 @@ struct SleepParams {
   double wake_speed = 0;      ///< m/s; 0 = 2 x speed
 };
 
+/// FLIP whitewater (solver.whitewater, flip/whitewater.h): secondary spray, foam and bubble
+/// particles after Ihmsen et al. 2012, one-way coupled to the liquid. Each liquid cell generates
+/// Phi_k (trapped_air_rate Phi_ta + wave_crest_rate Phi_wc) particles per second, each potential
+/// Phi clamped to [0, 1] between its min and max. Off by default: nothing is allocated or run.
+struct WhitewaterParams {
+  bool enabled = false;
+  std::int64_t seed = 1;              ///< of the generation's counter-based hash, [0, 2^32)
+  double trapped_air_rate = 150;      ///< particles per second of a liquid cell at full potential, >= 0
+  double wave_crest_rate = 200;       ///< the same for wave crests, >= 0
+  double trapped_air_min = 1;         ///< m/s, >= 0: trapped-air potential below which nothing is generated
+  double trapped_air_max = 4;         ///< m/s, > trapped_air_min: full potential
+  double wave_crest_min = 0.1;        ///< dimensionless curvature measure, >= 0
+  double wave_crest_max = 1;          ///< > wave_crest_min
+  double kinetic_energy_min = 0.2;    ///< J/kg (|v|^2 / 2), >= 0
+  double kinetic_energy_max = 3;      ///< J/kg, > kinetic_energy_min
+  double lifetime_min = 1;            ///< s, foam lifetime drawn in [lifetime_min, lifetime_max], > 0
+  double lifetime_max = 3;            ///< s, >= lifetime_min
+  double spray_drag = 0.5;            ///< 1/s, linear air drag of spray, >= 0
+  double bubble_buoyancy = 1;         ///< buoyant acceleration of bubbles in units of |gravity|, >= 0
+  double bubble_drag = 40;            ///< 1/s, rate bubbles take the liquid's velocity, > 0
+  double spray_distance = 0.5;        ///< cells: above the surface by more than this is spray, [0, 2]
+  double bubble_depth = 1;            ///< cells: below the surface by more than this is a bubble, [0.25, 3]
+  std::int64_t max_particles = 1000000;  ///< oldest removed beyond it, [0, 2^31 - 1]
+};
+
 struct SolverParams {
   SolverType type = SolverType::MPM;     ///< "mpm", "flip" or "fem"
   int dimension = 3;                     ///< 2 or 3
@@ -124,6 +149,7 @@ struct SolverParams {
   OnInstability on_instability = OnInstability::Stop;
   int max_retries = 3;  ///< halvings per frame for on_instability "retry", [1, 30]
   SleepParams sleep;     ///< MPM only
+  WhitewaterParams whitewater;  ///< FLIP only
 };
 
 struct MaterialParams {
