@@ -540,16 +540,8 @@ TEST(WHITEWATER_SUITE, RunWritesWhitewaterFramesAndResumesThemByteIdentical) {
 // --- Scene keys ------------------------------------------------------------------------------
 
 std::string message(const std::string& whitewater, const std::string& type = "flip") {
-  const std::string text = R"({"domain": {"min": [0, 0], "max": [1, 1], "dx": 0.05}, "solver": {"type": ")" + type +
-                           R"(", "dimension": 2, "whitewater": )" + whitewater +
-                           R"(}, "materials": [{"name": "a", "model": "fluid"}],
-      "bodies": [{"shape": "box", "min": [0, 0], "max": [1, 0.4], "material": "a"}]})";
-  try {
-    slurry::parse_scene(text, "bad.json");
-  } catch (const slurry::SceneError& e) {
-    return e.what();
-  }
-  return "accepted";
+  return slurry_test::scene_error(slurry_test::material_scene_text(
+      R"({"type": ")" + type + R"(", "dimension": 2, "whitewater": )" + whitewater + "}", R"({"name": "a", "model": "fluid"})"));
 }
 
 // Every key: a bad value is refused naming the key and what was expected.
