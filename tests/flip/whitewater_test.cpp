@@ -91,8 +91,8 @@ TEST(WHITEWATER_SUITE, SprayFollowsTheBallisticTrajectoryWithDrag) {
   const std::vector<std::vector<double>> schedules = {
       std::vector<double>(144, T / 144), std::vector<double>(22, T / 22), {0.05, 0.2, 0.01, 0.09, 0.25}};
   const Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e-4), hi = Eigen::Vector3d::Constant(4 - 1e-4);
-  for (const auto& steps : schedules) {
-    WW ww(p, gravity);
+  // One spray particle at s0.
+  const auto launch = [&](WW& ww) {
     auto& P = ww.particles();
     P.resize(1);
     P.x[0] = s0.x;
@@ -100,6 +100,11 @@ TEST(WHITEWATER_SUITE, SprayFollowsTheBallisticTrajectoryWithDrag) {
     P.life[0] = 1;
     P.id[0] = 0;
     P.type[0] = 0;
+  };
+  for (const auto& steps : schedules) {
+    WW ww(p, gravity);
+    launch(ww);
+    auto& P = ww.particles();
     double t = 0;
     std::int64_t k = 0;
     for (const double dt : steps) {
@@ -118,11 +123,8 @@ TEST(WHITEWATER_SUITE, SprayFollowsTheBallisticTrajectoryWithDrag) {
   // Without drag: the parabola.
   p.spray_drag = 0;
   WW ww(p, gravity);
+  launch(ww);
   auto& P = ww.particles();
-  P.resize(1);
-  P.x[0] = s0.x;
-  P.v[0] = s0.v;
-  P.life[0] = 1;
   for (int k = 0; k < 10; ++k) ww.step(g, solids, k * 0.06, 0.06, k, lo, hi);
   const Eigen::Vector3d parabola = s0.x + s0.v * T + 0.5 * gravity * T * T;
   EXPECT_LT((P.x[0] - parabola).norm(), 1e-9);
