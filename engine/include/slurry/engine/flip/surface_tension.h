@@ -85,8 +85,8 @@ class SurfaceTension {
   /// sigma kappa (Pa) at the centres of the cells on either side of the free surface (fluid with
   /// an air face neighbour, air with a fluid one), 0 elsewhere: computed by compute().
   const std::vector<T>& pressure() const { return pressure_; }
-  /// Minus the smoothed colour function, in the cells within 5 cells of the surface; 0 elsewhere.
-  const std::vector<T>& colour() const { return phi_; }
+  /// The smoothed colour function, in the cells within 5 cells of the surface; 0 elsewhere.
+  const std::vector<T>& colour() const { return colour_; }
 
   /// Fills pressure() for surface tension sigma from the grid's labels and the particles,
   /// sorted by cell (`sort.start`, positions `P.x`).
@@ -117,7 +117,8 @@ class SurfaceTension {
     const T inv_dx = T(1) / g.dx;
     const std::uint32_t* start = sort.start.data();
     const Vec* X = P.x.data();
-    phi_.assign(std::size_t(n), T(0));
+    colour_.assign(std::size_t(n), T(0));
+    smoothed_.assign(std::size_t(n), T(0));  // outside the band both stay 0
     parallel::parallel_for(0, n, [&](std::int64_t k) {
       if (!band_[std::size_t(k)]) return;
       const IVec i = g.cell_coord(k);
@@ -131,18 +132,18 @@ class SurfaceTension {
           wsum += w;
         }
       });
-      phi_[std::size_t(k)] = -wsum;
+      colour_[std::size_t(k)] = wsum;
     });
     for (int pass = 0; pass < kSmoothing; ++pass)
       for (int d = 0; d < Dim; ++d) {
-        scratch_phi_ = phi_;
         const IVec e = IVec::Unit(d);
         parallel::parallel_for(0, n, [&](std::int64_t k) {
           if (!band_[std::size_t(k)]) return;
           const IVec i = g.cell_coord(k);
-          phi_[std::size_t(k)] = T(0.25) * (at(g, scratch_phi_, i, e) + at(g, scratch_phi_, i, IVec(-e))) +
-                                 T(0.5) * scratch_phi_[std::size_t(k)];
+          smoothed_[std::size_t(k)] = T(0.25) * (colour_[clamped(g, i, e)] + colour_[clamped(g, i, IVec(-e))]) +
+                                      T(0.5) * colour_[std::size_t(k)];
         });
+        colour_.swap(smoothed_);
       }
     // 4. Unit normals -grad c / |grad c| in the inner band (central differences).
     normal_.assign(std::size_t(n), Vec::Zero());
@@ -150,7 +151,7 @@ class SurfaceTension {
       if (!normal_band_[std::size_t(k)]) return;
       const IVec i = g.cell_coord(k);
       Vec grad;
-      for (int a = 0; a < Dim; ++a) grad[a] = phi_at(g, i, IVec::Unit(a)) - phi_at(g, i, IVec(-IVec::Unit(a)));
+      for (int a = 0; a < Dim; ++a) grad[a] = colour_[clamped(g, i, IVec(-IVec::Unit(a)))] - colour_[clamped(g, i, IVec::Unit(a))];
       const T len = grad.norm();
       if (len > T(1e-9) * g.dx) normal_[std::size_t(k)] = grad / len;
     });
@@ -160,14 +161,14 @@ class SurfaceTension {
       if (!surface_[std::size_t(k)]) return;
       const IVec i = g.cell_coord(k);
       T div = T(0);
-      for (int a = 0; a < Dim; ++a) div += normal_at(g, i, IVec::Unit(a))[a] - normal_at(g, i, IVec(-IVec::Unit(a)))[a];
+      for (int a = 0; a < Dim; ++a) div += normal_[clamped(g, i, IVec::Unit(a))][a] - normal_[clamped(g, i, IVec(-IVec::Unit(a)))][a];
       pressure_[std::size_t(k)] = sigma * std::clamp(div / (T(2) * g.dx), -kmax, kmax);
     });
   }
 
   std::size_t bytes() const {
     return surface_.capacity() + normal_band_.capacity() + band_.capacity() + scratch_.capacity() +
-           (phi_.capacity() + pressure_.capacity()) * sizeof(T) + normal_.capacity() * sizeof(Vec);
+           (colour_.capacity() + smoothed_.capacity() + pressure_.capacity()) * sizeof(T) + normal_.capacity() * sizeof(Vec);
   }
 
  private:
@@ -186,17 +187,10 @@ class SurfaceTension {
     }
   }
 
-  /// f at cell i + o, the coordinates clamped to the grid (the edge cell repeated).
-  static T at(const Grid& g, const std::vector<T>& f, IVec i, const IVec& o) {
+  /// Index of cell i + o, the coordinates clamped to the grid (the edge cell repeated).
+  static std::size_t clamped(const Grid& g, IVec i, const IVec& o) {
     for (int d = 0; d < Dim; ++d) i[d] = std::clamp(i[d] + o[d], 0, g.res[d] - 1);
-    return f[std::size_t(g.cell(i))];
-  }
-  T phi_at(const Grid& g, const IVec& i, const IVec& o) const { return at(g, phi_, i, o); }
-
-  /// The unit normal at cell i + o, the coordinates clamped to the grid.
-  const Vec& normal_at(const Grid& g, IVec i, const IVec& o) const {
-    for (int d = 0; d < Dim; ++d) i[d] = std::clamp(i[d] + o[d], 0, g.res[d] - 1);
-    return normal_[std::size_t(g.cell(i))];
+    return std::size_t(g.cell(i));
   }
 
   /// out = the cells within `reach` cells of a set cell of `in` along every axis (a box of
@@ -219,7 +213,7 @@ class SurfaceTension {
 
   std::vector<std::uint8_t> surface_, normal_band_, band_, scratch_;
   std::vector<Vec> normal_;
-  std::vector<T> phi_, scratch_phi_, pressure_;
+  std::vector<T> colour_, smoothed_, pressure_;
 };
 
 }  // namespace slurry::flip

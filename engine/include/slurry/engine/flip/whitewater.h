@@ -168,7 +168,7 @@ class Whitewater {
     classify(g);
     move(g, dt);
     classify(g);  // where they ended: the frame's types, and no spray counted inside the liquid
-    remove(solids, T(t) + dt, x_lo, x_hi, T(1e-3) * g.dx);
+    remove(solids, T(t) + dt, T(1e-3) * g.dx);
     generate(g, dt, substep);
     limit();
   }
@@ -253,10 +253,14 @@ class Whitewater {
       });
     }
     const T dx = g.dx;
+    // A liquid cell of layer k lies (k - 1/2) dx deep; beyond the last layer, one layer deeper.
+    const auto liquid_depth = [&](std::int64_t c) {
+      const int k = layer_[std::size_t(c)] ? layer_[std::size_t(c)] : layers + 1;
+      return -(T(k) - T(0.5)) * dx;
+    };
     parallel::parallel_for(0, cells, [&](std::int64_t c) {
       if (label[c] == Grid::Fluid) {
-        const int k = layer_[std::size_t(c)] ? layer_[std::size_t(c)] : layers + 1;
-        phi_[std::size_t(c)] = -(T(k) - T(0.5)) * dx;
+        phi_[std::size_t(c)] = liquid_depth(c);
       } else if (label[c] == Grid::Air) {
         phi_[std::size_t(c)] = g.phi[std::size_t(c)];
       }
@@ -272,17 +276,18 @@ class Whitewater {
           const int q = i[d] + s;
           if (q < 0 || q >= g.res[d]) continue;
           const std::int64_t n = c + s * stride[d];
-          if (label[n] == Grid::Fluid) best = std::min(best, -(T(layer_[std::size_t(n)] ? layer_[std::size_t(n)] : layers + 1) - T(0.5)) * dx);
+          if (label[n] == Grid::Fluid) best = std::min(best, liquid_depth(n));
           else if (label[n] == Grid::Air) best = std::min(best, g.phi[std::size_t(n)]);
         }
       phi_[std::size_t(c)] = best;
     });
   }
 
-  void classify(const Grid& g) {
+  /// Types particles `first` .. end by the depth where they are.
+  void classify(const Grid& g, std::size_t first = 0) {
     const T spray = T(p_.spray_distance) * g.dx, bubble = -T(p_.bubble_depth) * g.dx;
     auto& P = P_;
-    parallel::parallel_for(0, std::int64_t(P.size()), [&](std::int64_t q) {
+    parallel::parallel_for(std::int64_t(first), std::int64_t(P.size()), [&](std::int64_t q) {
       const T phi = depth_at(g, P.x[std::size_t(q)]);
       P.type[std::size_t(q)] = std::uint8_t(phi > spray    ? WhitewaterType::Spray
                                             : phi < bubble ? WhitewaterType::Bubble
@@ -327,8 +332,10 @@ class Whitewater {
   /// Removes dead foam and spray that left the domain box or entered a collider (it hit a wall);
   /// foam and bubbles, which move with the liquid, are kept inside as the liquid's particles are
   /// (pushed out of colliders, clamped to the box). Keeps the order.
-  void remove(const Solids<T, Dim>& solids, T t, const Vec& x_lo, const Vec& x_hi, T margin) {
+  void remove(const Solids<T, Dim>& solids, T t, T margin) {
     auto& P = P_;
+    const Vec& x_lo = x_lo_;
+    const Vec& x_hi = x_hi_;
     std::size_t kept = 0;
     for (std::size_t i = 0; i < P.size(); ++i) {
       Vec& x = P.x[i];
@@ -456,14 +463,7 @@ class Whitewater {
     });
     P.next_id = id0 + std::uint32_t(total);
     generated_ += std::int64_t(total);
-    // Type from the depth where they start (the frame shows it before their first move).
-    const T spray = T(p_.spray_distance) * dx, bubble = -T(p_.bubble_depth) * dx;
-    parallel::parallel_for(std::int64_t(n0), std::int64_t(P.size()), [&](std::int64_t q) {
-      const T phi = depth_at(g, P.x[std::size_t(q)]);
-      P.type[std::size_t(q)] = std::uint8_t(phi > spray    ? WhitewaterType::Spray
-                                            : phi < bubble ? WhitewaterType::Bubble
-                                                           : WhitewaterType::Foam);
-    });
+    classify(g, n0);  // from the depth where they start (the frame shows it before their first move)
   }
 
   /// At most max_particles: the oldest (the first rows) go first.
