@@ -187,7 +187,7 @@ void FlipSolver<T, Dim>::step(T dt) {
   cfl_reached_ = std::max(cfl_reached_, max_speed_ * dt / grid_.dx);
   reseed();
   lap(kReseed);
-  if (whitewater_) whitewater_step(dt);
+  if (whitewater_) whitewater_->step(grid_, solids_, time_, dt, steps_, x_lo_, x_hi_);
   lap(kWhitewater);
   time_ += double(dt);
   ++steps_;
@@ -494,11 +494,6 @@ void FlipSolver<T, Dim>::reseed() {
   const auto counts = reseeder_.run(particles_, grid_, r.min_per_cell, r.max_per_cell, detail::kReseedSeed, steps_, init);
   reseed_added_ += counts.added;
   reseed_removed_ += counts.removed;
-}
-
-template <class T, int Dim>
-void FlipSolver<T, Dim>::whitewater_step(T dt) {
-  whitewater_->step(grid_, solids_, time_, dt, steps_, x_lo_, x_hi_);
 }
 
 template <class T, int Dim>

@@ -157,7 +157,6 @@ class FlipSolver final : public Solver {
   void transfer_to_particles(T dt);
   void advect(T dt);
   void reseed();
-  void whitewater_step(T dt);
 
   /// advect()'s step for one particle, shared with G2P's pass for the linear kernel: the
   /// substep's constants and collider poses, computed once per substep.
