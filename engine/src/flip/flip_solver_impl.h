@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <ctime>
 #include <sstream>
 #include <string>
@@ -130,7 +131,7 @@ std::size_t FlipSolver<T, Dim>::bytes() const {
   b += pressure_.bytes() + extrapolator_.bytes() + viscosity_.bytes() + surface_tension_.bytes() + cell_mu_.capacity() * sizeof(T);  // the pressure solve's vectors are most of the grid's memory
   for (int d = 0; d < Dim; ++d)
     b += (grid_.u[d].capacity() + grid_.weight[d].capacity() + grid_.u_solid[d].capacity() +
-          weight_sum_[d].capacity() + old_u_[d].capacity()) * sizeof(T) + grid_.valid[d].capacity();
+          weight_sum_[d].capacity() + old_u_[d].capacity() + pre_u_[d].capacity()) * sizeof(T) + grid_.valid[d].capacity();
   return b;
 }
 
@@ -176,7 +177,7 @@ void FlipSolver<T, Dim>::step(T dt) {
   lap(kViscosity);
   project(dt);
   lap(kProject);
-  extrapolate_velocities();
+  extrapolate_velocities(dt);
   lap(kExtrapolate);
   enforce_solids();
   lap(kEnforce);
@@ -302,6 +303,14 @@ void FlipSolver<T, Dim>::apply_viscosity(T dt) {
 
 template <class T, int Dim>
 void FlipSolver<T, Dim>::project(T dt) {
+  for (int d = 0; d < Dim; ++d) {
+    pre_u_[d].resize(grid_.u[d].size());
+    const T* u = grid_.u[d].data();
+    T* o = pre_u_[d].data();
+    parallel::parallel_chunks(0, std::int64_t(grid_.u[d].size()), [&](std::int64_t lo, std::int64_t hi) {
+      std::copy(u + lo, u + hi, o + lo);
+    });
+  }
   const double beta = scene_.solver.volume_correction;
   if (beta <= 0) {
     last_projection_ = pressure_.project(grid_, dt, projection_options_);
@@ -369,7 +378,69 @@ void FlipSolver<T, Dim>::project(T dt) {
 }
 
 template <class T, int Dim>
-void FlipSolver<T, Dim>::extrapolate_velocities() {
+void FlipSolver<T, Dim>::extrapolate_velocities(T dt) {
+  // The faces with particle mass (a P2G weight) that the projection did not update (air on both
+  // sides, next to the surface) keep their P2G velocity plus the projection's correction
+  // extended from the projected faces, rather than a velocity extrapolated from those faces.
+  // Overwriting the particles' own face velocities breaks the bound on kinetic energy that the
+  // transfer round trip keeps (Jiang et al. 2015, sec. 5), and where particles stay in the same
+  // cells over many substeps the gain compounds: two particles in diagonally adjacent cells,
+  // zero gravity, dt = 1e-4 s, APIC, gained x1.12 kinetic energy per substep, and two 3 mm drops
+  // merging at 0.185 ms substeps scattered their particles. The correction is added (not zero,
+  // the pressure gradient between two air cells) so that a face just above a surface at rest
+  // sees the pressure that holds the liquid up (the standing wave's period came out 7.5% long
+  // with the P2G velocity alone). Elsewhere the extrapolated velocity is the better estimate (it
+  // continues the divergence-free projected field; the kept one is not divergence free in the
+  // air): where particles move more than a fraction of a cell per substep the cells they touch
+  // change within a few substeps and the gain cannot compound. So the kept velocity is used in
+  // full where the face's Courant number |u| dt / dx is below 0.1 (particles stay ten substeps
+  // or more), the extrapolated one above 0.3, blended between. With the blend from 1 to 2
+  // instead, the 2D dam break at one substep per frame lost more volume (mean worst drift 12.5%,
+  // 11.4% with this one) and the whitewater of a dam break changed more when the substep was
+  // halved (count ratio 1.11, 1.09 with this one and without kept faces).
+  const T nan = std::numeric_limits<T>::quiet_NaN();
+  // The correction on the projected faces (NaN on the others), extended as a field of its own
+  // in g.u's place over the faces a particle's kernel reaches from its cell's faces.
+  for (int d = 0; d < Dim; ++d) {
+    const T* u = grid_.u[d].data();
+    const std::uint8_t* valid = grid_.valid[d].data();
+    T* c = pre_u_[d].data();
+    parallel::parallel_chunks(0, std::int64_t(grid_.u[d].size()), [&](std::int64_t lo, std::int64_t hi) {
+      for (std::int64_t f = lo; f < hi; ++f) c[f] = valid[f] ? u[f] - c[f] : nan;
+    });
+    grid_.u[d].swap(pre_u_[d]);
+  }
+  extrapolator_.run(grid_, order_ + Dim - 1, Extrapolation::Constant, false);
+  // pre_u_: the kept velocity on the unprojected faces with mass that the correction reached,
+  // NaN on the others; g.u the projected velocities again.
+  for (int d = 0; d < Dim; ++d) {
+    const T* u = pre_u_[d].data();
+    const T* w = weight_sum_[d].data();
+    const std::uint8_t* valid = grid_.valid[d].data();
+    T* c = grid_.u[d].data();
+    parallel::parallel_chunks(0, std::int64_t(grid_.u[d].size()), [&](std::int64_t lo, std::int64_t hi) {
+      for (std::int64_t f = lo; f < hi; ++f) c[f] = !valid[f] && w[f] > T(0) ? u[f] + c[f] : nan;
+    });
+    grid_.u[d].swap(pre_u_[d]);
+  }
+  velocity_extrapolation();
+  const T courant = dt / grid_.dx;
+  for (int d = 0; d < Dim; ++d) {
+    const T* kept = pre_u_[d].data();
+    T* u = grid_.u[d].data();
+    parallel::parallel_chunks(0, std::int64_t(grid_.u[d].size()), [&](std::int64_t lo, std::int64_t hi) {
+      for (std::int64_t f = lo; f < hi; ++f) {
+        const T k = kept[f];
+        if (std::isnan(k)) continue;
+        const T share = std::clamp((T(0.3) - std::abs(k) * courant) / T(0.2), T(0), T(1));
+        u[f] = share * k + (T(1) - share) * u[f];
+      }
+    });
+  }
+}
+
+template <class T, int Dim>
+void FlipSolver<T, Dim>::velocity_extrapolation() {
   // Particles read faces up to `reach` cfl cells (plus the kernel's reach) away from where
   // they start: the advection samples the grid at its stages' points (advection.h). Midpoint
   // samples only at x + dt/2 u(x), half a step away; Heun and RK3 at about a whole step

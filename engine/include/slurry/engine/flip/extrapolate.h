@@ -48,11 +48,12 @@ class Extrapolator {
   }
 
   /// Fills up to `layers` (at most 120) layers of invalid faces from valid neighbours; returns
-  /// the number of faces filled.
-  std::int64_t run(MacGrid<T, Dim>& g, int layers, Extrapolation rule = Extrapolation::Linear) {
+  /// the number of faces filled. With `mark_valid` false the filled faces stay invalid (`valid`
+  /// is left as it was): for extending a field other than the velocity held in g.u.
+  std::int64_t run(MacGrid<T, Dim>& g, int layers, Extrapolation rule = Extrapolation::Linear, bool mark_valid = true) {
     layers = std::clamp(layers, 0, 120);
     std::int64_t filled = 0;
-    for (int d = 0; d < Dim; ++d) filled += run_axis(g, d, layers, rule);
+    for (int d = 0; d < Dim; ++d) filled += run_axis(g, d, layers, rule, mark_valid);
     return filled;
   }
 
@@ -117,7 +118,7 @@ class Extrapolator {
       if (std::int64_t(set.size()) < tasks) set.resize(std::size_t(tasks));
   }
 
-  std::int64_t run_axis(MacGrid<T, Dim>& g, int d, int layers, Extrapolation rule) {
+  std::int64_t run_axis(MacGrid<T, Dim>& g, int d, int layers, Extrapolation rule, bool mark_valid) {
     const std::int64_t nf = g.num_faces(d);
     fr_ = g.face_res(d);
     for (int a = 0; a < Dim; ++a) stride_[a] = g.face_stride(d, a);
@@ -129,6 +130,7 @@ class Extrapolator {
     const T* us = g.has_solid_faces() ? g.u_solid[d].data() : nullptr;  // none: weight 1, u_solid 0
     const T* w = g.has_solid_faces() ? g.weight[d].data() : nullptr;
     std::uint8_t* valid = g.valid[d].data();
+    std::uint8_t* marked = mark_valid ? valid : nullptr;
     const std::uint8_t* label = g.label.data();
     const auto row_coord = [&](std::int64_t r, IVec& i) {
       for (int a = L - 1; a >= 0; --a) {
@@ -222,7 +224,7 @@ class Extrapolator {
       list.swap(lists_[0][std::size_t(t)]);
       return found;
     });
-    mark(lists_[0], row_tasks, valid, 1);
+    mark(lists_[0], row_tasks, marked, 1);
     // Later layers: the unknown neighbours of the last layer's faces.
     std::int64_t last = filled;
     int from = 0;
@@ -255,7 +257,7 @@ class Extrapolator {
         return found;
       });
       filled += last;
-      mark(out, row_tasks, valid, layer);
+      mark(out, row_tasks, marked, layer);
       from = 1 - from;
     }
     return filled;
@@ -272,13 +274,14 @@ class Extrapolator {
     return best;
   }
 
-  /// Stamps the faces of the first `n` lists with `layer` and marks them valid.
+  /// Stamps the faces of the first `n` lists with `layer` and marks them valid (unless `valid`
+  /// is null).
   void mark(const std::vector<std::vector<IVec>>& lists, std::int64_t n, std::uint8_t* valid, int layer) {
     parallel::parallel_for_grain(0, n, 1, [&](std::int64_t t) {
       for (const IVec& i : lists[std::size_t(t)]) {
         const std::int64_t f = index(i);
         stamp_[std::size_t(f)] = std::int8_t(layer);
-        valid[f] = 1;
+        if (valid) valid[f] = 1;
       }
     });
   }

@@ -22,7 +22,9 @@
 ///                    the largest of its neighbours'), so it varies in space with the particles
 ///   project          pressure projection (pressure.h: PCG, ghost fluid, variational solids;
 ///                    the free surface at p = sigma kappa with surface tension, else p = 0)
-///   extrapolate      face velocities into the air (extrapolate.h)
+///   extrapolate      face velocities into the air (extrapolate.h); the air faces that carry
+///                    particle mass keep their own velocity plus the projection's correction
+///                    (extrapolate_velocities())
 ///   enforce_solids   closed faces take the solid's velocity
 ///   transfer_to_particles  G2P: PIC, FLIP (blend ratio) or APIC (affine vectors)
 ///   advect           x through the grid velocity (Euler, midpoint, Heun or RK3), pushed out
@@ -147,7 +149,8 @@ class FlipSolver final : public Solver {
   void build_boundaries(T t);
   void apply_viscosity(T dt);
   void project(T dt);
-  void extrapolate_velocities();
+  void extrapolate_velocities(T dt);
+  void velocity_extrapolation();
   void enforce_solids();
   /// With the linear kernel G2P advects each particle as soon as it has its velocity: the grid
   /// velocity it gathered at x_p is the advection's first stage, and the particles are read and
@@ -186,6 +189,8 @@ class FlipSolver final : public Solver {
   CellSort<T, Dim> sort_;
   Grid grid_;
   std::array<std::vector<T>, Dim> weight_sum_, old_u_;
+  // The face velocities before the projection; extrapolate_velocities() reuses the storage.
+  std::array<std::vector<T>, Dim> pre_u_;
   std::vector<std::uint8_t> holes_;
   bool faces_ready_ = false;
   Solids<T, Dim> solids_;
