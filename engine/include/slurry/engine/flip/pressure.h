@@ -658,10 +658,20 @@ class PressureSolver {
         if (q < 0 || q >= num_rows_) return;
         wl = win_lo_[std::size_t(q)], wh = win_hi_[std::size_t(q)];
       };
+      // The row beside this one along axis d, or -1 past the grid's side: row +- row_step_[d]
+      // alone would wrap a row on the last index along d into the next row of the axis before
+      // (its cells are never coupled, but the sweeps would read them while another tile of the
+      // wavefront writes them).
+      const auto beside = [&](int d, int side) -> std::int64_t {
+        const std::int64_t step = row_step_[std::size_t(d)];
+        const std::int64_t at = (row / step) % res_[d];
+        if (side ? at + 1 >= res_[d] : at == 0) return -1;
+        return row + (side ? step : -step);
+      };
       for (int d = 0; d < Dim - 1; ++d)
         for (int side = 0; side < 2; ++side) {
           int wl, wh;
-          window(row + (side ? row_step_[std::size_t(d)] : -row_step_[std::size_t(d)]), wl, wh);
+          window(beside(d, side), wl, wh);
           if (wl >= wh) continue;
           if (wl > lo && wl < hi) cut[std::size_t(n++)] = wl;
           if (wh > lo && wh < hi) cut[std::size_t(n++)] = wh;
@@ -674,7 +684,7 @@ class PressureSolver {
         piece.k0 = cut[std::size_t(t)], piece.k1 = cut[std::size_t(t + 1)];
         for (int d = 0; d < Dim - 1; ++d)
           for (int side = 0; side < 2; ++side) {
-            const std::int64_t q = row + (side ? row_step_[std::size_t(d)] : -row_step_[std::size_t(d)]);
+            const std::int64_t q = beside(d, side);
             int wl, wh;
             window(q, wl, wh);
             const bool stored = wl <= piece.k0 && piece.k1 <= wh;
