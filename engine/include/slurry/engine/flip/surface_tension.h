@@ -37,12 +37,14 @@
 /// densities: rho / 2 for liquid under air. The substep keeps to half of it (kCapillarySafety);
 /// FlipSolver::stable_dt() takes the minimum with it.
 ///
-/// Known limit: the capillary step is small (0.19 ms for water at dx = 0.5 mm), and at such
-/// steps the solver's APIC and FLIP transfers gain energy on sparse particles (a few particles
-/// alone in their cells): two drops of 3 mm colliding in zero gravity blow up within 0.3 s at
-/// that step without surface tension too, and within 0.1 s with it, once a merge or an impact
-/// on a wall throws off single particles. The steady drop and its small oscillations stay
-/// stable; with PIC transfers the merge runs stable (damped).
+/// The capillary step is small (0.19 ms for water at dx = 0.5 mm): particles stay in their
+/// cells for many substeps, which is where the solver keeps the particles' own velocities on the
+/// air faces (FlipSolver::extrapolate_velocities; without that, sparse particles gained energy
+/// without bound at such steps). Known limit: a drop resolved by few cells does not hold
+/// together when it spreads thinner than a cell (a 3 mm drop at dx = 0.5 mm falling onto the
+/// floor spreads into a film one particle thick); the energy balance of the run's statistics
+/// does not count the surface energy sigma * area, so a merge, which turns surface energy into
+/// motion, shows as energy growth.
 ///
 /// Cost: only where the scene has surface tension (sigma > 0): a dozen passes over the cells
 /// and one over the particles near the surface per substep.
