@@ -22,6 +22,19 @@
 
 namespace slurry::flip {
 
+/// to = from for each axis' face array, in parallel chunks.
+template <class T, std::size_t N>
+void copy_faces(const std::array<std::vector<T>, N>& from, std::array<std::vector<T>, N>& to) {
+  for (std::size_t d = 0; d < N; ++d) {
+    to[d].resize(from[d].size());
+    const T* u = from[d].data();
+    T* o = to[d].data();
+    parallel::parallel_chunks(0, std::int64_t(from[d].size()), [&](std::int64_t lo, std::int64_t hi) {
+      std::copy(u + lo, u + hi, o + lo);
+    });
+  }
+}
+
 namespace detail {
 /// Seed of the reseeding generator (with the step number and the cell index).
 constexpr std::uint64_t kReseedSeed = 0x5EEDF11Bull;
@@ -224,14 +237,7 @@ void FlipSolver<T, Dim>::transfer_to_grid() {
 template <class T, int Dim>
 void FlipSolver<T, Dim>::save_velocities() {
   if (scheme_ != FaceScheme::FLIP) return;
-  for (int d = 0; d < Dim; ++d) {
-    old_u_[d].resize(grid_.u[d].size());
-    const T* u = grid_.u[d].data();
-    T* o = old_u_[d].data();
-    parallel::parallel_chunks(0, std::int64_t(grid_.u[d].size()), [&](std::int64_t lo, std::int64_t hi) {
-      std::copy(u + lo, u + hi, o + lo);
-    });
-  }
+  copy_faces(grid_.u, old_u_);
 }
 
 template <class T, int Dim>
@@ -303,14 +309,7 @@ void FlipSolver<T, Dim>::apply_viscosity(T dt) {
 
 template <class T, int Dim>
 void FlipSolver<T, Dim>::project(T dt) {
-  for (int d = 0; d < Dim; ++d) {
-    pre_u_[d].resize(grid_.u[d].size());
-    const T* u = grid_.u[d].data();
-    T* o = pre_u_[d].data();
-    parallel::parallel_chunks(0, std::int64_t(grid_.u[d].size()), [&](std::int64_t lo, std::int64_t hi) {
-      std::copy(u + lo, u + hi, o + lo);
-    });
-  }
+  copy_faces(grid_.u, pre_u_);
   const double beta = scene_.solver.volume_correction;
   if (beta <= 0) {
     last_projection_ = pressure_.project(grid_, dt, projection_options_);
