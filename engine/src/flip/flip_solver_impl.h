@@ -422,7 +422,7 @@ void FlipSolver<T, Dim>::extrapolate_velocities(T dt) {
     });
     grid_.u[d].swap(pre_u_[d]);
   }
-  velocity_extrapolation();
+  fill_air_velocities();
   const T courant = dt / grid_.dx;
   for (int d = 0; d < Dim; ++d) {
     const T* kept = pre_u_[d].data();
@@ -439,7 +439,7 @@ void FlipSolver<T, Dim>::extrapolate_velocities(T dt) {
 }
 
 template <class T, int Dim>
-void FlipSolver<T, Dim>::velocity_extrapolation() {
+void FlipSolver<T, Dim>::fill_air_velocities() {
   // Particles read faces up to `reach` cfl cells (plus the kernel's reach) away from where
   // they start: the advection samples the grid at its stages' points (advection.h). Midpoint
   // samples only at x + dt/2 u(x), half a step away; Heun and RK3 at about a whole step

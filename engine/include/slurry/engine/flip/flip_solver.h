@@ -149,8 +149,12 @@ class FlipSolver final : public Solver {
   void build_boundaries(T t);
   void apply_viscosity(T dt);
   void project(T dt);
+  /// The extrapolate phase: fill_air_velocities(), except on the air faces with particle mass
+  /// where particles move slowly, which keep their P2G velocity plus the projection's change.
   void extrapolate_velocities(T dt);
-  void velocity_extrapolation();
+  /// Face velocities extrapolated into the air from the faces the projection updated, as far
+  /// as the advection reads.
+  void fill_air_velocities();
   void enforce_solids();
   /// With the linear kernel G2P advects each particle as soon as it has its velocity: the grid
   /// velocity it gathered at x_p is the advection's first stage, and the particles are read and
