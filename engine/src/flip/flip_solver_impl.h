@@ -393,10 +393,12 @@ void FlipSolver<T, Dim>::extrapolate_velocities(T dt) {
   // air): where particles move more than a fraction of a cell per substep the cells they touch
   // change within a few substeps and the gain cannot compound. So the kept velocity is used in
   // full where the face's Courant number |u| dt / dx is below 0.1 (particles stay ten substeps
-  // or more), the extrapolated one above 0.3, blended between. With the blend from 1 to 2
-  // instead, the 2D dam break at one substep per frame lost more volume (mean worst drift 12.5%,
-  // 11.4% with this one) and the whitewater of a dam break changed more when the substep was
-  // halved (count ratio 1.11, 1.09 with this one and without kept faces).
+  // or more), the extrapolated one above 0.3 (kKeptNone), blended linearly over kBlend = 0.2
+  // below it. With the blend from 1 to 2 instead, the 2D dam break at one substep per frame
+  // lost more volume (mean worst drift 12.5%, 11.4% with this one) and the whitewater of a dam
+  // break changed more when the substep was halved (count ratio 1.11, 1.09 with this one and
+  // without kept faces).
+  constexpr T kKeptNone = T(0.3), kBlend = T(0.2);
   const T nan = std::numeric_limits<T>::quiet_NaN();
   // The correction on the projected faces (NaN on the others), extended as a field of its own
   // in g.u's place over the faces a particle's kernel reaches from its cell's faces.
@@ -411,7 +413,8 @@ void FlipSolver<T, Dim>::extrapolate_velocities(T dt) {
   }
   extrapolator_.run(grid_, order_ + Dim - 1, Extrapolation::Constant, false);
   // pre_u_: the kept velocity on the unprojected faces with mass that the correction reached,
-  // NaN on the others; g.u the projected velocities again.
+  // NaN on the others; g.u the projected velocities again. Closed faces (walls, solids) are
+  // among them too; enforce_solids() sets them to the solid's velocity after this phase.
   for (int d = 0; d < Dim; ++d) {
     const T* u = pre_u_[d].data();
     const T* w = weight_sum_[d].data();
@@ -431,7 +434,7 @@ void FlipSolver<T, Dim>::extrapolate_velocities(T dt) {
       for (std::int64_t f = lo; f < hi; ++f) {
         const T k = kept[f];
         if (std::isnan(k)) continue;
-        const T share = std::clamp((T(0.3) - std::abs(k) * courant) / T(0.2), T(0), T(1));
+        const T share = std::clamp((kKeptNone - std::abs(k) * courant) / kBlend, T(0), T(1));
         u[f] = share * k + (T(1) - share) * u[f];
       }
     });

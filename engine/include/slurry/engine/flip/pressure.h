@@ -658,20 +658,21 @@ class PressureSolver {
         if (q < 0 || q >= num_rows_) return;
         wl = win_lo_[std::size_t(q)], wh = win_hi_[std::size_t(q)];
       };
-      // The row beside this one along axis d, or -1 past the grid's side: row +- row_step_[d]
+      // The rows beside this one along each axis d, or -1 past the grid's side: row +- row_step_[d]
       // alone would wrap a row on the last index along d into the next row of the axis before
       // (its cells are never coupled, but the sweeps would read them while another tile of the
       // wavefront writes them).
-      const auto beside = [&](int d, int side) -> std::int64_t {
-        const std::int64_t step = row_step_[std::size_t(d)];
-        const std::int64_t at = (row / step) % res_[d];
-        if (side ? at + 1 >= res_[d] : at == 0) return -1;
-        return row + (side ? step : -step);
-      };
+      // Entry 2 d + side: that row and its window.
+      std::array<std::int64_t, 2 * (Dim - 1)> beside{};
+      std::array<int, 2 * (Dim - 1)> beside_lo{}, beside_hi{};
       for (int d = 0; d < Dim - 1; ++d)
         for (int side = 0; side < 2; ++side) {
-          int wl, wh;
-          window(beside(d, side), wl, wh);
+          const std::size_t e = std::size_t(2 * d + side);
+          const std::int64_t step = row_step_[std::size_t(d)];
+          const std::int64_t at = (row / step) % res_[d];
+          beside[e] = (side ? at + 1 >= res_[d] : at == 0) ? -1 : row + (side ? step : -step);
+          window(beside[e], beside_lo[e], beside_hi[e]);
+          const int wl = beside_lo[e], wh = beside_hi[e];
           if (wl >= wh) continue;
           if (wl > lo && wl < hi) cut[std::size_t(n++)] = wl;
           if (wh > lo && wh < hi) cut[std::size_t(n++)] = wh;
@@ -684,11 +685,9 @@ class PressureSolver {
         piece.k0 = cut[std::size_t(t)], piece.k1 = cut[std::size_t(t + 1)];
         for (int d = 0; d < Dim - 1; ++d)
           for (int side = 0; side < 2; ++side) {
-            const std::int64_t q = beside(d, side);
-            int wl, wh;
-            window(q, wl, wh);
-            const bool stored = wl <= piece.k0 && piece.k1 <= wh;
-            const std::int64_t offset = (stored ? base_[std::size_t(q)] : zero_base_) - base;
+            const std::size_t e = std::size_t(2 * d + side);
+            const bool stored = beside_lo[e] <= piece.k0 && piece.k1 <= beside_hi[e];
+            const std::int64_t offset = (stored ? base_[std::size_t(beside[e])] : zero_base_) - base;
             (side ? piece.up : piece.down)[std::size_t(d)] = offset;
           }
         piece.up[Dim - 1] = 1;

@@ -334,18 +334,16 @@ class Whitewater {
   /// (pushed out of colliders, clamped to the box). Keeps the order.
   void remove(const Solids<T, Dim>& solids, T t, T margin) {
     auto& P = P_;
-    const Vec& x_lo = x_lo_;
-    const Vec& x_hi = x_hi_;
     std::size_t kept = 0;
     for (std::size_t i = 0; i < P.size(); ++i) {
       Vec& x = P.x[i];
       bool alive = std::isfinite(double(x.sum())) && std::isfinite(double(P.v[i].sum()));
       if (alive && P.type[i] == std::uint8_t(WhitewaterType::Spray)) {
-        alive = (x.array() >= x_lo.array()).all() && (x.array() <= x_hi.array()).all() &&
+        alive = (x.array() >= x_lo_.array()).all() && (x.array() <= x_hi_.array()).all() &&
                 (solids.empty() || solids.distance(x, t) >= T(0));
       } else if (alive) {
         alive = !(P.type[i] == std::uint8_t(WhitewaterType::Foam) && P.life[i] <= T(0));
-        x = solids.empty() ? Vec(x.cwiseMax(x_lo).cwiseMin(x_hi)) : solids.push_out(x, t, x_lo, x_hi, margin);
+        x = solids.empty() ? Vec(x.cwiseMax(x_lo_).cwiseMin(x_hi_)) : solids.push_out(x, t, x_lo_, x_hi_, margin);
       }
       if (!alive) continue;
       if (kept != i) P.move(kept, i);
