@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <limits>
 #include <string>
+#include <utility>
 
 #include "slurry/engine/flip/flip_solver.h"
 #include "slurry/engine/scene/scene.h"
@@ -39,6 +40,20 @@ TEST(FlipSurfaceTension, LaplacePressureInADiskAtRest) {
                      "2D disk, R = 16 dx (Laplace sigma / R)");
 }
 
+// The same disk over 48 s, twelve capillary times sqrt(rho R^3 / sigma): the capillary waves
+// of its seeding keep it moving (inviscid), and the question is whether that motion stays
+// bounded. It did not while the volume correction's share was removed every substep (at the
+// capillary step, 1/23 of an advective one for water at dx = 0.5 mm): its pushes into the sparse
+// cells that the waves leave fed the motion until the drop burst at 45 s (largest speed 1.86 of
+// the capillary speed). With the share removed per advective step the largest speed stays at
+// the seeding's 0.07; by 60 s it has crept up to 0.18 (a slower growth, not yet understood).
+TEST(FlipSurfaceTension, DiskAtRestStaysAtRestForTwelveCapillaryTimes) {
+  const DropRun r = slurry_test::drop_at_rest<2>(16, 48.0);
+  std::printf("[ figure ] 2D disk, R = 16 dx, 48 s: largest speed %.3g of sqrt(sigma / (rho R)), over the last quarter %.3g\n",
+              r.max_speed / r.capillary_speed, r.late_speed / r.capillary_speed);
+  EXPECT_LT(r.max_speed, 0.25 * r.capillary_speed);
+}
+
 TEST(FlipSurfaceTension, LaplacePressureInABallAtRest) {
   check_drop_at_rest(slurry_test::drop_at_rest<3>(8, 1.0), "3D ball, R = 8 dx (Laplace 2 sigma / R)");
 }
@@ -58,6 +73,69 @@ TEST(FlipSurfaceTension, SpuriousCurrentsAroundAViscousDiskAtRest) {
               r.late_speed, ca, r.max_speed, 100 * r.pressure_error());
   EXPECT_LT(ca, 1e-2);  // 3.9e-3 measured
   EXPECT_LT(std::abs(r.pressure_error()), 0.05);
+}
+
+/// A half drop (the upper half of the disk or ball) resting on a wall at `floor`: the domain's
+/// floor (floor = 0) or the top of a box collider under it. The surface meets the wall at
+/// 90 degrees, the contact angle the mirrored stencils impose, so the half drop is at rest: its
+/// largest speed over `seconds` and its largest particle's distance from the centre, relative to
+/// R, are returned.
+template <int Dim>
+std::pair<double, double> half_drop_on_a_wall(int cells_per_radius, double seconds, double floor) {
+  slurry::Scene s = slurry_test::drop_scene<Dim>(cells_per_radius, 1.0);
+  if (floor > 0) {
+    slurry::ColliderParams c;
+    c.shape = slurry::ColliderShape::Box;
+    c.min = Eigen::Vector3d(-1, -1, -1);
+    c.max = Eigen::Vector3d(2, floor, 2);
+    s.colliders = {c};
+  }
+  slurry::flip::FlipSolver<double, Dim> sim(s);
+  auto& P = sim.particles();
+  std::size_t kept = 0;
+  for (std::size_t p = 0; p < P.size(); ++p)
+    if (P.x[p][1] > 0.5) P.move(kept++, p);
+  P.truncate(kept);
+  for (auto& x : P.x) x[1] -= 0.5 - floor;
+  Eigen::Matrix<double, Dim, 1> centre = Eigen::Matrix<double, Dim, 1>::Constant(0.5);
+  centre[1] = floor;
+  double speed = 0, reach = 0;
+  while (sim.time() < seconds - 1e-12) {
+    sim.step(std::min(sim.stable_dt(), 0.05));
+    speed = std::max(speed, double(sim.max_speed()));
+    for (const auto& x : P.x) reach = std::max(reach, (x - centre).norm());
+  }
+  return {speed / std::sqrt(1.0 / (slurry_test::kDropDensity * slurry_test::kDropRadius)), reach / slurry_test::kDropRadius};
+}
+
+// A half drop on a wall stays a half drop. With the wall's cells repeated in the curvature's
+// stencils instead (the normal's wall component even instead of odd), the curvature at the
+// contact line came out a quarter low, and the liquid crept out along the wall.
+TEST(FlipSurfaceTension, HalfDropOnTheFloorStaysAtRest) {
+  const auto [speed, reach] = half_drop_on_a_wall<2>(16, 8.0, 0.0);
+  std::printf("[ figure ] 2D half disk on the domain's floor, R = 16 dx, 8 s: largest speed %.3g of sqrt(sigma / (rho "
+              "R)), farthest particle %.3f R\n",
+              speed, reach);
+  EXPECT_LT(speed, 0.25);
+  EXPECT_LT(reach, 1.1);
+}
+
+TEST(FlipSurfaceTension, HalfDropOnACollidersTopStaysAtRest) {
+  const auto [speed, reach] = half_drop_on_a_wall<2>(16, 8.0, 0.125);
+  std::printf("[ figure ] 2D half disk on a box collider, R = 16 dx, 8 s: largest speed %.3g of sqrt(sigma / (rho R)), "
+              "farthest particle %.3f R\n",
+              speed, reach);
+  EXPECT_LT(speed, 0.25);
+  EXPECT_LT(reach, 1.1);
+}
+
+TEST(FlipSurfaceTension, HalfBallOnTheFloorStaysAtRest) {
+  const auto [speed, reach] = half_drop_on_a_wall<3>(8, 6.0, 0.0);
+  std::printf("[ figure ] 3D half ball on the domain's floor, R = 8 dx, 6 s: largest speed %.3g of sqrt(sigma / (rho "
+              "R)), farthest particle %.3f R\n",
+              speed, reach);
+  EXPECT_LT(speed, 0.25);
+  EXPECT_LT(reach, 1.1);
 }
 
 /// Prints and checks a mode-2 oscillation: at least two half periods, the period within 5% of
