@@ -1,6 +1,6 @@
 // Surface tension at finer grids than CI's flip_surface_tension_tests (label `validation`): the
 // Laplace pressure and Rayleigh's mode-2 period of a disk of 32 cells' radius and a ball of 12,
-// within the same 5%. The period meets it in 2D (2.5%) but not yet in 3D (13%).
+// within the same 5%. The period meets it in 2D (2.7%) but not yet in 3D (12.5%).
 #include <gtest/gtest.h>
 
 #include <cmath>
