@@ -241,6 +241,7 @@ py::dict stats_dict(const slurry::RunStats& s) {
   d["kinetic"] = s.kinetic;
   d["potential"] = s.potential;
   d["elastic"] = s.elastic;
+  d["surface"] = s.surface;
   d["energy"] = s.energy();
   d["volume"] = s.volume;
   d["max_fluid_J_error"] = s.max_fluid_J_error;

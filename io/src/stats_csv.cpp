@@ -20,7 +20,7 @@ std::string g(double v) {
 std::string stats_csv_header(bool error_estimate) {
   return std::string("frame,time,substeps,particles,mass,momentum_x,momentum_y,momentum_z,angular_momentum_x,"
                      "angular_momentum_y,angular_momentum_z,kinetic,potential,elastic,energy,volume,max_fluid_J_error,"
-                     "projected,cfl") +
+                     "projected,cfl,surface") +
          (error_estimate ? ",error_energy,error_centroid" : "");
 }
 
@@ -30,7 +30,7 @@ std::string stats_csv_row(const RunStats& s, bool error_estimate) {
   for (int d = 0; d < 3; ++d) r += "," + g(s.momentum[d]);
   for (int d = 0; d < 3; ++d) r += "," + g(s.angular_momentum[d]);
   r += "," + g(s.kinetic) + "," + g(s.potential) + "," + g(s.elastic) + "," + g(s.energy()) + "," + g(s.volume) +
-       "," + g(s.max_fluid_J_error) + "," + std::to_string(s.projected) + "," + g(s.cfl);
+       "," + g(s.max_fluid_J_error) + "," + std::to_string(s.projected) + "," + g(s.cfl) + "," + g(s.surface);
   if (error_estimate) r += "," + g(s.error_energy) + "," + g(s.error_centroid);
   return r;
 }

@@ -155,6 +155,45 @@ TEST(FlipSurfaceTension, OscillatingBallHasRayleighsPeriod) {
   check_rayleigh(slurry_test::oscillating_drop<3>(8, 0.05, 2), "3D ball, R = 8 dx");
 }
 
+// The surface energy of the run's statistics: sigma times the area (length in 2D) of the drop's
+// surface, from the colour function's total variation, against 2 pi R and 4 pi R^2; a drop in
+// the corner of the domain, a quarter disk or an eighth of a ball against the walls, counts only
+// its free part.
+TEST(FlipSurfaceTension, SurfaceEnergyIsSigmaTimesTheArea) {
+  const auto energy = [](auto& sim) { return sim.take_stats().surface; };
+  {
+    slurry::flip::FlipSolver<double, 2> sim(slurry_test::drop_scene<2>(16, 2.0));
+    const double exact = 2.0 * 2 * M_PI * slurry_test::kDropRadius, got = energy(sim);
+    std::printf("[ figure ] 2D disk, R = 16 dx: surface energy %.5f J/m, sigma 2 pi R %.5f J/m, error %.3f%%\n", got, exact,
+                100 * (got / exact - 1));
+    EXPECT_NEAR(got / exact, 1, 0.015);
+  }
+  {
+    slurry::flip::FlipSolver<double, 3> sim(slurry_test::drop_scene<3>(8, 2.0));
+    const double R = slurry_test::kDropRadius, exact = 2.0 * 4 * M_PI * R * R, got = energy(sim);
+    std::printf("[ figure ] 3D ball, R = 8 dx: surface energy %.5f J, sigma 4 pi R^2 %.5f J, error %.3f%%\n", got, exact,
+                100 * (got / exact - 1));
+    EXPECT_NEAR(got / exact, 1, 0.03);
+  }
+  {
+    slurry::Scene s = slurry_test::drop_scene<2>(16, 2.0);
+    s.bodies[0].shape = slurry::Shape::Box;  // the corner's square, cut to the quarter disk below
+    s.bodies[0].min = Eigen::Vector3d(0, 0, 0);
+    s.bodies[0].max = Eigen::Vector3d(0.5, 0.5, 0);
+    slurry::flip::FlipSolver<double, 2> sim(s);
+    auto& P = sim.particles();
+    std::size_t kept = 0;
+    for (std::size_t p = 0; p < P.size(); ++p)
+      if (P.x[p].norm() < 0.5) P.move(kept++, p);
+    P.truncate(kept);
+    const double exact = 2.0 * 2 * M_PI * 0.5 / 4, got = energy(sim);
+    std::printf("[ figure ] 2D quarter disk in the corner, R = 32 dx: surface energy %.5f J/m, sigma pi R / 2 %.5f J/m, error "
+                "%.3f%%\n",
+                got, exact, 100 * (got / exact - 1));
+    EXPECT_NEAR(got / exact, 1, 0.03);
+  }
+}
+
 // Without surface tension the disk neither holds a pressure nor oscillates: the checks above
 // see the surface tension, not something else.
 TEST(FlipSurfaceTension, WithoutSurfaceTensionTheDiskHasNoLaplacePressure) {

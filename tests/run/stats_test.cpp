@@ -67,6 +67,10 @@ TEST(DriftWarnings, NameTheFrameAndOnlyReportWhatIsBeyondTheTolerance) {
   EXPECT_NE(w[1].find("energy grew by 6%"), std::string::npos) << w[1];
   tol.check_energy = false;  // emitters or moving colliders
   EXPECT_EQ(slurry::drift_warnings(first, now, tol, 10.0).size(), 1u);
+  tol.check_energy = true;
+  now.surface = first.surface - 0.6;  // surface energy turned into motion (drops merging)
+  EXPECT_EQ(slurry::drift_warnings(first, now, tol, 10.0).size(), 1u);
+  now.surface = first.surface;
 }
 
 // A 2D elastic block in free fall (no contact within the run): stats.csv has a row per frame,

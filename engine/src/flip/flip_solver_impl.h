@@ -624,6 +624,7 @@ RunStats FlipSolver<T, Dim>::take_stats() {
   }
   const double cell = std::pow(double(grid_.dx), Dim);
   s.volume = double(particles_.size()) * (interior > 0 ? cell * double(interior) / double(held) : double(particle_volume_));
+  if (sigma_ > T(0)) s.surface = double(sigma_) * surface_tension_.area(grid_, particles_, std::pow(grid_.dx, T(Dim)) / particle_volume_);
   s.cfl = double(cfl_reached_);
   cfl_reached_ = 0;
   return s;

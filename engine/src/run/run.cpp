@@ -208,6 +208,7 @@ void checkpoint_payload(const RunSection& run, const Solver& sim, const Solver::
   w.pod(std::int32_t(run.drift_warnings));
   w.pod(run.largest_cfl);
   w.pod(std::int32_t(run.last_frame));
+  w.pod(run.first.surface);
   detail::StateWriter(sink).text(section);
   sim.save_state(sink);
 }
@@ -227,6 +228,7 @@ RunSection parse_payload(const detail::Checkpoint& c, std::string_view& state) {
   run.drift_warnings = r.get<std::int32_t>();
   r.pod(run.largest_cfl);
   if (!r.done()) run.last_frame = r.get<std::int32_t>();  // absent from checkpoints of older versions
+  if (!r.done()) r.pod(run.first.surface);                 // likewise
   r.finish();
   if (run.frame != c.frame) r.fail("the run section names frame " + std::to_string(run.frame));
   return run;
@@ -312,8 +314,8 @@ DriftTolerances drift_tolerances(const Scene& scene) {
   return tol;
 }
 
-/// The energy the scene can release: its kinetic energy plus its mass falling the domain's
-/// extent along gravity (the denominator of the energy-growth warning).
+/// The energy the scene can release: its kinetic and surface energy plus its mass falling the
+/// domain's extent along gravity (the denominator of the energy-growth warning).
 double energy_scale_of(const Scene& scene, const RunStats& first) {
   const Eigen::Vector3d g = scene.solver.gravity;
   const int dim = scene.solver.dimension;
@@ -321,7 +323,7 @@ double energy_scale_of(const Scene& scene, const RunStats& first) {
   if (g.head(dim).norm() > 0)
     for (int d = 0; d < dim; ++d)
       H += std::abs(scene.domain.max[d] - scene.domain.min[d]) * std::abs(g[d]) / g.head(dim).norm();
-  return first.kinetic + first.mass * g.head(dim).norm() * H;
+  return first.kinetic + first.surface + first.mass * g.head(dim).norm() * H;
 }
 
 /// Continues from the newest checkpoint in `dir` that reads, fits this solver and was written for

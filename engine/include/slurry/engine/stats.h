@@ -12,6 +12,8 @@
 ///   kinetic            sum m_p |v_p|^2 / 2
 ///   potential          -sum m_p g . x_p (zero where x . g = 0)
 ///   elastic            sum V_p^0 psi(F_p) (MPM solids, FEM elements; 0 for liquids)
+///   surface            sigma x the free surface's area (length in 2D): FLIP with surface
+///                      tension (SurfaceTension::area); 0 otherwise
 ///   volume             MPM: sum V_p^0 J_p; FLIP: the particle count x dx^Dim / the mean
 ///                      particle count of the interior cells (those whose 3^Dim neighbourhood all
 ///                      holds particles), or x the seeding volume where there is no such cell;
@@ -38,6 +40,7 @@ struct RunStats {
   double kinetic = 0;
   double potential = 0;
   double elastic = 0;
+  double surface = 0;
   double volume = 0;
   double max_fluid_J_error = 0;
   std::int64_t projected = 0;
@@ -47,17 +50,17 @@ struct RunStats {
   double error_energy = std::numeric_limits<double>::quiet_NaN();
   double error_centroid = std::numeric_limits<double>::quiet_NaN();
 
-  /// kinetic + potential + elastic.
-  double energy() const { return kinetic + potential + elastic; }
+  /// kinetic + potential + elastic + surface.
+  double energy() const { return kinetic + potential + elastic + surface; }
 };
 
 /// Tolerances of the drift warnings (the scene's output block).
 struct DriftTolerances {
   double mass = 1e-4;    ///< relative change of the total mass
   double volume = 0.1;   ///< relative change of the volume
-  /// Growth of kinetic + potential + elastic energy beyond its starting value, relative to
-  /// the initial kinetic energy plus the largest potential energy drop the domain allows
-  /// (m g H). Dissipation (a decrease) is never reported.
+  /// Growth of kinetic + potential + elastic + surface energy beyond its starting value,
+  /// relative to the initial kinetic and surface energy plus the largest potential energy drop
+  /// the domain allows (m g H). Dissipation (a decrease) is never reported.
   double energy = 0.05;
   /// Energy is not checked when emitters or moving colliders add energy (their work is not
   /// tracked).
