@@ -334,10 +334,11 @@ void FlipSolver<T, Dim>::project(T dt) {
   // in the hydrostatic test without the band, 0.0175 m/s with 0.1, at rest from 0.2 on).
   constexpr T kSlack = T(0.3);
   // The share beta is removed per advective step (max_dt or the CFL step), not per substep:
-  // where the capillary limit makes the substep shorter (surface tension: 50 substeps per 1/240
-  // s frame for water at dx = 0.5 mm), removing it every substep pushed particles at up to
-  // 0.5 dx per substep into the sparse cells that the liquid's capillary waves leave, kicks
-  // that a drop at rest took up as energy until it burst.
+  // where the capillary limit makes the substep shorter (surface tension: 23 substeps per
+  // max_dt of 1/240 s for water at dx = 0.5 mm), removing it every substep moved up to a
+  // quarter of a cell's volume per substep into the sparse cells that the liquid's capillary
+  // waves leave, kicks that a drop at rest took up as energy until it burst (a 2D disk at 45 s,
+  // flip_surface_tension_tests).
   double relax = double(dt);
   if (sigma_ > T(0)) {
     T advective = T(scene_.solver.max_dt);

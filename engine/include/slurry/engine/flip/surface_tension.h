@@ -59,9 +59,9 @@
 /// waves leave behind it changes the velocities of the few particles there by as much as it
 /// changes those of full cells, which the particles take up as energy. A 3 mm water drop at
 /// dx = 0.5 mm (6 cells across its radius) had 2.3e-10 J of kinetic energy at 0.1 s and 9.2e-7 J
-/// at 0.3 s (16 capillary times); at 16 cells across the radius in 2D the largest speed stays bounded to 12 capillary
-/// times and has grown to 0.18 of the capillary speed by 15. The run's statistics count the
-/// surface energy sigma * area() (RunStats::surface).
+/// at 0.3 s (16 capillary times); at 16 cells across the radius in 2D the largest speed stays
+/// bounded for 12 capillary times and has grown to 0.18 of the capillary speed by 15. The run's
+/// statistics count the surface energy sigma * area() (RunStats::surface).
 ///
 /// Cost: only where the scene has surface tension (sigma > 0): a dozen passes over the cells
 /// and one over the particles near the surface per substep.
@@ -208,7 +208,8 @@ class SurfaceTension {
   /// liquid wetting a wall adds no area (at 90 degrees the wall's energy with liquid and with air
   /// are the same). Measured on lattice-seeded drops: -0.17% against 2 pi R at 16 cells across
   /// the radius (2D), -2.5% against 4 pi R^2 at 8 (3D), +0.03% against pi R / 2 for a quarter disk
-  /// of 32 cells in the domain's corner (flip_surface_tension_tests).
+  /// of 32 cells in the domain's corner (flip_surface_tension_tests). Overwrites colour() with
+  /// the whole grid's colour function (compute() sets it again).
   double area(const Grid& g, const FlipParticles<T, Dim>& P, T bulk) {
     const std::int64_t n = g.num_cells();
     colour_.assign(std::size_t(n), T(0));
