@@ -625,7 +625,19 @@ RunStats FlipSolver<T, Dim>::take_stats() {
   }
   const double cell = std::pow(double(grid_.dx), Dim);
   s.volume = double(particles_.size()) * (interior > 0 ? cell * double(interior) / double(held) : double(particle_volume_));
-  if (sigma_ > T(0)) s.surface = double(sigma_) * surface_tension_.area(grid_, particles_, std::pow(grid_.dx, T(Dim)) / particle_volume_);
+  if (sigma_ > T(0)) {
+    // Before the first substep no cell is labelled yet: the colliders' cells are marked Solid for
+    // the area's mirrors (else the liquid's contact with them counts as surface), then the
+    // labels are put back.
+    std::vector<std::uint8_t> labels;
+    if (steps_ == 0 && !solids_.empty()) {
+      labels = grid_.label;
+      for (std::int64_t k = 0; k < grid_.num_cells(); ++k)
+        grid_.label[std::size_t(k)] = solids_.distance(grid_.cell_center(grid_.cell_coord(k)), T(time_)) < T(0) ? Grid::Solid : Grid::Air;
+    }
+    s.surface = double(sigma_) * surface_tension_.area(grid_, particles_, std::pow(grid_.dx, T(Dim)) / particle_volume_);
+    if (!labels.empty()) grid_.label.swap(labels);
+  }
   s.cfl = double(cfl_reached_);
   cfl_reached_ = 0;
   return s;

@@ -169,16 +169,7 @@ class SurfaceTension {
       });
       colour_[std::size_t(k)] = wsum;
     });
-    for (int pass = 0; pass < kSmoothing; ++pass)
-      for (int d = 0; d < Dim; ++d) {
-        parallel::parallel_for(0, n, [&](std::int64_t k) {
-          if (!band_[std::size_t(k)]) return;
-          const IVec i = g.cell_coord(k);
-          smoothed_[std::size_t(k)] = T(0.25) * (even(g, colour_, k, i, d, 1) + even(g, colour_, k, i, d, -1)) +
-                                      T(0.5) * colour_[std::size_t(k)];
-        });
-        colour_.swap(smoothed_);
-      }
+    smooth_colour(g);
     // 4. Unit normals -grad c / |grad c| in the inner band (central differences).
     normal_.assign(std::size_t(n), Vec::Zero());
     parallel::parallel_for(0, n, [&](std::int64_t k) {
@@ -256,16 +247,7 @@ class SurfaceTension {
     dilate(g, surface_, band_, kSumReach + kSmoothing);
     dilate(g, surface_, normal_band_, kSumReach);
     smoothed_ = colour_;  // outside the band both keep the raw colour
-    for (int pass = 0; pass < kSmoothing; ++pass)
-      for (int d = 0; d < Dim; ++d) {
-        parallel::parallel_for(0, n, [&](std::int64_t k) {
-          if (!band_[std::size_t(k)]) return;
-          const IVec i = g.cell_coord(k);
-          smoothed_[std::size_t(k)] = T(0.25) * (even(g, colour_, k, i, d, 1) + even(g, colour_, k, i, d, -1)) +
-                                      T(0.5) * colour_[std::size_t(k)];
-        });
-        colour_.swap(smoothed_);
-      }
+    smooth_colour(g);
     const double variation = parallel::parallel_sum<double>(0, n, 4096, [&](std::int64_t lo, std::int64_t hi) {
       double sum = 0;
       for (std::int64_t k = lo; k < hi; ++k) {
@@ -303,6 +285,21 @@ class SurfaceTension {
         for (int b = lo[1]; b <= hi[1]; ++b)
           for (int c = lo[2]; c <= hi[2]; ++c) f((std::int64_t(a) * g.res[1] + b) * g.res[2] + c);
     }
+  }
+
+  /// kSmoothing passes of the [1 2 1] / 4 filter along every axis over colour_ in the band_
+  /// cells (walls mirrored); smoothed_ holds what the cells outside the band keep.
+  void smooth_colour(const Grid& g) {
+    for (int pass = 0; pass < kSmoothing; ++pass)
+      for (int d = 0; d < Dim; ++d) {
+        parallel::parallel_for(0, g.num_cells(), [&](std::int64_t k) {
+          if (!band_[std::size_t(k)]) return;
+          const IVec i = g.cell_coord(k);
+          smoothed_[std::size_t(k)] = T(0.25) * (even(g, colour_, k, i, d, 1) + even(g, colour_, k, i, d, -1)) +
+                                      T(0.5) * colour_[std::size_t(k)];
+        });
+        colour_.swap(smoothed_);
+      }
   }
 
   /// The neighbour of cell k (coordinates i) one step along axis a in direction dir (+1 or -1),
