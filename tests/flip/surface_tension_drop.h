@@ -48,6 +48,39 @@ slurry::Scene drop_scene(int cells_per_radius, double sigma, double mu = 0) {
   return s;
 }
 
+/// Keeps, in their order, the particles of P whose position x satisfies inside(x).
+template <class Particles, class Inside>
+void keep_particles(Particles& P, Inside&& inside) {
+  std::size_t kept = 0;
+  for (std::size_t p = 0; p < P.size(); ++p)
+    if (inside(P.x[p])) P.move(kept++, p);
+  P.truncate(kept);
+}
+
+/// The drop's scene with a box collider filling the domain below y = floor (none for floor 0:
+/// the domain's floor is the wall).
+template <int Dim>
+slurry::Scene drop_on_a_wall_scene(int cells_per_radius, double sigma, double floor) {
+  slurry::Scene s = drop_scene<Dim>(cells_per_radius, sigma);
+  if (floor > 0) {
+    slurry::ColliderParams c;
+    c.shape = slurry::ColliderShape::Box;
+    c.min = Eigen::Vector3d(-1, -1, -1);
+    c.max = Eigen::Vector3d(2, floor, 2);
+    s.colliders = {c};
+  }
+  return s;
+}
+
+/// Cuts the drop of `sim` to its upper half and lowers that onto the wall at y = floor: a half
+/// drop of radius R centred on (0.5, floor[, 0.5]).
+template <class Sim>
+void half_drop_on_the_wall(Sim& sim, double floor) {
+  auto& P = sim.particles();
+  keep_particles(P, [](const auto& x) { return x[1] > 0.5; });
+  for (auto& x : P.x) x[1] -= 0.5 - floor;
+}
+
 /// What a drop at rest did.
 struct DropRun {
   double mean_pressure = 0;    ///< over the fluid cells more than 3 dx inside the drop (Pa)
@@ -116,10 +149,7 @@ Oscillation oscillating_drop(int cells_per_radius, double eps, int half_periods,
   Vec semi_axes = Vec::Constant(kDropRadius * (Dim == 3 ? 1 / std::sqrt(1 + eps) : 1 / (1 + eps)));
   semi_axes[Dim == 3 ? 2 : 0] = kDropRadius * (1 + eps);
   auto& P = sim.particles();
-  std::size_t kept = 0;
-  for (std::size_t p = 0; p < P.size(); ++p)
-    if ((P.x[p] - centre).cwiseQuotient(semi_axes).squaredNorm() <= 1) P.move(kept++, p);
-  P.truncate(kept);
+  keep_particles(P, [&](const Vec& x) { return (x - centre).cwiseQuotient(semi_axes).squaredNorm() <= 1; });
   const auto moment = [&] {
     Vec mean = Vec::Zero();
     for (const auto& x : P.x) mean += x;

@@ -149,9 +149,15 @@ std::size_t FlipSolver<T, Dim>::bytes() const {
 }
 
 template <class T, int Dim>
-T FlipSolver<T, Dim>::stable_dt() const {
+T FlipSolver<T, Dim>::advective_dt() const {
   T dt = T(scene_.solver.max_dt);
   if (max_speed_ > T(0)) dt = std::min(dt, T(scene_.solver.cfl) * grid_.dx / max_speed_);
+  return dt;
+}
+
+template <class T, int Dim>
+T FlipSolver<T, Dim>::stable_dt() const {
+  T dt = advective_dt();
   if (sigma_ > T(0)) dt = std::min(dt, SurfaceTension<T, Dim>::max_dt(grid_.dx, density(), sigma_));
   return dt;
 }
@@ -328,7 +334,7 @@ void FlipSolver<T, Dim>::project(T dt) {
   // the one pressure solve as a divergence source). The error is clamped to [-0.5, 0.5]. In
   // surface cells (an air neighbour; under-filled by construction) only over-density counts,
   // and wall faces (closed, particles on one side only) are left out of the mean.
-  const T ppc = std::pow(grid_.dx, T(Dim)) / particle_volume_;
+  const T ppc = particles_per_cell();
   // Dead band: |rho_c - 1| up to 0.3 is left alone. The estimate is noisy (jittered seeding,
   // few particles per face), and correcting that noise stirs a pool at rest (0.28 m/s after 2 s
   // in the hydrostatic test without the band, 0.0175 m/s with 0.1, at rest from 0.2 on).
@@ -339,12 +345,7 @@ void FlipSolver<T, Dim>::project(T dt) {
   // quarter of a cell's volume per substep into the sparse cells that the liquid's capillary
   // waves leave, kicks that a drop at rest took up as energy until it burst (a 2D disk at 45 s,
   // flip_surface_tension_tests).
-  double relax = double(dt);
-  if (sigma_ > T(0)) {
-    T advective = T(scene_.solver.max_dt);
-    if (max_speed_ > T(0)) advective = std::min(advective, T(scene_.solver.cfl) * grid_.dx / max_speed_);
-    relax = std::max(relax, double(advective));
-  }
+  const double relax = sigma_ > T(0) ? std::max(double(dt), double(advective_dt())) : double(dt);
   const double flux_per_error = beta * double(grid_.dx) / relax;  // dx div u per unit density error
   // Evaluated by the projection at its unknowns (Fluid cells) only.
   std::int64_t cstride[Dim], fup[Dim];
@@ -635,7 +636,7 @@ RunStats FlipSolver<T, Dim>::take_stats() {
       for (std::int64_t k = 0; k < grid_.num_cells(); ++k)
         grid_.label[std::size_t(k)] = solids_.distance(grid_.cell_center(grid_.cell_coord(k)), T(time_)) < T(0) ? Grid::Solid : Grid::Air;
     }
-    s.surface = double(sigma_) * surface_tension_.area(grid_, particles_, std::pow(grid_.dx, T(Dim)) / particle_volume_);
+    s.surface = double(sigma_) * surface_tension_.area(grid_, particles_, particles_per_cell());
     if (!labels.empty()) grid_.label.swap(labels);
   }
   s.cfl = double(cfl_reached_);

@@ -42,6 +42,7 @@
 /// summation order: frames are bitwise identical for any thread count.
 #include <Eigen/Core>
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <memory>
 #include <random>
@@ -83,8 +84,11 @@ class FlipSolver final : public Solver {
   /// Validates the scene (solver.type "flip") and seeds its bodies.
   explicit FlipSolver(const Scene& scene);
 
-  /// The substep the CFL condition allows now (not clipped to a frame boundary).
+  /// The substep the CFL condition allows now (not clipped to a frame boundary): advective_dt(),
+  /// and with surface tension at most the capillary limit.
   T stable_dt() const;
+  /// solver.max_dt, or the CFL step cfl dx / max speed where that is shorter.
+  T advective_dt() const;
   /// One substep of length dt. Throws SimulationError on a non-finite state.
   void step(T dt);
 
@@ -120,6 +124,8 @@ class FlipSolver final : public Solver {
   T max_speed() const { return max_speed_; }
   /// Particle volume dx^Dim / particles_per_cell (the nominal seeding density).
   T particle_volume() const { return particle_volume_; }
+  /// dx^Dim / particle_volume(): the particles per cell of the seeding.
+  T particles_per_cell() const { return std::pow(grid_.dx, T(Dim)) / particle_volume_; }
   /// Liquid density (kg/m^3).
   T density() const { return T(scene_.materials[0].density); }
   /// sum_p m |v_p|^2 / 2 with m = density * particle_volume.
