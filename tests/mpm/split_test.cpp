@@ -98,7 +98,7 @@ std::string by_id(const Particles<T, Dim>& P) {
 }
 
 // A rank holds its particles in an order of its own (arrivals from the neighbours are appended,
-// ghosts come and go); its bins order them by id, so the substeps it takes are those of one
+// leavers removed); its bins order them by id, so the substeps it takes are those of one
 // process. Here: the storage shuffled mid-run, then the same steps, bitwise the same particles.
 TEST(StorageOrder, ShufflingTheParticlesChangesNoBit) {
   for (const int dim : {2, 3}) {

@@ -1,15 +1,11 @@
 // MpmSolver<T, Dim>, part of its definition (mpm_solver_impl.h includes the parts in order).
 // The domain split over MPI ranks (mpm_solver.h, "Runs split over processes"): slab borders from
-// particle counts, migrating particles to the rank that owns their slab, ghost particles within
-// a kernel's reach of a border, gathering every particle for frames and checkpoints.
+// particle counts, migrating particles to the rank that owns their slab, the grid halo (the
+// border node layers' partial sums swapped with the neighbours), gathering every particle for
+// frames and checkpoints.
 #pragma once
 
 namespace slurry {
-
-template <class T, int Dim>
-bool MpmSolver<T, Dim>::owned_block(const Eigen::Matrix<int, Dim, 1>& block) const {
-  return !split_ || (block[split_->axis] >= split_->lo && block[split_->axis] < split_->hi);
-}
 
 template <class T, int Dim>
 bool MpmSolver<T, Dim>::set_borders(const std::vector<double>& counts) {
@@ -48,7 +44,6 @@ void MpmSolver<T, Dim>::split_particles() {
     drop[p] = c < S.lo || c >= S.hi;
   }
   detail::drop_particles(particles_, drop);
-  S.owned = particles_.size();
 }
 
 template <class T, int Dim>
@@ -87,27 +82,192 @@ void MpmSolver<T, Dim>::migrate() {
     S.comm->max(&stray, 1);
     if (stray == 0) break;
   }
-  S.owned = P.size();
+}
+
+// The grid halo. A block's patch (blocks.h) covers its own nodes and the first Order node
+// layers of the next block along each axis, so along the split axis the nodes of the layers
+// [size c, size c + Order) at the border column c = hi of rank r (= lo of rank r + 1) receive the
+// contributions of columns c - 1 (rank r) and c (rank r + 1), and no others; every other node a
+// rank's particles reach is summed from its own patches alone. One process adds the patches into
+// a node colour after colour (a node takes at most one patch per colour), starting from zero.
+// Each of the two ranks keeps its border blocks' patch nodes in those layers, sends them to the
+// other, and adds its own and the received ones for every layer node again from zero in colour
+// order: the same additions in the same order, so the node holds the one-process sum bit for bit
+// on both ranks, which then update it alike. What crosses a border per substep is Order node
+// layers of the occupied border blocks (4 values a node), against the particles of a whole block
+// column that ghost copies would take.
+
+namespace detail {
+
+/// Calls fn(patch-local node index, patch-local coordinates) for the nodes of a patch whose
+/// coordinate along `axis` lies in [from, from + Order), in index order.
+template <class T, int Dim, int Order, class Fn>
+void for_each_layer_node(int axis, int from, Fn&& fn) {
+  using P = transfer::Patch<T, Dim, Order>;
+  Eigen::Matrix<int, Dim, 1> l;
+  for (int k = 0; k < P::count; ++k) {
+    int r = k;
+    for (int d = Dim - 1; d >= 0; --d) l[d] = r % P::extent, r /= P::extent;
+    if (l[axis] >= from && l[axis] < from + Order) fn(k, l);
+  }
+}
+
+}  // namespace detail
+
+template <class T, int Dim>
+template <int Order>
+void MpmSolver<T, Dim>::prepare_halo() {
+  auto& S = *split_;
+  const int rank = S.comm->rank(), ranks = S.comm->size();
+  constexpr int extent = transfer::Patch<T, Dim, Order>::extent;
+  int slice = Order;
+  for (int d = 1; d < Dim; ++d) slice *= extent;
+  const std::size_t groups = bins_.groups();
+  for (int side = 0; side < 2; ++side) {
+    auto& B = S.border[side];
+    auto& slot = S.slot[side];
+    B.blocks.clear();
+    slot.assign(groups, -1);
+    const bool shared = side == 0 ? rank > 0 : rank + 1 < ranks;
+    const int column = side == 0 ? S.lo : S.hi - 1;
+    for (std::size_t g = 0; shared && g < groups; ++g) {
+      const auto& block = bins_.bins()[bins_.group_begin(g)].block;
+      if (block[S.axis] != column) continue;
+      slot[g] = std::int32_t(B.blocks.size());
+      B.blocks.push_back(block);
+    }
+    B.nodes.resize(B.blocks.size() * std::size_t(slice));
+  }
 }
 
 template <class T, int Dim>
-void MpmSolver<T, Dim>::add_ghosts() {
+template <int Order>
+void MpmSolver<T, Dim>::keep_halo_slices(std::size_t group, const transfer::Patch<T, Dim, Order>& patch) {
   auto& S = *split_;
-  auto& P = particles_;
-  const int rank = S.comm->rank(), ranks = S.comm->size();
-  S.owned = P.size();
-  std::vector<std::uint32_t> down, up;
-  for (std::size_t p = 0; p < P.size(); ++p) {
-    const int c = column(P.x[p]);
-    if (rank > 0 && c == S.lo) down.push_back(std::uint32_t(p));
-    if (rank + 1 < ranks && c == S.hi - 1) up.push_back(std::uint32_t(p));
+  constexpr int extent = transfer::Patch<T, Dim, Order>::extent;
+  int slice = Order;
+  for (int d = 1; d < Dim; ++d) slice *= extent;
+  for (int side = 0; side < 2; ++side) {
+    const std::int32_t s = S.slot[side][group];
+    if (s < 0) continue;
+    auto* out = S.border[side].nodes.data() + std::size_t(s) * std::size_t(slice);
+    // The lower border's layers are the patch's first Order along the axis; the upper border's
+    // are those past the block (the next column's first).
+    detail::for_each_layer_node<T, Dim, Order>(S.axis, side == 0 ? 0 : transfer::BlockShape<Dim>::size,
+                                               [&](int k, const auto&) { *out++ = patch.nodes[std::size_t(k)]; });
   }
-  std::string to_lower, to_upper;
-  if (!down.empty()) detail::pack_particles(P, down, to_lower);
-  if (!up.empty()) detail::pack_particles(P, up, to_upper);
+}
+
+template <class T, int Dim>
+template <int Order, class G>
+void MpmSolver<T, Dim>::exchange_halo(G& grid) {
+  using Node = transfer::GridNode<T, Dim>;
+  using IVec = Eigen::Matrix<int, Dim, 1>;
+  auto& S = *split_;
+  constexpr int size = transfer::BlockShape<Dim>::size, extent = transfer::Patch<T, Dim, Order>::extent;
+  int slice = Order;
+  for (int d = 1; d < Dim; ++d) slice *= extent;
+  // A message: the count of slices, then per slice its block (Dim int32) and its nodes.
+  auto pack = [&](const typename Split::Border& B) {
+    std::string out;
+    if (B.blocks.empty()) return out;
+    const std::uint64_t n = B.blocks.size();
+    out.reserve(sizeof n + n * (Dim * sizeof(std::int32_t) + std::size_t(slice) * sizeof(Node)));
+    out.append(reinterpret_cast<const char*>(&n), sizeof n);
+    for (std::size_t b = 0; b < n; ++b) {
+      std::int32_t c[Dim];
+      for (int d = 0; d < Dim; ++d) c[d] = B.blocks[b][d];
+      out.append(reinterpret_cast<const char*>(c), sizeof c);
+      out.append(reinterpret_cast<const char*>(B.nodes.data() + b * std::size_t(slice)), std::size_t(slice) * sizeof(Node));
+    }
+    return out;
+  };
+  std::string to_lower = pack(S.border[0]), to_upper = pack(S.border[1]);
+  S.halo_bytes += to_lower.size() + to_upper.size();
   const auto [from_lower, from_upper] = S.comm->exchange(to_lower, to_upper);
-  detail::unpack_particles(from_lower, P);
-  detail::unpack_particles(from_upper, P);
+  const IVec res = grid.res();
+  for (int side = 0; side < 2; ++side) {
+    auto& B = S.border[side];
+    if (B.blocks.empty()) continue;  // no node of this border's layers is read here
+    const std::string& in = side == 0 ? from_lower : from_upper;
+    // The slices of both ranks: (colour, block, nodes, this rank's).
+    struct Slice {
+      int colour;
+      IVec block;
+      const Node* nodes;
+      bool own;
+    };
+    std::vector<Slice> slices;
+    auto colour = [](const IVec& b) {
+      int c = 0;
+      for (int d = 0; d < Dim; ++d) c = 2 * c + (b[d] & 1);
+      return c;
+    };
+    for (std::size_t b = 0; b < B.blocks.size(); ++b)
+      slices.push_back({colour(B.blocks[b]), B.blocks[b], B.nodes.data() + b * std::size_t(slice), true});
+    std::vector<Node> received;
+    if (!in.empty()) {
+      std::uint64_t n = 0;
+      const std::size_t each = Dim * sizeof(std::int32_t) + std::size_t(slice) * sizeof(Node);
+      if (in.size() < sizeof n) throw SimulationError("a message of grid nodes from another rank is truncated");
+      std::memcpy(&n, in.data(), sizeof n);
+      if (in.size() != sizeof n + n * each)
+        throw SimulationError("a message of grid nodes from another rank has " + std::to_string(in.size()) +
+                              " bytes; expected " + std::to_string(sizeof n + n * each));
+      received.resize(n * std::size_t(slice));
+      for (std::size_t b = 0; b < n; ++b) {
+        const char* at = in.data() + sizeof n + b * each;
+        std::int32_t c[Dim];
+        std::memcpy(c, at, sizeof c);
+        IVec block;
+        for (int d = 0; d < Dim; ++d) block[d] = c[d];
+        std::memcpy(static_cast<void*>(received.data() + b * std::size_t(slice)), at + sizeof c, std::size_t(slice) * sizeof(Node));
+        slices.push_back({colour(block), block, received.data() + b * std::size_t(slice), false});
+      }
+    }
+    std::stable_sort(slices.begin(), slices.end(), [](const Slice& a, const Slice& b) { return a.colour < b.colour; });
+    // The layers: Order nodes along the axis from `first`, every node across.
+    const int first = size * (side == 0 ? S.lo : S.hi);
+    IVec dims = res;
+    dims[S.axis] = Order;
+    std::int64_t count = 1;
+    for (int d = 0; d < Dim; ++d) count *= dims[d];
+    B.sum.assign(std::size_t(count), Node::Zero());
+    B.read.assign(std::size_t(count), 0);
+    auto layer_index = [&](IVec i) {
+      i[S.axis] -= first;
+      std::int64_t k = 0;
+      for (int d = 0; d < Dim; ++d) k = k * dims[d] + i[d];
+      return k;
+    };
+    for (const auto& sl : slices) {
+      // A slice of the lower neighbour's column or this rank's upper column starts past its block.
+      const int from = sl.block[S.axis] * size == first ? 0 : size;
+      const IVec corner = sl.block * size;
+      const Node* v = sl.nodes;
+      detail::for_each_layer_node<T, Dim, Order>(S.axis, from, [&](int, const IVec& l) {
+        const IVec i = corner + l;
+        const Node& value = *v++;
+        if ((i.array() >= res.array()).any()) return;
+        const std::int64_t k = layer_index(i);
+        B.sum[std::size_t(k)] += value;
+        if (sl.own) B.read[std::size_t(k)] = 1;
+      });
+    }
+    // The nodes this rank's patches reach take the sums; the others are not read here.
+    for (std::int64_t k = 0; k < count; ++k) {
+      if (!B.read[std::size_t(k)]) continue;
+      IVec i;
+      std::int64_t r = k;
+      for (int d = Dim - 1; d >= 0; --d) i[d] = int(r % dims[d]), r /= dims[d];
+      i[S.axis] += first;
+      if constexpr (std::is_same_v<G, DenseGrid>) {
+        grid.node(grid.index(i)) = B.sum[std::size_t(k)];
+      } else {
+        *grid.find(i) = B.sum[std::size_t(k)];
+      }
+    }
+  }
 }
 
 template <class T, int Dim>

@@ -3,12 +3,8 @@
 // counts, and whole particles packed into bytes for another rank and unpacked there.
 //
 // A rank owns the particles whose stencil base node lies in its slab of grid-block columns
-// (blocks.h) along the split axis. A block's patch reaches one block further along each axis,
-// so the nodes an owned particle reads receive contributions from the owned columns and one
-// column on either side only: a rank that also holds copies of its neighbours' border columns
-// (ghosts) sums every node it reads from exactly the particles a single process would, in the
-// same order (bins ordered by persistent id, colours in the same order), and its owned
-// particles take the same step bit for bit.
+// (blocks.h) along the split axis; the grid halo that joins the slabs' node sums is in
+// distribution.h.
 #include <algorithm>
 #include <cstdint>
 #include <cstring>

@@ -135,11 +135,22 @@ struct MpmSolver<T, Dim>::Split {
   int axis = 0;            ///< the split axis: the block lattice's longest
   std::vector<int> cuts;   ///< rank r owns block columns [cuts[r], cuts[r + 1]) along `axis`
   int lo = 0, hi = 0;      ///< this rank's columns
-  std::size_t owned = 0;   ///< particles [0, owned) are this rank's; a substep's ghosts follow them
   std::size_t total = 0;   ///< particles of all ranks (MPM keeps every particle)
   double fewest = 0, most = 0;  ///< particles of the emptiest and the fullest rank at the last rebalance
   double bytes_per_substep = 0;  ///< this rank's halo and migration bytes per substep over the last advance_to
+  double halo_bytes_per_substep = 0;  ///< of which the grid halo's
+  std::uint64_t halo_bytes = 0;       ///< grid halo bytes this rank has sent
   Particles<T, Dim> gathered;    ///< rank 0: every particle, as of the last frame()
+  /// The grid halo (distribution.h): at each border shared with a neighbour ([0] the lower,
+  /// [1] the upper), this rank's occupied blocks of the border column and their patches' nodes
+  /// in the border's node layers, slice after slice; slot[g] is group g's slice (-1: none).
+  struct Border {
+    std::vector<Eigen::Matrix<int, Dim, 1>> blocks;
+    std::vector<transfer::GridNode<T, Dim>> nodes;
+    std::vector<transfer::GridNode<T, Dim>> sum;  ///< scratch: the layers' nodes summed in colour order
+    std::vector<std::uint8_t> read;               ///< scratch: layer nodes this rank's patches reach
+  } border[2];
+  std::vector<std::int32_t> slot[2];
 };
 
 template <class T, int Dim>
@@ -349,9 +360,18 @@ std::int64_t MpmSolver<T, Dim>::advance_to(double t_end) {
   auto& S = *split_;
   const std::uint64_t sent = S.comm->exchanged_bytes();
   rebalance();
+  const std::uint64_t halo = S.halo_bytes;
   const auto n = substep_to(time_, t_end, [&] { return dt_scale_ * double(stable_dt()); }, [&](double dt) { step(T(dt)); }, scene_);
-  if (n > 0) S.bytes_per_substep = double(S.comm->exchanged_bytes() - sent) / double(n);
+  if (n > 0) {
+    S.bytes_per_substep = double(S.comm->exchanged_bytes() - sent) / double(n);
+    S.halo_bytes_per_substep = double(S.halo_bytes - halo) / double(n);
+  }
   return n;
+}
+
+template <class T, int Dim>
+std::uint64_t MpmSolver<T, Dim>::halo_bytes_sent() const {
+  return split_ ? split_->halo_bytes : 0;
 }
 
 template <class T, int Dim>
@@ -371,9 +391,10 @@ std::string MpmSolver<T, Dim>::solver_status() const {
     const double mean = double(S.total) / S.comm->size();
     char buf[200];
     std::snprintf(buf, sizeof buf,
-                  "%d ranks along %c: %.0f-%.0f particles per rank (imbalance %.3f), rank %d sent %.3g kB per substep",
+                  "%d ranks along %c: %.0f-%.0f particles per rank (imbalance %.3f), rank %d sent %.3g kB per substep "
+                  "(grid halo %.3g kB)",
                   S.comm->size(), "xyz"[S.axis], S.fewest, S.most, mean > 0 ? S.most / mean : 1.0, S.comm->rank(),
-                  S.bytes_per_substep / 1e3);
+                  S.bytes_per_substep / 1e3, S.halo_bytes_per_substep / 1e3);
     return buf;
   }
   if (sleep_) {

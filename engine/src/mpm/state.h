@@ -18,7 +18,7 @@ std::string MpmSolver<T, Dim>::diagnosis(T dt) const {
   std::int64_t worst = -1;
   std::string what;
   T worst_speed = -1;
-  const std::int64_t n = std::int64_t(split_ ? split_->owned : P.size());  // not a split run's ghosts
+  const std::int64_t n = std::int64_t(P.size());
   for (std::int64_t p = 0; p < n && what.empty(); ++p) {
     if (!P.x[p].allFinite() || !P.v[p].allFinite()) {
       worst = p, what = "has a non-finite position or velocity";

@@ -26,17 +26,9 @@ void MpmSolver<T, Dim>::step_on(G& grid, T dt) {
     phase += std::chrono::duration<double>(now - t).count();
     t = now;
   };
-  if (split_) {
-    // Re-sorted before the ghosts join (they are dropped at the end of the substep).
-    if (steps_ % kReorderInterval == 0) {
-      bin_particles();
-      reorder_particles();
-    }
-    add_ghosts();
-  }
   bin_particles();
   lap(phase_times_.binning);
-  if (!split_ && (implicit_ || steps_ % kReorderInterval == 0)) reorder_particles();
+  if (implicit_ || steps_ % kReorderInterval == 0) reorder_particles();
   lap(phase_times_.reorder);
   if (sleep_) sleep_prepare();
   particles_to_grid(grid, dt);
@@ -66,7 +58,6 @@ void MpmSolver<T, Dim>::step_on(G& grid, T dt) {
   const bool thin_colliders = any_thin_collider(colliders_, dx_);
   if (thin_colliders) x_before_ = particles_.x;
   grid_to_particles(grid, dt);
-  if (split_) detail::truncate_particles(particles_, split_->owned);  // the ghosts have served
   if (thin_colliders)
     detail::keep_out_of_colliders(particles_, colliders_, x_before_.data(), T(time_), T(time_) + dt, dx_);
   lap(phase_times_.g2p);

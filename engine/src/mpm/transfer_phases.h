@@ -65,9 +65,7 @@ void MpmSolver<T, Dim>::particles_to_grid(G& grid, T dt) {
     case KernelKind::Quadratic: particles_to_grid_order<2>(grid, dt); break;
     case KernelKind::Cubic: particles_to_grid_order<3>(grid, dt); break;
   }
-  // Ghosts (split runs) were projected as well, for their stress; count the rank's own only.
-  for (std::size_t b = 0; b < projected_scratch_.size(); ++b)
-    if (owned_block(bins_.bins()[b].block)) projected_ += projected_scratch_[b];
+  for (const auto n : projected_scratch_) projected_ += n;
 }
 
 template <class T, int Dim>
@@ -81,6 +79,7 @@ void MpmSolver<T, Dim>::particles_to_grid_order(G& grid, T dt) {
     if constexpr (S == Scheme::MLS && Order == 1) {
       return;  // rejected by Scene::validate
     } else {
+      if (split_) prepare_halo<Order>();
       // Colour by colour; within a colour no two blocks write the same node (blocks.h).
       for (int c = 0; c < transfer::BlockShape<Dim>::colours; ++c) {
         const auto& list = bins_.colour(c);
@@ -110,8 +109,10 @@ void MpmSolver<T, Dim>::particles_to_grid_order(G& grid, T dt) {
           }
           for (auto b = first; b < last; ++b) scatter_bin<Order, S>(patch, bins[b], dt, true);
           grid.add_patch(patch);
+          if (split_) keep_halo_slices<Order>(g, patch);
         });
       }
+      if (split_) exchange_halo<Order>(grid);
     }
   };
   switch (scene_.solver.transfer) {
@@ -222,12 +223,6 @@ void MpmSolver<T, Dim>::grid_to_particles_order(G& grid, T dt) {
   const auto& bins = bins_.bins();
   const std::uint32_t* order = bins_.order();
   const T inv_dx = T(1) / dx_;
-  // A split run gathers the bins of its own block columns only. The test sits behind a
-  // loop-invariant flag, which the compiler unswitches: the one-process loop stays as it was
-  // (testing bounds in every bin instead cost 2D G2P 30%, 5.9 -> 7.6 ms per step; a test through
-  // split_ cost the same), and tests/mpi checks that the split copy computes the same bits.
-  const bool split = bool(split_);
-  const int axis = split ? split_->axis : 0, own_lo = split ? split_->lo : 0, own_hi = split ? split_->hi : 0;
   // F <- (I + dt grad v) F for solids, J <- det(I + dt grad v) J for fluids.
   // In lanes where the gather queues the updates (deformation_lanes.h); elsewhere the lambda, as
   // 2D G2P was tuned with: given the functor struct, GCC kept the 2D gather out of line and the
@@ -255,7 +250,6 @@ void MpmSolver<T, Dim>::grid_to_particles_order(G& grid, T dt) {
             for (std::int64_t b = lo; b < hi; ++b) {
               if (sleep_ && sleep_->bin_block[std::size_t(b)]) continue;
               const auto& bin = bins[std::size_t(b)];
-              if (split && (bin.block[axis] < own_lo || bin.block[axis] >= own_hi)) continue;  // ghosts: their rank moves them
               transfer::Patch<T, Dim, Order> patch(bin.block, origin_, dx_, inv_dx);
               grid.read_patch(patch);
               const T s2 = fluid_[bin.material]
@@ -311,7 +305,7 @@ void MpmSolver<T, Dim>::return_mapping() {
   parallel::parallel_task_runs(0, std::int64_t(bins.size()), [&](std::int64_t bi) {
     const auto& bin = bins[std::size_t(bi)];
     const auto& mat = materials_[bin.material];
-    if (mat.plastic_kind == PlasticModel::None || project_in_p2g_[bin.material] || !owned_block(bin.block)) return;
+    if (mat.plastic_kind == PlasticModel::None || project_in_p2g_[bin.material]) return;
     if (sleep_ && sleep_->bin_block[std::size_t(bi)]) {  // unchanged since it fell asleep
       if (snow) hmax[std::size_t(bi)] = sleep_->bin_block[std::size_t(bi)]->hardening;
       return;
@@ -383,7 +377,7 @@ bool MpmSolver<T, Dim>::fluid_wave_speeds() {
   range.assign(bins.size(), {std::numeric_limits<T>::max(), std::numeric_limits<T>::lowest()});
   parallel::parallel_task_runs(0, std::int64_t(bins.size()), [&](std::int64_t bi) {
     const auto& bin = bins[std::size_t(bi)];
-    if (!fluid_[bin.material] || !owned_block(bin.block)) return;
+    if (!fluid_[bin.material]) return;
     T lo = std::numeric_limits<T>::max(), hi = std::numeric_limits<T>::lowest();
     for (auto i = bin.begin; i < bin.end; ++i) {
       const T J = P.J[order[i]];

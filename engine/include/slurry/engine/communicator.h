@@ -5,8 +5,8 @@
 /// slurry::mpi (mpi/, OpenMPI) implements this interface with MPI_COMM_WORLD.
 ///
 /// The split MPM solver (mpm/mpm_solver.h) cuts the domain into slabs of grid-block columns along
-/// its longest axis, one slab per rank in rank order, so that every exchange of particles is
-/// with the two neighbouring ranks; reductions serve the time step, the health check and the
+/// its longest axis, one slab per rank in rank order, so that every exchange (the grid nodes of
+/// the borders, particles that cross them) is with the two neighbouring ranks; reductions serve the time step, the health check and the
 /// run statistics, gathers the frames and checkpoints. Every call is collective: all ranks make
 /// the same calls in the same order.
 #include <cstdint>
@@ -37,8 +37,8 @@ class Communicator {
   /// Returns when every rank has called it.
   virtual void barrier() = 0;
 
-  /// Payload bytes this rank has sent through exchange() (the particles of the halo and of
-  /// migration), for the scaling figures of benchmarks/.
+  /// Payload bytes this rank has sent through exchange() (the grid halo's nodes and migrating
+  /// particles), for the scaling figures of benchmarks/.
   std::uint64_t exchanged_bytes() const { return exchanged_bytes_; }
 
  protected:

@@ -19,6 +19,7 @@
 #include <array>
 #include <cstdint>
 #include <stdexcept>
+#include <utility>
 #include <vector>
 
 #include "slurry/transfer/blocks.h"
@@ -177,6 +178,8 @@ class SparseGrid {
     for (int d = 0; d < Dim; ++d) local = local * Shape::size + (i[d] & (Shape::size - 1));
     return nodes_.data() + std::int64_t(s) * Shape::nodes + local;
   }
+  Node* find(const IVec& i) { return const_cast<Node*>(std::as_const(*this).find(i)); }
+
 
  private:
   std::int64_t key(const IVec& b) const {

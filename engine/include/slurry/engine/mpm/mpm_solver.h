@@ -19,11 +19,14 @@
 /// Split over processes (a Communicator with more than one rank, communicator.h; `mpirun -np N
 /// slurry run`): the domain is cut into slabs of grid-block columns along its longest axis, one
 /// per rank, with borders that follow the particle counts at every frame (balanced_cuts). Each
-/// substep a rank adds copies of its neighbours' border columns (ghosts: the one column whose
-/// patches reach its nodes), bins and scatters them with its own, gathers and projects its own
-/// only, drops the ghosts and hands particles that crossed a border to the neighbour; the time
-/// step and the health check are global. Bins are ordered by persistent id, so every node a rank
-/// reads holds the same sum as in one process and frames are bitwise those of one process.
+/// substep a rank bins and scatters its own particles only; the grid nodes of the Order node
+/// layers at a border, which the particles of both neighbouring columns reach, are then summed
+/// again from both ranks' contributions (the grid halo: each rank sends its border blocks' patch
+/// nodes in those layers to the neighbour, distribution.h). Each rank updates the grid, gathers and
+/// projects its own particles and hands particles that crossed a border to the neighbour; the time
+/// step and the health check are global. Bins are ordered by persistent id and the halo's nodes
+/// are summed in the colour order of the scatter, so every node a rank reads holds the same sum as
+/// in one process and frames are bitwise those of one process.
 /// Frames and checkpoints are gathered to every rank in one piece (rank 0 writes them); a
 /// checkpoint resumes on any number of ranks. The implicit update and solver.sleep run on one
 /// rank only (refused with more).
@@ -125,6 +128,9 @@ class MpmSolver final : public Solver {
   T kinetic_energy() const;
   /// Time spent per phase so far (for benchmarks and the cost of each setting).
   const PhaseTimes& phase_times() const { return phase_times_; }
+  /// Bytes of grid nodes this rank has sent to its neighbours so far (the grid halo of a split
+  /// run; 0 in one process), for the scaling figures of benchmarks/.
+  std::uint64_t halo_bytes_sent() const;
   /// Total elastic energy sum_p V_p^0 psi(F_p) (zero for fluids).
   T elastic_energy() const;
   /// CG iterations of the last substep's implicit solve (0 for "explicit").
@@ -166,8 +172,16 @@ class MpmSolver final : public Solver {
   /// Hands the particles outside this rank's slab to the neighbours, in rounds until none is
   /// left (one round after a substep: particles move less than a column).
   void migrate();
-  void add_ghosts();
-  bool owned_block(const Eigen::Matrix<int, Dim, 1>& block) const;
+  /// The grid halo: which occupied blocks lie in a border column (before P2G); a border block's
+  /// patch nodes in the border's layers, kept during P2G (any thread, its own slot); after P2G,
+  /// the slices swapped with the neighbours and the border layers' nodes summed again in colour
+  /// order.
+  template <int Order>
+  void prepare_halo();
+  template <int Order>
+  void keep_halo_slices(std::size_t group, const transfer::Patch<T, Dim, Order>& patch);
+  template <int Order, class G>
+  void exchange_halo(G& grid);
   /// Every rank's particles, on every rank or on rank 0 only (empty elsewhere).
   Particles<T, Dim> all_particles(bool on_every_rank) const;
   /// P's particles as a frame; particle p's values land in row rows[p] (P.id when null: one
