@@ -3,6 +3,7 @@
 
 #include <algorithm>
 
+#include "slurry/engine/errors.h"
 #include "slurry/engine/fem/fem_solver.h"
 #include "slurry/engine/flip/flip_solver.h"
 #include "slurry/engine/mpm/mpm_solver.h"
@@ -25,6 +26,13 @@ std::vector<std::uint32_t> Solver::id_order(const std::uint32_t* ids, std::size_
     std::sort(order.begin(), order.end(), [ids](std::uint32_t a, std::uint32_t b) { return ids[a] < ids[b]; });
   }
   return order;
+}
+
+void Solver::load_state_parts(int parts, const std::function<std::string(int)>& part, const std::string& what) {
+  if (parts != 1)
+    throw IoError(what + ": a checkpoint in " + std::to_string(parts) +
+                  " parts (one per process of a split MPM run); expected one whole state for this solver");
+  load_state(part(0), what);
 }
 
 std::unique_ptr<Solver> make_solver(const Scene& scene, Communicator* communicator) {

@@ -203,7 +203,8 @@ inline void require_unique_ids(const StateReader& r, const std::vector<std::uint
 
 /// Section tags ("MPM ", "FLIP", "FEM ") and the (Dim, sizeof T) check shared by the solvers.
 inline constexpr std::uint32_t kTagMpm = 0x204d504d, kTagFlip = 0x50494c46, kTagFem = 0x204d4546,
-                               kTagEnd = 0x20444e45;
+                               kTagEnd = 0x20444e45,
+                               kTagPart = 0x54524150;  // "PART": one process's part of a split run's state
 
 template <class T, int Dim>
 void write_layout(StateWriter& w, std::uint32_t solver) {

@@ -57,18 +57,67 @@ fs::path checkpoint_file(const fs::path& directory, int frame) {
   return directory / name;
 }
 
-std::vector<std::pair<int, fs::path>> list_checkpoints(const fs::path& directory) {
-  std::vector<std::pair<int, fs::path>> out;
-  static const std::regex name(R"(checkpoint_(\d{4,9})\.slc)");
+fs::path checkpoint_part_file(const fs::path& directory, int frame, int rank) {
+  char name[64];
+  std::snprintf(name, sizeof name, "checkpoint_%04d.rank%d.slc", frame, rank);
+  return directory / name;
+}
+
+namespace {
+
+/// The checkpoint files of a directory: whole ones (rank -1) and parts, with their frames.
+struct Listed {
+  int frame, rank;
+  fs::path file;
+};
+
+std::vector<Listed> list_all(const fs::path& directory) {
+  std::vector<Listed> out;
+  static const std::regex name(R"(checkpoint_(\d{4,9})(?:\.rank(\d{1,9}))?\.slc)");
   std::error_code ec;
   if (!fs::is_directory(directory, ec)) return out;
   for (const auto& e : fs::directory_iterator(directory, ec)) {
     std::smatch m;
     const std::string n = e.path().filename().string();
-    if (std::regex_match(n, m, name)) out.emplace_back(std::stoi(m[1].str()), e.path());
+    if (std::regex_match(n, m, name))
+      out.push_back({std::stoi(m[1].str()), m[2].matched ? std::stoi(m[2].str()) : -1, e.path()});
   }
   if (ec) io_fail(directory, "cannot list the output directory: " + ec.message());
-  std::sort(out.begin(), out.end());
+  std::sort(out.begin(), out.end(), [](const Listed& a, const Listed& b) {
+    return a.frame != b.frame ? a.frame < b.frame : a.rank < b.rank;
+  });
+  return out;
+}
+
+}  // namespace
+
+std::vector<std::pair<int, fs::path>> list_checkpoints(const fs::path& directory) {
+  std::vector<std::pair<int, fs::path>> out;
+  const auto all = list_all(directory);
+  for (std::size_t i = 0; i < all.size();) {
+    std::size_t j = i;
+    while (j < all.size() && all[j].frame == all[i].frame) ++j;
+    // [i, j): one frame's files, the whole one first (rank -1), then the parts by rank. A set of
+    // parts counts when its ranks are 0 .. K - 1 with none missing.
+    std::size_t k = i;
+    if (all[k].rank < 0) out.emplace_back(all[k].frame, all[k].file), ++k;
+    bool whole_set = k < j;
+    for (std::size_t q = k; q < j; ++q) whole_set = whole_set && all[q].rank == int(q - k);
+    if (whole_set) out.emplace_back(all[k].frame, all[k].file);
+    i = j;
+  }
+  return out;
+}
+
+std::vector<fs::path> checkpoint_parts(const fs::path& file) {
+  static const std::regex part(R"(checkpoint_(\d{4,9})\.rank0\.slc)");
+  std::smatch m;
+  const std::string n = file.filename().string();
+  if (!std::regex_match(n, m, part)) return {file};
+  const int frame = std::stoi(m[1].str());
+  std::vector<fs::path> out;
+  for (const auto& l : list_all(file.parent_path().empty() ? fs::path(".") : file.parent_path()))
+    if (l.frame == frame && l.rank >= 0) out.push_back(l.file);
   return out;
 }
 

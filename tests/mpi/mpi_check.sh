@@ -7,6 +7,11 @@
 #   mpi_check.sh CLI SCENE FRAMES per_rank NP      with output.per_rank each of NP processes writes its own
 #                                                  part of each frame; slurry merge joins them into the
 #                                                  one-process frames; a missing part is refused (exit 3)
+#   mpi_check.sh CLI SCENE FRAMES per_rank_resume NP1 NP2
+#                                                  with output.per_rank over NP1 processes, stopped at frame
+#                                                  FRAMES/2: each process wrote its own checkpoint part (no
+#                                                  whole checkpoint); resumed over NP2 (1 included) from the
+#                                                  parts; the frames, merged, equal one process's
 # Every frame must be byte-identical to the one-process run's (cmp); stats.csv's mass and momentum,
 # summed in another order over the ranks, must agree to 1e-9 (mass: relative; momentum: of
 # sqrt(2 M K), which bounds sum m |v|). The split is checked to have happened (the per-frame log
@@ -78,6 +83,25 @@ if [ "${1:-}" = resume ]; then
   rm -rf "$work/one"
   "$cli" run "$scene" --out "$work/one" --frames "$frames" --threads 1 --quiet > "$work/one.log" 2>&1 || fail "the one-process run failed"
   compare "$work/resumed" "stopped over $np1 processes at frame $half, resumed over $np2"
+  exit 0
+fi
+
+if [ "${1:-}" = per_rank_resume ]; then
+  np1=$2 np2=$3 half=$((frames / 2))
+  sed 's/"output": {/"output": { "per_rank": true, "checkpoint_every": 1,/' "$scene" > "$work/$name.json"
+  scene="$work/$name.json"
+  mkdir -p "$work/resumed"
+  split_run "$np1" "$work/resumed" --frames "$half" --quiet || fail "mpirun -np $np1 (first half) failed"
+  parts=$(find "$work/resumed" -name "checkpoint_$(printf %04d "$half").rank*.slc" | wc -l)
+  [ "$parts" -eq "$np1" ] || fail "$parts checkpoint parts of frame $half, expected $np1"
+  [ ! -e "$work/resumed/checkpoint_$(printf %04d "$half").slc" ] || fail "a per-rank run wrote a whole checkpoint"
+  split_run "$np2" "$work/resumed" --frames "$frames" --resume --quiet || fail "mpirun -np $np2 --resume failed"
+  grep -q "resuming from .*checkpoint_$(printf %04d "$half").rank0.slc" "$work/resumed.log" ||
+    { cat "$work/resumed.log"; fail "the second run did not resume from the parts"; }
+  "$cli" merge "$work/resumed" > "$work/merge.log" 2>&1 || { cat "$work/merge.log"; fail "slurry merge failed"; }
+  rm -rf "$work/one"
+  "$cli" run "$scene" --out "$work/one" --frames "$frames" --threads 1 --quiet > "$work/one.log" 2>&1 || fail "the one-process run failed"
+  compare "$work/resumed" "per-rank checkpoints of $np1 processes at frame $half ($parts parts), resumed over $np2"
   exit 0
 fi
 

@@ -327,6 +327,33 @@ TEST(Checkpoint, StreamedFileEqualsTheWholePayloadsAndAFailedOneLeavesNothing) {
   fs::remove_all(dir);
 }
 
+// A checkpoint in parts (output.per_rank, one file per process) is listed by its part 0 once
+// every rank from 0 up is present, and names all its parts; an incomplete set is no checkpoint.
+TEST(Checkpoint, PartsAreListedAsOneCheckpointWhenComplete) {
+  namespace d = slurry::detail;
+  const fs::path dir = fs::temp_directory_path() / ("slurry_ckpt_parts_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const auto touch = [](const fs::path& f) { std::ofstream(f) << "x"; };
+  touch(d::checkpoint_file(dir, 2));
+  for (int r = 0; r < 3; ++r) touch(d::checkpoint_part_file(dir, 3, r));
+  touch(d::checkpoint_part_file(dir, 4, 0));  // rank 1 missing
+  touch(d::checkpoint_part_file(dir, 4, 2));
+  touch(d::checkpoint_part_file(dir, 5, 1));  // no rank 0
+  EXPECT_EQ(d::checkpoint_part_file(dir, 3, 1).filename().string(), "checkpoint_0003.rank1.slc");
+  const auto list = d::list_checkpoints(dir);
+  ASSERT_EQ(list.size(), 2u);
+  EXPECT_EQ(list[0].first, 2);
+  EXPECT_EQ(list[0].second, d::checkpoint_file(dir, 2));
+  EXPECT_EQ(list[1].first, 3);
+  EXPECT_EQ(list[1].second, d::checkpoint_part_file(dir, 3, 0));
+  const auto parts = d::checkpoint_parts(list[1].second);
+  ASSERT_EQ(parts.size(), 3u);
+  for (int r = 0; r < 3; ++r) EXPECT_EQ(parts[std::size_t(r)], d::checkpoint_part_file(dir, 3, r));
+  EXPECT_EQ(d::checkpoint_parts(list[0].second), std::vector<fs::path>{d::checkpoint_file(dir, 2)});
+  fs::remove_all(dir);
+}
+
 // A FIFO where a checkpoint is expected is refused at once (reading it would block forever), and
 // the resume falls back to the checkpoint before it.
 TEST(Checkpoint, FifoIsRefusedAndThePreviousOneUsed) {

@@ -107,17 +107,37 @@ RunStats MpmSolver<T, Dim>::take_stats() {
 
 template <class T, int Dim>
 void MpmSolver<T, Dim>::save_state(const StateSink& out) const {
+  // A split run writes every rank's particles (on every rank): such a state resumes on any
+  // number of processes, since the bins order particles by id, not by storage.
+  if (split_)
+    write_state(all_particles(true), out, false);
+  else
+    write_state(particles_, out, false);
+}
+
+template <class T, int Dim>
+void MpmSolver<T, Dim>::save_own_state(const StateSink& out) const {
+  if (split_)
+    write_state(particles_, out, true);
+  else
+    save_state(out);
+}
+
+template <class T, int Dim>
+void MpmSolver<T, Dim>::write_state(const Particles<T, Dim>& P, const StateSink& out, bool part) const {
   // Between substeps the grid, the bins and the stress are scratch (rebuilt by every substep);
   // what carries over is the particles in their storage order (the periodic re-sort depends on
   // steps_), the step and time, the speed and wave-speed limits of the next stable_dt() (snow
-  // hardening raises a material's wave speed), and the counters of take_stats().
-  // A split run writes every rank's particles (on every rank): a checkpoint resumes on any
-  // number of processes, since the bins order particles by id, not by storage.
+  // hardening raises a material's wave speed), and the counters of take_stats(). A part (one
+  // process's particles of a split run) says which of how many it is; the rest it carries is
+  // the same on every process.
   detail::StateWriter w(out);
   detail::write_layout<T, Dim>(w, detail::kTagMpm);
-  Particles<T, Dim> all;
-  if (split_) all = all_particles(true);
-  const auto& P = split_ ? all : particles_;
+  if (part) {
+    w.tag(detail::kTagPart);
+    w.pod(std::int32_t(split_->comm->rank()));
+    w.pod(std::int32_t(split_->comm->size()));
+  }
   w.pod(P.channels);
   w.vec(P.x);
   w.vec(P.v);
@@ -137,7 +157,11 @@ void MpmSolver<T, Dim>::save_state(const StateSink& out) const {
   w.pod(max_wave_speed_);
   w.pod(std::uint64_t(materials_.size()));
   for (const auto& m : materials_) w.pod(m.wave_speed);
-  w.pod(projected_);
+  // Particles projected since the last statistics: this process's in a part; all processes'
+  // in a split run's whole state (save_state is collective there).
+  double projected = double(projected_);
+  if (split_ && !part) split_->comm->sum(&projected, 1);
+  w.pod(std::int64_t(projected));
   w.pod(cfl_reached_);
   w.pod(cg_.last_iterations);
   w.pod(cg_.last_residual);
@@ -165,10 +189,7 @@ void MpmSolver<T, Dim>::save_state(const StateSink& out) const {
 }
 
 template <class T, int Dim>
-void MpmSolver<T, Dim>::load_state(std::string_view in, const std::string& what) {
-  detail::StateReader r(in, what);
-  detail::read_layout<T, Dim>(r, detail::kTagMpm, "MPM");
-  auto& P = particles_;
+void MpmSolver<T, Dim>::read_particles(detail::StateReader& r, Particles<T, Dim>& P) const {
   const Channels c = r.get<Channels>();
   if (c.F != P.channels.F || c.J != P.channels.J || c.C != P.channels.C || c.plastic != P.channels.plastic ||
       c.material != P.channels.material)
@@ -196,7 +217,10 @@ void MpmSolver<T, Dim>::load_state(std::string_view in, const std::string& what)
   detail::require_positive(r, P.J, "J");
   detail::require_finite(r, P.C, "C");
   detail::require_finite(r, P.plastic, "the plastic state");
-  detail::require_unique_ids(r, P.id, std::uint64_t(n));  // an MPM frame's row is its particle's id
+}
+
+template <class T, int Dim>
+void MpmSolver<T, Dim>::read_scalars(detail::StateReader& r) {
   r.pod(time_);
   if (!(time_ >= 0 && std::isfinite(time_))) r.fail("its time is not a finite value >= 0");
   r.pod(steps_);
@@ -229,12 +253,103 @@ void MpmSolver<T, Dim>::load_state(std::string_view in, const std::string& what)
     r.pod(S.woken);
     r.pod(S.slept);
   }
+}
+
+template <class T, int Dim>
+void MpmSolver<T, Dim>::load_state(std::string_view in, const std::string& what) {
+  detail::StateReader r(in, what);
+  detail::read_layout<T, Dim>(r, detail::kTagMpm, "MPM");
+  auto& P = particles_;
+  read_particles(r, P);
+  detail::require_unique_ids(r, P.id, std::uint64_t(P.size()));  // an MPM frame's row is its particle's id
+  read_scalars(r);
   r.tag(detail::kTagEnd, "end");
   r.finish();
   if (split_) {
     split_->total = P.size();
     split_particles();
+    if (split_->comm->rank() != 0) projected_ = 0;  // the count is every process's: rank 0 keeps it
   }
+}
+
+template <class T, int Dim>
+void MpmSolver<T, Dim>::load_state_parts(int parts, const std::function<std::string(int)>& part,
+                                         const std::string& what) {
+  // Each part is read whole, one at a time; a split run reads every part twice: first for the
+  // particle counts per block column that place the slab borders of this run's process count,
+  // then keeping the particles of its own slab. No process holds more than its own particles
+  // and one part.
+  if (parts < 1) throw IoError(what + ": a checkpoint of no parts");
+  // Opens part i: its bytes, checked to say "part i of `parts`", with its particles read into Q.
+  auto open = [&](int i, std::string& bytes, Particles<T, Dim>& Q) {
+    bytes = part(i);
+    auto r = std::make_unique<detail::StateReader>(bytes, what + " (part " + std::to_string(i) + ")");
+    detail::read_layout<T, Dim>(*r, detail::kTagMpm, "MPM");
+    r->tag(detail::kTagPart, "part");
+    const auto rank = r->get<std::int32_t>(), ranks = r->get<std::int32_t>();
+    if (rank != i || ranks != parts)
+      r->fail("it says part " + std::to_string(rank) + " of " + std::to_string(ranks) + "; expected part " +
+              std::to_string(i) + " of " + std::to_string(parts) + " (the files checkpoint_NNNN.rank0.slc to rank" +
+              std::to_string(parts - 1) + ")");
+    Q = particles_.empty_like();
+    read_particles(*r, Q);
+    return r;
+  };
+  std::uint64_t total = 0;
+  if (split_) {
+    std::vector<double> counts(std::size_t(bins_.block_res()[split_->axis]), 0.0);
+    for (int i = 0; i < parts; ++i) {
+      std::string bytes;
+      Particles<T, Dim> Q;
+      open(i, bytes, Q);
+      for (const auto& x : Q.x) counts[std::size_t(column(x))] += 1;
+    }
+    split_->cuts.clear();
+    set_borders(counts);
+  }
+  Particles<T, Dim> P = particles_.empty_like();
+  double t0 = 0;
+  std::int64_t projected = 0;
+  for (int i = 0; i < parts; ++i) {
+    std::string bytes;
+    Particles<T, Dim> Q;
+    auto r = open(i, bytes, Q);
+    read_scalars(*r);
+    r->tag(detail::kTagEnd, "end");
+    r->finish();
+    if (i == 0) t0 = time_;
+    if (time_ != t0) r->fail("its time " + std::to_string(time_) + " s differs from part 0's " + std::to_string(t0) + " s");
+    projected += projected_;
+    total += Q.size();
+    for (std::size_t p = 0; p < Q.size(); ++p) {
+      if (split_) {
+        const int c = column(Q.x[p]);
+        if (c < split_->lo || c >= split_->hi) continue;
+      }
+      P.m.push_back(Q.m[p], P.size());
+      P.vol0.push_back(Q.vol0[p], P.size());
+      P.x.push_back(Q.x[p]);
+      P.v.push_back(Q.v[p]);
+      if (P.channels.F) P.F.push_back(Q.F[p]);
+      if (P.channels.J) P.J.push_back(Q.J[p]);
+      if (P.channels.C) P.C.push_back(Q.C[p]);
+      if (P.channels.plastic) P.plastic.push_back(Q.plastic[p]);
+      if (P.channels.material) P.material.push_back(Q.material[p]);
+      P.id.push_back(Q.id[p]);
+    }
+  }
+  // Ids are 0 .. total - 1, each once: this process checks its own (an MPM frame's row is its
+  // particle's id).
+  std::vector<bool> seen(total, false);
+  for (const auto id : P.id) {
+    if (id >= total || seen[id])
+      throw IoError(what + ": particle id " + std::to_string(id) + (id >= total ? " is out of range" : " appears twice") +
+                    " in its parts; expected the ids 0 .. " + std::to_string(total) + " - 1 once each");
+    seen[id] = true;
+  }
+  particles_ = std::move(P);
+  projected_ = !split_ || split_->comm->rank() == 0 ? projected : 0;
+  if (split_) split_->total = total;
 }
 
 template <class T, int Dim>

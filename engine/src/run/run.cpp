@@ -126,7 +126,7 @@ DirectoryState scan_directory(const fs::path& dir) {
   // Frames are frame_NNNN.ply, or frame_NNNN.rankR.ply for each process of a run split with
   // output.per_rank.
   static const std::regex frame(R"(frame_\d{4,}(?:\.rank\d+)?\.ply)"),
-      temp(R"((?:frame_\d{4,}(?:\.rank\d+)?\.ply|checkpoint_\d{4,}\.slc)\.tmp-(\d+)-\d+)");
+      temp(R"((?:frame_\d{4,}(?:\.rank\d+)?\.ply|checkpoint_\d{4,}(?:\.rank\d+)?\.slc)\.tmp-(\d+)-\d+)");
   for (const auto& e : fs::directory_iterator(dir, ec)) {
     const std::string name = e.path().filename().string();
     std::smatch m;
@@ -196,8 +196,9 @@ RunStats get_stats(detail::StateReader& r) {
 }
 
 /// Payload: the run section (length-prefixed), then the solver state, handed to `sink`
-/// (collective in a split run: every rank takes part in the solver state's gather).
-void checkpoint_payload(const RunSection& run, const Solver& sim, const Solver::StateSink& sink) {
+/// (collective in a split run: every rank takes part in the solver state's gather), or with
+/// `own` this process's part of it (not collective).
+void checkpoint_payload(const RunSection& run, const Solver& sim, const Solver::StateSink& sink, bool own = false) {
   std::string section;
   detail::StateWriter w(section);
   w.text(run.source);
@@ -210,7 +211,10 @@ void checkpoint_payload(const RunSection& run, const Solver& sim, const Solver::
   w.pod(std::int32_t(run.last_frame));
   w.pod(run.first.surface);
   detail::StateWriter(sink).text(section);
-  sim.save_state(sink);
+  if (own)
+    sim.save_own_state(sink);
+  else
+    sim.save_state(sink);
 }
 
 /// Splits a checkpoint's payload into its run section and the solver state.
@@ -340,6 +344,8 @@ int resume_from_checkpoint(const Scene& scene, const RunOptions& options, const 
                   "output.checkpoint_every frames); run without --resume to start from frame 0");
   std::vector<std::string> refused;
   bool other_scene = false;
+  fs::path resumed_file;  // the checkpoint resumed from (part 0 of one in parts)
+  std::size_t resumed_parts = 1;
   for (auto it = before.checkpoints.rbegin(); it != before.checkpoints.rend() && summary.resumed_from < 0; ++it) {
     const fs::path& file = it->second;
     try {
@@ -373,7 +379,20 @@ int resume_from_checkpoint(const Scene& scene, const RunOptions& options, const 
       for (int f = 0; f <= c.frame; ++f)
         if (!present[std::size_t(f)])
           throw IoError(file.string() + ": frame " + frame_file(dir, f).filename().string() + " before it is missing");
-      sim->load_state(state, file.string());
+      const auto parts = detail::checkpoint_parts(file);
+      if (parts.size() == 1 && parts[0] == file && file.filename().string().find(".rank") == std::string::npos) {
+        sim->load_state(state, file.string());
+      } else {
+        // A checkpoint in parts (output.per_rank), read part by part as the solver asks.
+        sim->load_state_parts(int(parts.size()), [&](int i) {
+          const detail::Checkpoint p = detail::read_checkpoint(parts[std::size_t(i)]);
+          if (p.scene_hash != c.scene_hash || p.frame != c.frame)
+            throw IoError(p.file.string() + ": a part of " + file.string() + " of another run or frame");
+          std::string_view s;
+          parse_payload(p, s);
+          return std::string(s);
+        }, file.string());
+      }
       // The frame's time at the scene's frame rate must be the state's (a changed output.fps
       // with --force would write every later frame at once, with no substep between them).
       const double t_frame = c.frame * scene.frame_dt();
@@ -382,6 +401,8 @@ int resume_from_checkpoint(const Scene& scene, const RunOptions& options, const 
                          std::to_string(c.frame) + " lies at t = " + fmt(t_frame) + " s at output.fps " +
                          fmt(scene.output.fps) + "; expected the output.fps the run was started with");
       frames = last;
+      resumed_file = file;
+      resumed_parts = parts.size();
       summary.resumed_from = c.frame;
       summary.first = run.first;
       summary.substeps = run.substeps;
@@ -406,7 +427,8 @@ int resume_from_checkpoint(const Scene& scene, const RunOptions& options, const 
                        " were written; expected the same scene file, or pass --force to resume anyway:" + why);
     throw IoError(dir.string() + ": no valid checkpoint to resume from:" + why);
   }
-  notice("resuming from " + detail::checkpoint_file(dir, summary.resumed_from).string() + " (frame " +
+  notice("resuming from " + resumed_file.string() +
+         (resumed_parts > 1 ? " and its " + std::to_string(resumed_parts - 1) + " other parts" : "") + " (frame " +
          std::to_string(summary.resumed_from) + ", t = " + fmt(sim->time()) + " s, step " +
          std::to_string(sim->steps()) + ")");
   summary.particles = sim->particle_count();
@@ -530,7 +552,8 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     summary.removed_frames = remove_all(removed_frames);  // a sequence is never mixed with an earlier run's
     std::vector<fs::path> old;  // checkpoints the run will not continue from
     for (const auto& [f, file] : before.checkpoints)
-      if (f > summary.resumed_from) old.push_back(file);
+      if (f > summary.resumed_from)
+        for (const auto& part : detail::checkpoint_parts(file)) old.push_back(part);
     remove_all(old);
   }
   if (summary.removed_temporaries > 0)
@@ -610,16 +633,25 @@ RunSummary run_scene(const Scene& scene, const RunOptions& options,
     ++summary.checkpoints_written;
     // Streamed to the file: the state is never copied whole into memory (it was the run's
     // memory peak: the 3D FLIP dam break's 80 MB state on top of the solver's 300 MB).
-    if (!writer) {
+    if (per_rank) {
+      // Every process writes its own part, checkpoint_NNNN.rankR.slc; nothing is gathered. The
+      // older ones are removed once every part of this one is in place.
+      detail::write_checkpoint(detail::checkpoint_part_file(dir, f, comm->rank()), scene.source_hash, f,
+                               [&](const detail::PayloadSink& sink) { checkpoint_payload(run, *sim, sink, true); });
+      comm->barrier();
+      if (!writer) return;
+    } else if (!writer) {
       checkpoint_payload(run, *sim, [](const char*, std::size_t) {});  // the other ranks of a split run
       return;
+    } else {
+      detail::write_checkpoint(detail::checkpoint_file(dir, f), scene.source_hash, f,
+                               [&](const detail::PayloadSink& sink) { checkpoint_payload(run, *sim, sink); });
     }
-    detail::write_checkpoint(detail::checkpoint_file(dir, f), scene.source_hash, f,
-                             [&](const detail::PayloadSink& sink) { checkpoint_payload(run, *sim, sink); });
-    // Keep the last two.
+    // Keep the last two (whole files or sets of parts).
     auto list = detail::list_checkpoints(dir);
     std::vector<fs::path> old;
-    for (std::size_t i = 0; i + 2 < list.size(); ++i) old.push_back(list[i].second);
+    for (std::size_t i = 0; i + 2 < list.size(); ++i)
+      for (const auto& file : detail::checkpoint_parts(list[i].second)) old.push_back(file);
     remove_all(old);
   };
   for (int f = first_frame; f <= frames; ++f) {

@@ -139,6 +139,15 @@ class Solver {
   /// the same scene). Throws IoError naming `what` if the bytes are truncated or do not fit
   /// this simulation (another solver, dimension, precision or particle layout).
   virtual void load_state(std::string_view in, const std::string& what) = 0;
+  /// As save_state(), with only this process's particles in a run split over processes (a part
+  /// of the state, for per-process checkpoints: output.per_rank). Not collective. A run that is
+  /// not split hands save_state().
+  virtual void save_own_state(const StateSink& sink) const { save_state(sink); }
+  /// Replaces the state by the `parts` parts save_own_state() wrote on the processes of a split
+  /// run, `part(i)` returning part i's bytes (it may be asked for each more than once): any
+  /// number of processes, one included, loads them, each keeping its own particles. Throws
+  /// IoError naming `what` as load_state(). The solvers that never run split take one part only.
+  virtual void load_state_parts(int parts, const std::function<std::string(int)>& part, const std::string& what);
 
   /// Scales every later substep: dt = scale x the stable substep (on_instability "retry"
   /// halves it; 1 restores the automatic step). In (0, 1].

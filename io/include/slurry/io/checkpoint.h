@@ -1,5 +1,7 @@
 // Checkpoint files (run.h, "Checkpoints"): `checkpoint_NNNN.slc` beside the frames, holding
-// the run's and the solver's state after frame NNNN.
+// the run's and the solver's state after frame NNNN; or, for a run split over processes with
+// output.per_rank, one `checkpoint_NNNN.rankR.slc` per process R, each in this format with the
+// process's own part of the solver's state.
 //
 //   offset  size  field
 //        0     8  magic "SLURRYCP"
@@ -36,9 +38,17 @@ struct Checkpoint {
 
 /// `<directory>/checkpoint_NNNN.slc`.
 std::filesystem::path checkpoint_file(const std::filesystem::path& directory, int frame);
-/// The checkpoint files of a directory with their frames, oldest first.
+/// `<directory>/checkpoint_NNNN.rankR.slc`: process R's part of a checkpoint of a run split over
+/// processes with output.per_rank (its particles only; the parts of all processes together are
+/// the checkpoint).
+std::filesystem::path checkpoint_part_file(const std::filesystem::path& directory, int frame, int rank);
+/// The checkpoints of a directory with their frames, oldest first: each whole file, and each
+/// complete set of parts (ranks 0 .. K - 1 of one frame) named by its part 0.
 std::vector<std::pair<int, std::filesystem::path>> list_checkpoints(
     const std::filesystem::path& directory);
+/// The files of the checkpoint `file` names: itself for a whole file; every part of its frame,
+/// by rank, for a part 0 (checkpoint_NNNN.rank0.slc).
+std::vector<std::filesystem::path> checkpoint_parts(const std::filesystem::path& file);
 /// Receives payload bytes in order (Solver::StateSink).
 using PayloadSink = std::function<void(const char* data, std::size_t size)>;
 /// Writes one checkpoint atomically, its payload streamed: `produce` hands it to the sink piece by piece, and the

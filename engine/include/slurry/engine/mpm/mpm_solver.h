@@ -27,8 +27,9 @@
 /// step and the health check are global. Bins are ordered by persistent id and the halo's nodes
 /// are summed in the colour order of the scatter, so every node a rank reads holds the same sum as
 /// in one process and frames are bitwise those of one process.
-/// Frames and checkpoints are gathered to every rank in one piece (rank 0 writes them); a
-/// checkpoint resumes on any number of ranks. The implicit update and solver.sleep run on one
+/// Frames and checkpoints are gathered to every rank in one piece (rank 0 writes them), or with
+/// output.per_rank written by each rank for its own particles (own_frame, save_own_state); a
+/// checkpoint, whole or in parts (load_state_parts), resumes on any number of ranks. The implicit update and solver.sleep run on one
 /// rank only (refused with more).
 ///
 /// following Stomakhin et al. 2013 ("A material point method for snow simulation") for the
@@ -64,6 +65,9 @@
 #include "slurry/transfer/transfers.h"
 
 namespace slurry {
+namespace detail {
+class StateReader;  // engine/src/state_io.h
+}
 
 /// Wall-clock seconds spent in each phase of the MPM substep since the simulation started.
 struct PhaseTimes {
@@ -146,6 +150,8 @@ class MpmSolver final : public Solver {
   using Solver::save_state;
   void save_state(const StateSink& sink) const override;
   void load_state(std::string_view in, const std::string& what) override;
+  void save_own_state(const StateSink& sink) const override;
+  void load_state_parts(int parts, const std::function<std::string(int)>& part, const std::string& what) override;
 
  private:
   /// Particles are re-stored in bin order every this many substeps (between, they are reached
@@ -165,6 +171,11 @@ class MpmSolver final : public Solver {
   /// Slab borders balanced for all ranks' column counts (and the per-rank extremes for the
   /// log); true if they moved.
   bool set_borders(const std::vector<double>& counts);
+  /// The state of particles P (every process's, or this process's part of a split run:
+  /// `part`); and the readers of its sections.
+  void write_state(const Particles<T, Dim>& P, const StateSink& sink, bool part) const;
+  void read_particles(detail::StateReader& r, Particles<T, Dim>& P) const;
+  void read_scalars(detail::StateReader& r);
   /// Keeps this rank's particles of a full set (after seeding and after load_state).
   void split_particles();
   /// New slab borders from the particle counts; particles move to their new owners.

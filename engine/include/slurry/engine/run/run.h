@@ -11,7 +11,8 @@
 ///
 /// Checkpoints: every output.checkpoint_every frames (and never for frame 0) the run writes
 /// `<directory>/checkpoint_NNNN.slc` after frame NNNN, atomically (temporary name, fsync,
-/// rename), and keeps the last two. It holds the solver's whole state (particles with every
+/// rename), and keeps the last two (a run split with output.per_rank: one part per process,
+/// checkpoint_NNNN.rankR.slc, together one checkpoint). It holds the solver's whole state (particles with every
 /// channel in storage order, time, step counter, emitter generators, carried-over grid fields
 /// or FEM vertex state), the run's figures (frame 0's statistics, substep count), the format
 /// version, the hash of the scene file and a checksum. RunOptions::resume continues from the
