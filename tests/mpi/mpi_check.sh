@@ -69,39 +69,36 @@ compare() {  # DIR LABEL
   echo "$name: $label: $n frames byte-identical to one process; mass and momentum within $worst"
 }
 
-if [ "${1:-}" = resume ]; then
-  np1=$2 np2=$3 half=$((frames / 2))
-  # Checkpoints every frame: the scene's output block with checkpoint_every 1.
-  sed 's/"output": {/"output": { "checkpoint_every": 1,/' "$scene" > "$work/$name.json"
+if [ "${1:-}" = resume ] || [ "${1:-}" = per_rank_resume ]; then
+  mode=$1 np1=$2 np2=$3 half=$((frames / 2))
+  # Checkpoints every frame (the scene's output block with checkpoint_every 1), in parts with
+  # per_rank_resume.
+  keys='"checkpoint_every": 1,'
+  [ "$mode" = resume ] || keys='"per_rank": true, "checkpoint_every": 1,'
+  sed "s/\"output\": {/\"output\": { $keys/" "$scene" > "$work/$name.json"
   scene="$work/$name.json"
   mkdir -p "$work/resumed"
   split_run "$np1" "$work/resumed" --frames "$half" --quiet || fail "mpirun -np $np1 (first half) failed"
-  [ -f "$work/resumed/checkpoint_$(printf %04d "$half").slc" ] || fail "no checkpoint of frame $half"
+  checkpoint="$work/resumed/checkpoint_$(printf %04d "$half")"
+  if [ "$mode" = resume ]; then
+    [ -f "$checkpoint.slc" ] || fail "no checkpoint of frame $half"
+    expected="resuming from" label="stopped over $np1 processes at frame $half, resumed over $np2"
+  else
+    parts=$(find "$work/resumed" -name "$(basename "$checkpoint").rank*.slc" | wc -l)
+    [ "$parts" -eq "$np1" ] || fail "$parts checkpoint parts of frame $half, expected $np1"
+    [ ! -e "$checkpoint.slc" ] || fail "a per-rank run wrote a whole checkpoint"
+    expected="resuming from .*$(basename "$checkpoint").rank0.slc"
+    label="per-rank checkpoints of $np1 processes at frame $half ($parts parts), resumed over $np2"
+  fi
   split_run "$np2" "$work/resumed" --frames "$frames" --resume --quiet || fail "mpirun -np $np2 --resume failed"
-  grep -q "resuming from" "$work/resumed.log" || { cat "$work/resumed.log"; fail "the second run did not resume"; }
+  grep -q "$expected" "$work/resumed.log" || { cat "$work/resumed.log"; fail "the second run did not resume ($expected)"; }
+  if [ "$mode" = per_rank_resume ]; then
+    "$cli" merge "$work/resumed" > "$work/merge.log" 2>&1 || { cat "$work/merge.log"; fail "slurry merge failed"; }
+  fi
   # The first run's scene is the copy: the one-process run of the same copy is the reference.
   rm -rf "$work/one"
   "$cli" run "$scene" --out "$work/one" --frames "$frames" --threads 1 --quiet > "$work/one.log" 2>&1 || fail "the one-process run failed"
-  compare "$work/resumed" "stopped over $np1 processes at frame $half, resumed over $np2"
-  exit 0
-fi
-
-if [ "${1:-}" = per_rank_resume ]; then
-  np1=$2 np2=$3 half=$((frames / 2))
-  sed 's/"output": {/"output": { "per_rank": true, "checkpoint_every": 1,/' "$scene" > "$work/$name.json"
-  scene="$work/$name.json"
-  mkdir -p "$work/resumed"
-  split_run "$np1" "$work/resumed" --frames "$half" --quiet || fail "mpirun -np $np1 (first half) failed"
-  parts=$(find "$work/resumed" -name "checkpoint_$(printf %04d "$half").rank*.slc" | wc -l)
-  [ "$parts" -eq "$np1" ] || fail "$parts checkpoint parts of frame $half, expected $np1"
-  [ ! -e "$work/resumed/checkpoint_$(printf %04d "$half").slc" ] || fail "a per-rank run wrote a whole checkpoint"
-  split_run "$np2" "$work/resumed" --frames "$frames" --resume --quiet || fail "mpirun -np $np2 --resume failed"
-  grep -q "resuming from .*checkpoint_$(printf %04d "$half").rank0.slc" "$work/resumed.log" ||
-    { cat "$work/resumed.log"; fail "the second run did not resume from the parts"; }
-  "$cli" merge "$work/resumed" > "$work/merge.log" 2>&1 || { cat "$work/merge.log"; fail "slurry merge failed"; }
-  rm -rf "$work/one"
-  "$cli" run "$scene" --out "$work/one" --frames "$frames" --threads 1 --quiet > "$work/one.log" 2>&1 || fail "the one-process run failed"
-  compare "$work/resumed" "per-rank checkpoints of $np1 processes at frame $half ($parts parts), resumed over $np2"
+  compare "$work/resumed" "$label"
   exit 0
 fi
 
