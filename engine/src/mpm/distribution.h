@@ -26,10 +26,16 @@ bool MpmSolver<T, Dim>::set_borders(const std::vector<double>& counts) {
 }
 
 template <class T, int Dim>
-std::vector<double> MpmSolver<T, Dim>::column_counts() const {
-  std::vector<double> counts(std::size_t(bins_.block_res()[split_->axis]), 0.0);
-  for (const auto& x : particles_.x) counts[std::size_t(column(x))] += 1;
+std::vector<double> MpmSolver<T, Dim>::column_counts(const std::vector<Vec>& x, std::vector<double> counts) const {
+  counts.resize(std::size_t(bins_.block_res()[split_->axis]), 0.0);
+  for (const auto& p : x) counts[std::size_t(column(p))] += 1;
   return counts;
+}
+
+template <class T, int Dim>
+bool MpmSolver<T, Dim>::owns(const Vec& x) const {
+  const int c = column(x);
+  return c >= split_->lo && c < split_->hi;
 }
 
 template <class T, int Dim>
@@ -37,18 +43,15 @@ void MpmSolver<T, Dim>::split_particles() {
   // Every rank holds the same full set here, so every rank computes the same borders.
   auto& S = *split_;
   S.cuts.clear();
-  set_borders(column_counts());
+  set_borders(column_counts(particles_.x));
   std::vector<std::uint8_t> drop(particles_.size());
-  for (std::size_t p = 0; p < drop.size(); ++p) {
-    const int c = column(particles_.x[p]);
-    drop[p] = c < S.lo || c >= S.hi;
-  }
+  for (std::size_t p = 0; p < drop.size(); ++p) drop[p] = !owns(particles_.x[p]);
   detail::drop_particles(particles_, drop);
 }
 
 template <class T, int Dim>
 void MpmSolver<T, Dim>::rebalance() {
-  auto counts = column_counts();
+  auto counts = column_counts(particles_.x);
   split_->comm->sum(counts.data(), int(counts.size()));
   if (set_borders(counts)) migrate();
 }
@@ -75,10 +78,7 @@ void MpmSolver<T, Dim>::migrate() {
     // After a substep one round settles every particle (each moved less than a column, and every
     // slab is a column wide at least); after new borders, particles pass one rank per round.
     double stray = 0;
-    for (const auto& x : P.x) {
-      const int c = column(x);
-      stray += c < S.lo || c >= S.hi;
-    }
+    for (const auto& x : P.x) stray += !owns(x);
     S.comm->max(&stray, 1);
     if (stray == 0) break;
   }
@@ -112,6 +112,14 @@ void for_each_layer_node(int axis, int from, Fn&& fn) {
   }
 }
 
+/// Nodes of one block's slice: Order layers of the patch across the split axis.
+template <class T, int Dim, int Order>
+constexpr std::size_t halo_slice_nodes() {
+  std::size_t n = Order;
+  for (int d = 1; d < Dim; ++d) n *= std::size_t(transfer::Patch<T, Dim, Order>::extent);
+  return n;
+}
+
 }  // namespace detail
 
 template <class T, int Dim>
@@ -119,9 +127,6 @@ template <int Order>
 void MpmSolver<T, Dim>::prepare_halo() {
   auto& S = *split_;
   const int rank = S.comm->rank(), ranks = S.comm->size();
-  constexpr int extent = transfer::Patch<T, Dim, Order>::extent;
-  int slice = Order;
-  for (int d = 1; d < Dim; ++d) slice *= extent;
   const std::size_t groups = bins_.groups();
   for (int side = 0; side < 2; ++side) {
     auto& B = S.border[side];
@@ -136,7 +141,7 @@ void MpmSolver<T, Dim>::prepare_halo() {
       slot[g] = std::int32_t(B.blocks.size());
       B.blocks.push_back(block);
     }
-    B.nodes.resize(B.blocks.size() * std::size_t(slice));
+    B.nodes.resize(B.blocks.size() * detail::halo_slice_nodes<T, Dim, Order>());
   }
 }
 
@@ -144,13 +149,10 @@ template <class T, int Dim>
 template <int Order>
 void MpmSolver<T, Dim>::keep_halo_slices(std::size_t group, const transfer::Patch<T, Dim, Order>& patch) {
   auto& S = *split_;
-  constexpr int extent = transfer::Patch<T, Dim, Order>::extent;
-  int slice = Order;
-  for (int d = 1; d < Dim; ++d) slice *= extent;
   for (int side = 0; side < 2; ++side) {
     const std::int32_t s = S.slot[side][group];
     if (s < 0) continue;
-    auto* out = S.border[side].nodes.data() + std::size_t(s) * std::size_t(slice);
+    auto* out = S.border[side].nodes.data() + std::size_t(s) * detail::halo_slice_nodes<T, Dim, Order>();
     // The lower border's layers are the patch's first Order along the axis; the upper border's
     // are those past the block (the next column's first).
     detail::for_each_layer_node<T, Dim, Order>(S.axis, side == 0 ? 0 : transfer::BlockShape<Dim>::size,
@@ -164,21 +166,20 @@ void MpmSolver<T, Dim>::exchange_halo(G& grid) {
   using Node = transfer::GridNode<T, Dim>;
   using IVec = Eigen::Matrix<int, Dim, 1>;
   auto& S = *split_;
-  constexpr int size = transfer::BlockShape<Dim>::size, extent = transfer::Patch<T, Dim, Order>::extent;
-  int slice = Order;
-  for (int d = 1; d < Dim; ++d) slice *= extent;
+  constexpr int size = transfer::BlockShape<Dim>::size;
+  constexpr std::size_t slice = detail::halo_slice_nodes<T, Dim, Order>();
   // A message: the count of slices, then per slice its block (Dim int32) and its nodes.
   auto pack = [&](const typename Split::Border& B) {
     std::string out;
     if (B.blocks.empty()) return out;
     const std::uint64_t n = B.blocks.size();
-    out.reserve(sizeof n + n * (Dim * sizeof(std::int32_t) + std::size_t(slice) * sizeof(Node)));
+    out.reserve(sizeof n + n * (Dim * sizeof(std::int32_t) + slice * sizeof(Node)));
     out.append(reinterpret_cast<const char*>(&n), sizeof n);
     for (std::size_t b = 0; b < n; ++b) {
       std::int32_t c[Dim];
       for (int d = 0; d < Dim; ++d) c[d] = B.blocks[b][d];
       out.append(reinterpret_cast<const char*>(c), sizeof c);
-      out.append(reinterpret_cast<const char*>(B.nodes.data() + b * std::size_t(slice)), std::size_t(slice) * sizeof(Node));
+      out.append(reinterpret_cast<const char*>(B.nodes.data() + b * slice), slice * sizeof(Node));
     }
     return out;
   };
@@ -198,31 +199,26 @@ void MpmSolver<T, Dim>::exchange_halo(G& grid) {
       bool own;
     };
     std::vector<Slice> slices;
-    auto colour = [](const IVec& b) {
-      int c = 0;
-      for (int d = 0; d < Dim; ++d) c = 2 * c + (b[d] & 1);
-      return c;
-    };
     for (std::size_t b = 0; b < B.blocks.size(); ++b)
-      slices.push_back({colour(B.blocks[b]), B.blocks[b], B.nodes.data() + b * std::size_t(slice), true});
+      slices.push_back({transfer::BlockShape<Dim>::colour(B.blocks[b]), B.blocks[b], B.nodes.data() + b * slice, true});
     std::vector<Node> received;
     if (!in.empty()) {
       std::uint64_t n = 0;
-      const std::size_t each = Dim * sizeof(std::int32_t) + std::size_t(slice) * sizeof(Node);
+      const std::size_t each = Dim * sizeof(std::int32_t) + slice * sizeof(Node);
       if (in.size() < sizeof n) throw SimulationError("a message of grid nodes from another rank is truncated");
       std::memcpy(&n, in.data(), sizeof n);
       if (in.size() != sizeof n + n * each)
         throw SimulationError("a message of grid nodes from another rank has " + std::to_string(in.size()) +
                               " bytes; expected " + std::to_string(sizeof n + n * each));
-      received.resize(n * std::size_t(slice));
+      received.resize(n * slice);
       for (std::size_t b = 0; b < n; ++b) {
         const char* at = in.data() + sizeof n + b * each;
         std::int32_t c[Dim];
         std::memcpy(c, at, sizeof c);
         IVec block;
         for (int d = 0; d < Dim; ++d) block[d] = c[d];
-        std::memcpy(static_cast<void*>(received.data() + b * std::size_t(slice)), at + sizeof c, std::size_t(slice) * sizeof(Node));
-        slices.push_back({colour(block), block, received.data() + b * std::size_t(slice), false});
+        std::memcpy(static_cast<void*>(received.data() + b * slice), at + sizeof c, slice * sizeof(Node));
+        slices.push_back({transfer::BlockShape<Dim>::colour(block), block, received.data() + b * slice, false});
       }
     }
     std::stable_sort(slices.begin(), slices.end(), [](const Slice& a, const Slice& b) { return a.colour < b.colour; });
@@ -233,14 +229,14 @@ void MpmSolver<T, Dim>::exchange_halo(G& grid) {
     std::int64_t count = 1;
     for (int d = 0; d < Dim; ++d) count *= dims[d];
     B.sum.assign(std::size_t(count), Node::Zero());
-    B.read.assign(std::size_t(count), 0);
     auto layer_index = [&](IVec i) {
       i[S.axis] -= first;
       std::int64_t k = 0;
       for (int d = 0; d < Dim; ++d) k = k * dims[d] + i[d];
       return k;
     };
-    for (const auto& sl : slices) {
+    // Calls fn(layer index, coordinates, value) for a slice's nodes inside the grid, in packing order.
+    const auto for_each_node = [&](const Slice& sl, auto&& fn) {
       // A slice of the lower neighbour's column or this rank's upper column starts past its block.
       const int from = sl.block[S.axis] * size == first ? 0 : size;
       const IVec corner = sl.block * size;
@@ -248,25 +244,15 @@ void MpmSolver<T, Dim>::exchange_halo(G& grid) {
       detail::for_each_layer_node<T, Dim, Order>(S.axis, from, [&](int, const IVec& l) {
         const IVec i = corner + l;
         const Node& value = *v++;
-        if ((i.array() >= res.array()).any()) return;
-        const std::int64_t k = layer_index(i);
-        B.sum[std::size_t(k)] += value;
-        if (sl.own) B.read[std::size_t(k)] = 1;
+        if ((i.array() < res.array()).all()) fn(layer_index(i), i, value);
       });
-    }
+    };
+    for (const auto& sl : slices)
+      for_each_node(sl, [&](std::int64_t k, const IVec&, const Node& value) { B.sum[std::size_t(k)] += value; });
     // The nodes this rank's patches reach take the sums; the others are not read here.
-    for (std::int64_t k = 0; k < count; ++k) {
-      if (!B.read[std::size_t(k)]) continue;
-      IVec i;
-      std::int64_t r = k;
-      for (int d = Dim - 1; d >= 0; --d) i[d] = int(r % dims[d]), r /= dims[d];
-      i[S.axis] += first;
-      if constexpr (std::is_same_v<G, DenseGrid>) {
-        grid.node(grid.index(i)) = B.sum[std::size_t(k)];
-      } else {
-        *grid.find(i) = B.sum[std::size_t(k)];
-      }
-    }
+    for (const auto& sl : slices)
+      if (sl.own)
+        for_each_node(sl, [&](std::int64_t k, const IVec& i, const Node&) { *grid.find(i) = B.sum[std::size_t(k)]; });
   }
 }
 

@@ -148,7 +148,6 @@ struct MpmSolver<T, Dim>::Split {
     std::vector<Eigen::Matrix<int, Dim, 1>> blocks;
     std::vector<transfer::GridNode<T, Dim>> nodes;
     std::vector<transfer::GridNode<T, Dim>> sum;  ///< scratch: the layers' nodes summed in colour order
-    std::vector<std::uint8_t> read;               ///< scratch: layer nodes this rank's patches reach
   } border[2];
   std::vector<std::int32_t> slot[2];
 };

@@ -275,13 +275,13 @@ void MpmSolver<T, Dim>::load_state(std::string_view in, const std::string& what)
 template <class T, int Dim>
 void MpmSolver<T, Dim>::load_state_parts(int parts, const std::function<std::string(int)>& part,
                                          const std::string& what) {
-  // Each part is read whole, one at a time; a split run reads every part twice: first for the
-  // particle counts per block column that place the slab borders of this run's process count,
-  // then keeping the particles of its own slab. No process holds more than its own particles
-  // and one part.
+  // Each part is read whole, one at a time; a split run reads every part twice: first its
+  // positions, for the particle counts per block column that place the slab borders of this
+  // run's process count, then its particles, keeping those of its own slab. No process holds more
+  // than its own particles and one part.
   if (parts < 1) throw IoError(what + ": a checkpoint of no parts");
-  // Opens part i: its bytes, checked to say "part i of `parts`", with its particles read into Q.
-  auto open = [&](int i, std::string& bytes, Particles<T, Dim>& Q) {
+  // Opens part i (its bytes into `bytes`), checked to say "part i of `parts`", at its particles.
+  auto open = [&](int i, std::string& bytes) {
     bytes = part(i);
     auto r = std::make_unique<detail::StateReader>(bytes, what + " (part " + std::to_string(i) + ")");
     detail::read_layout<T, Dim>(*r, detail::kTagMpm, "MPM");
@@ -291,29 +291,31 @@ void MpmSolver<T, Dim>::load_state_parts(int parts, const std::function<std::str
       r->fail("it says part " + std::to_string(rank) + " of " + std::to_string(ranks) + "; expected part " +
               std::to_string(i) + " of " + std::to_string(parts) + " (the files checkpoint_NNNN.rank0.slc to rank" +
               std::to_string(parts - 1) + ")");
-    Q = particles_.empty_like();
-    read_particles(*r, Q);
     return r;
   };
-  std::uint64_t total = 0;
   if (split_) {
-    std::vector<double> counts(std::size_t(bins_.block_res()[split_->axis]), 0.0);
+    std::vector<double> counts;
     for (int i = 0; i < parts; ++i) {
       std::string bytes;
-      Particles<T, Dim> Q;
-      open(i, bytes, Q);
-      for (const auto& x : Q.x) counts[std::size_t(column(x))] += 1;
+      auto r = open(i, bytes);
+      r->template get<Channels>();  // checked in the second pass
+      std::vector<Vec> x;
+      r->vec(x, -1, "x");
+      detail::require_inside(*r, x, x_lo_, x_hi_);
+      counts = column_counts(x, std::move(counts));
     }
     split_->cuts.clear();
     set_borders(counts);
   }
   Particles<T, Dim> P = particles_.empty_like();
+  std::uint64_t total = 0;
   double t0 = 0;
   std::int64_t projected = 0;
   for (int i = 0; i < parts; ++i) {
     std::string bytes;
-    Particles<T, Dim> Q;
-    auto r = open(i, bytes, Q);
+    auto r = open(i, bytes);
+    Particles<T, Dim> Q = particles_.empty_like();
+    read_particles(*r, Q);
     read_scalars(*r);
     r->tag(detail::kTagEnd, "end");
     r->finish();
@@ -321,22 +323,8 @@ void MpmSolver<T, Dim>::load_state_parts(int parts, const std::function<std::str
     if (time_ != t0) r->fail("its time " + std::to_string(time_) + " s differs from part 0's " + std::to_string(t0) + " s");
     projected += projected_;
     total += Q.size();
-    for (std::size_t p = 0; p < Q.size(); ++p) {
-      if (split_) {
-        const int c = column(Q.x[p]);
-        if (c < split_->lo || c >= split_->hi) continue;
-      }
-      P.m.push_back(Q.m[p], P.size());
-      P.vol0.push_back(Q.vol0[p], P.size());
-      P.x.push_back(Q.x[p]);
-      P.v.push_back(Q.v[p]);
-      if (P.channels.F) P.F.push_back(Q.F[p]);
-      if (P.channels.J) P.J.push_back(Q.J[p]);
-      if (P.channels.C) P.C.push_back(Q.C[p]);
-      if (P.channels.plastic) P.plastic.push_back(Q.plastic[p]);
-      if (P.channels.material) P.material.push_back(Q.material[p]);
-      P.id.push_back(Q.id[p]);
-    }
+    for (std::size_t p = 0; p < Q.size(); ++p)
+      if (!split_ || owns(Q.x[p])) P.push_back_from(Q, p);
   }
   // Ids are 0 .. total - 1, each once: this process checks its own (an MPM frame's row is its
   // particle's id).

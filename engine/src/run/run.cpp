@@ -380,7 +380,7 @@ int resume_from_checkpoint(const Scene& scene, const RunOptions& options, const 
         if (!present[std::size_t(f)])
           throw IoError(file.string() + ": frame " + frame_file(dir, f).filename().string() + " before it is missing");
       const auto parts = detail::checkpoint_parts(file);
-      if (parts.size() == 1 && parts[0] == file && file.filename().string().find(".rank") == std::string::npos) {
+      if (file.filename() == detail::checkpoint_file(dir, c.frame).filename()) {
         sim->load_state(state, file.string());
       } else {
         // A checkpoint in parts (output.per_rank), read part by part as the solver asks.

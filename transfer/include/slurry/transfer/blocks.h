@@ -45,6 +45,14 @@ struct BlockShape {
   static constexpr int size = 1 << log2;  ///< nodes per axis
   static constexpr int nodes = Dim == 3 ? size * size * size : size * size;
   static constexpr int colours = 1 << Dim;
+  /// The colour of block b in [0, colours): the parities of its coordinates, the first axis's
+  /// the highest bit. P2G adds the blocks' patches colour after colour.
+  template <class IVec>
+  static int colour(const IVec& b) {
+    int c = 0;
+    for (int d = 0; d < Dim; ++d) c = 2 * c + (b[d] & 1);
+    return c;
+  }
 };
 
 /// The values of one grid node: momentum (or, after the grid update, velocity) in entries
@@ -614,10 +622,7 @@ class ParticleBins {
     for (auto& c : colour_) c.clear();
     const std::size_t nb = distinct_.size();
     for (std::size_t j = 0; j < nb; ++j) {
-      const IVec& b = bins_[groups_[j]].block;
-      int c = 0;
-      for (int d = 0; d < Dim; ++d) c = 2 * c + (b[d] & 1);
-      colour_[std::size_t(c)].push_back(std::uint32_t(j));
+      colour_[std::size_t(BlockShape<Dim>::colour(bins_[groups_[j]].block))].push_back(std::uint32_t(j));
     }
   }
   struct Mover {

@@ -180,7 +180,6 @@ class SparseGrid {
   }
   Node* find(const IVec& i) { return const_cast<Node*>(std::as_const(*this).find(i)); }
 
-
  private:
   std::int64_t key(const IVec& b) const {
     std::int64_t k = 0;

@@ -166,8 +166,10 @@ class MpmSolver final : public Solver {
   int column_order(const Vec& x) const;
   /// The block column along the split axis of the block a particle at x is binned to.
   int column(const Vec& x) const;
-  /// Particles of this rank per block column along the split axis.
-  std::vector<double> column_counts() const;
+  /// `counts` plus the particles at positions x per block column along the split axis.
+  std::vector<double> column_counts(const std::vector<Vec>& x, std::vector<double> counts = {}) const;
+  /// Whether a particle at x lies in this rank's slab.
+  bool owns(const Vec& x) const;
   /// Slab borders balanced for all ranks' column counts (and the per-rank extremes for the
   /// log); true if they moved.
   bool set_borders(const std::vector<double>& counts);

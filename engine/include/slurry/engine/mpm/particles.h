@@ -142,6 +142,19 @@ struct Particles {
     if (channels.material) material.push_back(mat);
     id.push_back(std::uint32_t(id.size()));
   }
+  /// Appends particle p of Q (the same channels) with every value it carries, its id included.
+  void push_back_from(const Particles& Q, std::size_t p) {
+    m.push_back(Q.m[p], size());
+    vol0.push_back(Q.vol0[p], size());
+    x.push_back(Q.x[p]);
+    v.push_back(Q.v[p]);
+    if (channels.F) F.push_back(Q.F[p]);
+    if (channels.J) J.push_back(Q.J[p]);
+    if (channels.C) C.push_back(Q.C[p]);
+    if (channels.plastic) plastic.push_back(Q.plastic[p]);
+    if (channels.material) material.push_back(Q.material[p]);
+    id.push_back(Q.id[p]);
+  }
 
   /// No particles, and the same stored channels as this set, mass and rest volume included
   /// (stored once with the same value, or per particle): a set to unpack this one's particles
