@@ -34,6 +34,10 @@ constexpr int kBits = 21;
 /// particle treated as deep (a round kernel, no neighbour sums).
 constexpr std::uint32_t kDeepCell = 6;
 constexpr std::int64_t kRange = std::int64_t(1) << kBits;
+/// The neighbour sums' partial sums (a multiple of the widest vector's float lanes, 16).
+constexpr std::size_t kLanes = 16;
+/// A padding coordinate: beyond any neighbourhood, its square still a finite float.
+constexpr float kFar = 1e15f;
 
 std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
   return (std::uint64_t(z) << (2 * kBits)) | (std::uint64_t(y) << kBits) | std::uint64_t(x);
@@ -201,40 +205,54 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
       }
       // The neighbourhood's particles, gathered once for the cell's particles, in the order of
       // the rows (the sums below add them in that order).
+      // Padded to whole vectors of kLanes with far points (weight 0, squares still finite).
       thread_local std::vector<float> gx, gy, gz;
-      thread_local std::vector<double> er2;
-      thread_local std::vector<std::uint32_t> gj;
-      gx.clear(), gy.clear(), gz.clear(), gj.clear();
+      gx.clear(), gy.clear(), gz.clear();
       for (const auto& [b, e] : rows)
         for (std::uint32_t q = b; q < e; ++q) {
-          const std::uint32_t j = order[q];
-          const auto& xj = points.position[j];
-          gx.push_back(xj[0]), gy.push_back(xj[1]), gz.push_back(xj[2]), gj.push_back(j);
+          const auto& xj = points.position[order[q]];
+          gx.push_back(xj[0]), gy.push_back(xj[1]), gz.push_back(xj[2]);
         }
-      const std::size_t m_all = gj.size();
-      er2.resize(m_all);
+      while (gx.size() % kLanes != 0) gx.push_back(kFar), gy.push_back(kFar), gz.push_back(kFar);
+      const std::size_t m_all = gx.size();
+      const float* const px = gx.data();
+      const float* const py = gy.data();
+      const float* const pz = gz.data();
+      const float R2 = float(R * R), inv_R = float(1 / R);
       for (std::uint32_t a = cells[std::size_t(c)]; a < cells[std::size_t(c) + 1]; ++a) {
         const std::uint32_t i = order[a];
         const auto& xi = points.position[i];
-        const double xi0 = xi[0], xi1 = xi[1], xi2 = xi[2];
-        for (std::size_t q = 0; q < m_all; ++q) {
-          const double d0 = double(gx[q]) - xi0, d1 = double(gy[q]) - xi1, d2 = double(gz[q]) - xi2;
-          er2[q] = d0 * d0 + d1 * d1 + d2 * d2;
-        }
-        double W = 0, mean[3] = {0, 0, 0}, second[6] = {0, 0, 0, 0, 0, 0};
-        int count = 0;
-        for (std::size_t q = 0; q < m_all; ++q) {
-          const double r2 = er2[q];
-          if (r2 >= R * R) continue;
-          const double d[3] = {double(gx[q]) - xi0, double(gy[q]) - xi1, double(gz[q]) - xi2};
-          const double r = std::sqrt(r2) / R, w = 1 - r * r * r;
-          W += w;
-          for (int m = 0; m < 3; ++m) mean[m] += w * d[m];
-          second[0] += w * d[0] * d[0], second[1] += w * d[1] * d[1], second[2] += w * d[2] * d[2];
-          second[3] += w * d[0] * d[1], second[4] += w * d[0] * d[2], second[5] += w * d[1] * d[2];
-          if (gj[q] != i) ++count;
-        }
-        for (int m = 0; m < 3; ++m) mean[m] /= W;  // W >= 1: the particle itself
+        const float xi0 = xi[0], xi1 = xi[1], xi2 = xi[2];
+        // Every candidate, branch-free (one beyond R weighs 0), summed in kLanes partial sums
+        // (candidate q into lane q mod kLanes), then the lanes in order: the same additions
+        // whatever the machine's vector width. The particle itself is inside, counted once.
+        float W[kLanes] = {}, m0[kLanes] = {}, m1[kLanes] = {}, m2[kLanes] = {}, c00[kLanes] = {},
+              c11[kLanes] = {}, c22[kLanes] = {}, c01[kLanes] = {}, c02[kLanes] = {}, c12[kLanes] = {};
+        std::int32_t in[kLanes] = {};
+        for (std::size_t q0 = 0; q0 < m_all; q0 += kLanes)
+          for (std::size_t l = 0; l < kLanes; ++l) {
+            const std::size_t q = q0 + l;
+            const float d0 = px[q] - xi0, d1 = py[q] - xi1, d2 = pz[q] - xi2;
+            const float r2 = d0 * d0 + d1 * d1 + d2 * d2;
+            const float r = std::sqrt(r2) * inv_R;
+            const float w = r2 < R2 ? 1.0f - r * r * r : 0.0f;
+            in[l] += r2 < R2 ? 1 : 0;
+            W[l] += w;
+            m0[l] += w * d0, m1[l] += w * d1, m2[l] += w * d2;
+            c00[l] += w * d0 * d0, c11[l] += w * d1 * d1, c22[l] += w * d2 * d2;
+            c01[l] += w * d0 * d1, c02[l] += w * d0 * d2, c12[l] += w * d1 * d2;
+          }
+        const auto total = [](const auto& lanes) {
+          double sum = 0;
+          for (const auto x : lanes) sum += double(x);
+          return sum;
+        };
+        const int inside = int(total(in));
+        double mean[3] = {total(m0), total(m1), total(m2)};
+        const double second[6] = {total(c00), total(c11), total(c22), total(c01), total(c02), total(c12)};
+        const double W_sum = total(W);
+        const int count = inside - 1;
+        for (int m = 0; m < 3; ++m) mean[m] /= W_sum;  // W_sum >= 1: the particle itself
         Kernel& ker = kernel[i];
         out.neighbours[i] = std::uint8_t(std::min(count, 255));
         for (int m = 0; m < 3; ++m) ker.centre[m] = float(xi[m] + k.smoothing * mean[m]);
@@ -242,12 +260,12 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
         Eigen::Matrix3d V = Eigen::Matrix3d::Identity();
         if (count >= k.min_neighbours) {
           Eigen::Matrix3d C;
-          C(0, 0) = second[0] / W - mean[0] * mean[0];
-          C(1, 1) = second[1] / W - mean[1] * mean[1];
-          C(2, 2) = second[2] / W - mean[2] * mean[2];
-          C(0, 1) = C(1, 0) = second[3] / W - mean[0] * mean[1];
-          C(0, 2) = C(2, 0) = second[4] / W - mean[0] * mean[2];
-          C(1, 2) = C(2, 1) = second[5] / W - mean[1] * mean[2];
+          C(0, 0) = second[0] / W_sum - mean[0] * mean[0];
+          C(1, 1) = second[1] / W_sum - mean[1] * mean[1];
+          C(2, 2) = second[2] / W_sum - mean[2] * mean[2];
+          C(0, 1) = C(1, 0) = second[3] / W_sum - mean[0] * mean[1];
+          C(0, 2) = C(2, 0) = second[4] / W_sum - mean[0] * mean[2];
+          C(1, 2) = C(2, 1) = second[5] / W_sum - mean[1] * mean[2];
           Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
           es.computeDirect(C);
           V = es.eigenvectors();
