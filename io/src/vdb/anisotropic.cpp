@@ -39,16 +39,14 @@ constexpr std::size_t kLanes = 16;
 /// A padding coordinate: beyond any neighbourhood, its square still a finite float.
 constexpr float kFar = 1e15f;
 
-std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
-  return (std::uint64_t(z) << (2 * kBits)) | (std::uint64_t(y) << kBits) | std::uint64_t(x);
-}
-
-/// Integer cells of side `side` (m) holding `pos`, packed into sortable keys with x fastest, so
-/// that a row of cells along x is a contiguous key range. Coordinates are offset so that the
-/// lowest cell minus `pad` is 0.
+/// Integer cells of side `side` (m) holding `pos`, numbered x fastest over the box of cells they
+/// span plus `pad` cells on each side (so that a row of cells along x is a contiguous key range,
+/// and the keys use as few bits as the box needs: fewer radix-sort passes). Coordinates are
+/// offset so that the lowest cell minus `pad` is 0.
 struct CellGrid {
   double side = 1;
   std::array<std::int64_t, 3> lo{};
+  std::array<std::int64_t, 3> n{};  ///< cells per axis, pads included
   CellGrid(const std::vector<std::array<float, 3>>& pos, double side_, std::int64_t pad,
            const char* what)
       : side(side_) {
@@ -61,6 +59,7 @@ struct CellGrid {
       }
     for (int d = 0; d < 3; ++d) {
       lo[d] = mn[d] - pad;
+      n[d] = mx[d] + pad - lo[d] + 1;
       if (mx[d] + pad - lo[d] >= kRange - 1)
         throw std::invalid_argument(std::string("points: they span more than 2^20 ") + what +
                                     " along axis " + std::to_string(d) +
@@ -73,10 +72,13 @@ struct CellGrid {
     for (int d = 0; d < 3; ++d) c[d] = std::int64_t(std::floor(double(p[d]) / side)) - lo[d];
     return c;
   }
-  static std::uint64_t key(const std::array<std::int64_t, 3>& c) { return pack(c[0], c[1], c[2]); }
-  static std::array<std::int64_t, 3> unpack(std::uint64_t k) {
-    return {std::int64_t(k & (kRange - 1)), std::int64_t((k >> kBits) & (kRange - 1)),
-            std::int64_t(k >> (2 * kBits))};
+  std::uint64_t key(std::int64_t x, std::int64_t y, std::int64_t z) const {
+    return std::uint64_t(x + n[0] * (y + n[1] * z));
+  }
+  std::uint64_t key(const std::array<std::int64_t, 3>& c) const { return key(c[0], c[1], c[2]); }
+  std::array<std::int64_t, 3> unpack(std::uint64_t k) const {
+    const std::int64_t i = std::int64_t(k);
+    return {i % n[0], (i / n[0]) % n[1], i / (n[0] * n[1])};
   }
 };
 
@@ -87,7 +89,7 @@ void sort_by_cell(const std::vector<std::array<float, 3>>& pos, const CellGrid& 
   keys.resize(n);
   order.resize(n);
   parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t i) {
-    keys[std::size_t(i)] = CellGrid::key(grid.cell(pos[std::size_t(i)]));
+    keys[std::size_t(i)] = grid.key(grid.cell(pos[std::size_t(i)]));
     order[std::size_t(i)] = std::uint32_t(i);
   });
   radix_sort_pairs(keys, order);
@@ -168,7 +170,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
     const std::vector<std::uint32_t> cells = runs(keys);
     const CellIndex index(keys, cells);
     parallel::parallel_for_grain(0, std::int64_t(cells.size()) - 1, 16, [&](std::int64_t c) {
-      const auto cc = CellGrid::unpack(keys[cells[std::size_t(c)]]);
+      const auto cc = grid.unpack(keys[cells[std::size_t(c)]]);
       std::array<std::pair<std::uint32_t, std::uint32_t>, 9> rows;
       std::uint32_t fewest = UINT32_MAX;  // particles in the emptiest of the 27 cells
       for (int dy = -1, r = 0; dy <= 1; ++dy)
@@ -176,7 +178,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
           // The row's cells are consecutive keys, so its particles are one range of `order`.
           std::uint32_t first = UINT32_MAX, last = 0;
           for (int e = 0; e < 3; ++e) {
-            const std::int64_t run = index.find(pack(cc[0] - 1 + e, cc[1] + dy, cc[2] + dz));
+            const std::int64_t run = index.find(grid.key(cc[0] - 1 + e, cc[1] + dy, cc[2] + dz));
             if (run < 0) {
               fewest = 0;
               continue;
@@ -326,7 +328,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
     for (int d = 0; d < 3; ++d) b0[d] = block_of(lo[d]) - blocks.lo[d], b1[d] = block_of(hi[d]) - blocks.lo[d];
     for (std::int64_t z = b0[2]; z <= b1[2]; ++z)
       for (std::int64_t y = b0[1]; y <= b1[1]; ++y)
-        for (std::int64_t x = b0[0]; x <= b1[0]; ++x) target.push_back(pack(x, y, z)), listed.push_back(order[q]);
+        for (std::int64_t x = b0[0]; x <= b1[0]; ++x) target.push_back(blocks.key(x, y, z)), listed.push_back(order[q]);
   }
   radix_sort_pairs(target, listed);  // stable: within a block, the kernels' order above
   const std::vector<std::uint32_t> lists = runs(target);
@@ -334,7 +336,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   out.value.assign(nb * B * B * B, 0.0f);
   out.origin.resize(nb);
   parallel::parallel_tasks(0, std::int64_t(nb), [&](std::int64_t bi) {
-    const auto bc = CellGrid::unpack(target[lists[std::size_t(bi)]]);
+    const auto bc = blocks.unpack(target[lists[std::size_t(bi)]]);
     // Index-space origin of the block.
     const std::int64_t o[3] = {(bc[0] + blocks.lo[0]) * B, (bc[1] + blocks.lo[1]) * B,
                                (bc[2] + blocks.lo[2]) * B};
