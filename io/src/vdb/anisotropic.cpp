@@ -169,6 +169,13 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
     sort_by_cell(points.position, grid, keys, order);
     const std::vector<std::uint32_t> cells = runs(keys);
     const CellIndex index(keys, cells);
+    // Positions in cell order, by coordinate: a row of cells is one range of each.
+    std::vector<float> sorted[3];
+    for (auto& axis : sorted) axis.resize(n);
+    parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t a) {
+      const auto& p = points.position[order[std::size_t(a)]];
+      for (int d = 0; d < 3; ++d) sorted[d][std::size_t(a)] = p[d];
+    });
     parallel::parallel_for_grain(0, std::int64_t(cells.size()) - 1, 16, [&](std::int64_t c) {
       const auto cc = grid.unpack(keys[cells[std::size_t(c)]]);
       std::array<std::pair<std::uint32_t, std::uint32_t>, 9> rows;
@@ -208,23 +215,25 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
       // The neighbourhood's particles, gathered once for the cell's particles, in the order of
       // the rows (the sums below add them in that order).
       // Padded to whole vectors of kLanes with far points (weight 0, squares still finite).
-      thread_local std::vector<float> gx, gy, gz;
-      gx.clear(), gy.clear(), gz.clear();
-      for (const auto& [b, e] : rows)
-        for (std::uint32_t q = b; q < e; ++q) {
-          const auto& xj = points.position[order[q]];
-          gx.push_back(xj[0]), gy.push_back(xj[1]), gz.push_back(xj[2]);
-        }
-      while (gx.size() % kLanes != 0) gx.push_back(kFar), gy.push_back(kFar), gz.push_back(kFar);
-      const std::size_t m_all = gx.size();
-      const float* const px = gx.data();
-      const float* const py = gy.data();
-      const float* const pz = gz.data();
+      thread_local std::vector<float> gathered[3];
+      std::size_t m_all = 0;
+      for (const auto& [b, e] : rows) m_all += e - b;
+      m_all = (m_all + kLanes - 1) / kLanes * kLanes;
+      for (int d = 0; d < 3; ++d) {
+        std::vector<float>& g = gathered[d];
+        g.resize(m_all);
+        std::size_t at = 0;
+        for (const auto& [b, e] : rows) at = std::size_t(std::copy(sorted[d].begin() + b, sorted[d].begin() + e, g.begin() + std::ptrdiff_t(at)) - g.begin());
+        std::fill(g.begin() + std::ptrdiff_t(at), g.end(), kFar);
+      }
+      const float* const px = gathered[0].data();
+      const float* const py = gathered[1].data();
+      const float* const pz = gathered[2].data();
       const float R2 = float(R * R), inv_R = float(1 / R);
       for (std::uint32_t a = cells[std::size_t(c)]; a < cells[std::size_t(c) + 1]; ++a) {
         const std::uint32_t i = order[a];
         const auto& xi = points.position[i];
-        const float xi0 = xi[0], xi1 = xi[1], xi2 = xi[2];
+        const float xi0 = sorted[0][a], xi1 = sorted[1][a], xi2 = sorted[2][a];
         // Every candidate, branch-free (one beyond R weighs 0), summed in kLanes partial sums
         // (candidate q into lane q mod kLanes), then the lanes in order: the same additions
         // whatever the machine's vector width. The particle itself is inside, counted once.
@@ -268,6 +277,30 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
           C(0, 1) = C(1, 0) = second[3] / W_sum - mean[0] * mean[1];
           C(0, 2) = C(2, 0) = second[4] / W_sum - mean[0] * mean[2];
           C(1, 2) = C(2, 1) = second[5] / W_sum - mean[1] * mean[2];
+          // Where neither clamp applies (every eigenvalue s_k within [s_1 / k_r^2, k_r^2 s_bulk]),
+          // the kernel's quadratic form V A^-2 V^T is (s_bulk / H^2) C^-1: its Cholesky factor
+          // maps offsets to the unit ball without an eigendecomposition. Decided on bounds:
+          // s_3 >= 1 / |C^-1|_F, s_1 <= the smaller of |C|_F and the largest Gershgorin row sum.
+          const double det = C.determinant();
+          if (det > 0) {
+            const Eigen::Matrix3d inverse = C.inverse();
+            double rows = 0;
+            for (int row = 0; row < 3; ++row) rows = std::max(rows, C.row(row).cwiseAbs().sum());
+            const double largest = std::min(C.norm(), rows);
+            const double kr2 = k.max_stretch * k.max_stretch;
+            if (largest <= kr2 / inverse.norm() && largest <= kr2 * s_bulk) {
+              const Eigen::Matrix3d form = (s_bulk / (H * H)) * inverse;
+              const Eigen::LLT<Eigen::Matrix3d> llt(form);
+              if (llt.info() == Eigen::Success) {
+                const Eigen::Matrix3d L = llt.matrixL();
+                for (int row = 0; row < 3; ++row)
+                  for (int col = 0; col < 3; ++col) ker.map[std::size_t(3 * row + col)] = float(L(col, row));
+                ker.weight = float(volume * K / (H * H * H * std::sqrt(det / (s_bulk * s_bulk * s_bulk))));
+                ker.reach = float(H * std::sqrt(largest / s_bulk));
+                continue;
+              }
+            }
+          }
           Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
           es.computeDirect(C);
           V = es.eigenvectors();
@@ -307,6 +340,11 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   std::vector<std::uint64_t> keys;
   std::vector<std::uint32_t> order;
   sort_by_cell(centres, blocks, keys, order);
+  // The kernels in that order, so that a block reads its own kernels from one stretch of memory.
+  std::vector<Kernel> by_block(n);
+  parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t q) {
+    by_block[std::size_t(q)] = kernel[order[std::size_t(q)]];
+  });
   const float inv_h = float(1.0 / h);
   /// Kernel i's voxels: [lo, hi] per axis (empty when lo > hi on an axis).
   const auto voxel_range = [&](const Kernel& ker, std::int64_t lo[3], std::int64_t hi[3]) {
@@ -319,16 +357,16 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   };
   const auto block_of = [](std::int64_t v) { return v >= 0 ? v / B : -((-v + B - 1) / B); };
   std::vector<std::uint64_t> target;   // block key of each (block, kernel) pair
-  std::vector<std::uint32_t> listed;   // the kernel
+  std::vector<std::uint32_t> listed;   // the kernel, by its place in by_block
   target.reserve(n + n / 2), listed.reserve(n + n / 2);
   for (std::size_t q = 0; q < n; ++q) {
     std::int64_t lo[3], hi[3], b0[3], b1[3];
-    voxel_range(kernel[order[q]], lo, hi);
+    voxel_range(by_block[q], lo, hi);
     if (lo[0] > hi[0] || lo[1] > hi[1] || lo[2] > hi[2]) continue;
     for (int d = 0; d < 3; ++d) b0[d] = block_of(lo[d]) - blocks.lo[d], b1[d] = block_of(hi[d]) - blocks.lo[d];
     for (std::int64_t z = b0[2]; z <= b1[2]; ++z)
       for (std::int64_t y = b0[1]; y <= b1[1]; ++y)
-        for (std::int64_t x = b0[0]; x <= b1[0]; ++x) target.push_back(blocks.key(x, y, z)), listed.push_back(order[q]);
+        for (std::int64_t x = b0[0]; x <= b1[0]; ++x) target.push_back(blocks.key(x, y, z)), listed.push_back(std::uint32_t(q));
   }
   radix_sort_pairs(target, listed);  // stable: within a block, the kernels' order above
   const std::vector<std::uint32_t> lists = runs(target);
@@ -343,7 +381,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
     out.origin[std::size_t(bi)] = {std::int32_t(o[0]), std::int32_t(o[1]), std::int32_t(o[2])};
     float* v = out.value.data() + std::size_t(bi) * B * B * B;
     for (std::uint32_t at = lists[std::size_t(bi)]; at < lists[std::size_t(bi) + 1]; ++at) {
-      const Kernel& ker = kernel[listed[at]];
+      const Kernel& ker = by_block[listed[at]];
       const float P[3] = {ker.centre[0] * inv_h, ker.centre[1] * inv_h, ker.centre[2] * inv_h};
       std::int64_t lo_i[3], hi_i[3];
       voxel_range(ker, lo_i, hi_i);
