@@ -111,13 +111,19 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
     if (!first.empty()) return std::size_t(first[std::size_t(k)]);
     return std::size_t(std::lower_bound(keys.begin(), keys.end(), std::uint64_t(k)) - keys.begin());
   };
+  // Positions and velocities in cell order: a row of cells is one stretch of memory.
+  std::vector<std::array<float, 3>> position(n), velocity(n);
+  slurry::parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t t) {
+    position[std::size_t(t)] = points.position[index[std::size_t(t)]];
+    velocity[std::size_t(t)] = points.velocity[index[std::size_t(t)]];
+  });
 
   slurry::parallel::parallel_for(0, std::int64_t(vertices.size()), [&](std::int64_t vi) {
     const auto& q = vertices[std::size_t(vi)];
     std::array<std::int64_t, 3> c;
     cell_of(q, c);
     double w_sum = 0, u[3] = {0, 0, 0}, nearest = 1e300;
-    std::uint32_t nearest_index = 0;
+    std::size_t nearest_index = 0;  // in cell order
     // The cells (a, b, c[2] - 1 .. c[2] + 1) are consecutive keys: one range per row, visited
     // in the same order as cell by cell.
     for (std::int64_t a = c[0] - 1; a <= c[0] + 1; ++a)
@@ -127,23 +133,22 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
         if (e0 > e1) continue;
         const std::uint64_t k_end = std::uint64_t(key({a, b, e1}));
         for (std::size_t t = row_begin(key({a, b, e0})); t < n && keys[t] <= k_end; ++t) {
-          const std::uint32_t pi = index[t];
-          const auto& p = points.position[pi];
+          const auto& p = position[t];
           const double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
           const double r2 = dx * dx + dy * dy + dz * dz;
-          if (r2 < nearest) nearest = r2, nearest_index = pi;
+          if (r2 < nearest) nearest = r2, nearest_index = t;
           if (r2 >= h * h) continue;
           const double s = 1 - r2 / (h * h),
                        w = s * s * s;  // poly6 (Mueller et al. 2003, eq. 20), unnormalized
           w_sum += w;
-          for (int d = 0; d < 3; ++d) u[d] += w * points.velocity[pi][d];
+          for (int d = 0; d < 3; ++d) u[d] += w * velocity[t][d];
         }
       }
     auto& o = out[std::size_t(vi)];
     if (w_sum > 0) {
       for (int d = 0; d < 3; ++d) o[d] = float(u[d] / w_sum);
     } else if (nearest < 1e300) {
-      o = points.velocity[nearest_index];
+      o = velocity[nearest_index];
     } else if (found) {
       return;  // left to the caller
     } else {  // no particle within 1.5 h: the closest one of all (rare; closing keeps vertices near
