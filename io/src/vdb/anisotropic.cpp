@@ -253,10 +253,14 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
             c00[l] += w * d0 * d0, c11[l] += w * d1 * d1, c22[l] += w * d2 * d2;
             c01[l] += w * d0 * d1, c02[l] += w * d0 * d2, c12[l] += w * d1 * d2;
           }
+        // The lanes' sum in double as a tree of halving strides: the same additions on every
+        // machine, four dependent steps instead of sixteen.
         const auto total = [](const auto& lanes) {
-          double sum = 0;
-          for (const auto x : lanes) sum += double(x);
-          return sum;
+          double h[kLanes];
+          for (std::size_t l = 0; l < kLanes; ++l) h[l] = double(lanes[l]);
+          for (std::size_t w = kLanes / 2; w > 0; w /= 2)
+            for (std::size_t l = 0; l < w; ++l) h[l] += h[l + w];
+          return h[0];
         };
         const int inside = int(total(in));
         double mean[3] = {total(m0), total(m1), total(m2)};
