@@ -193,32 +193,18 @@ struct Puddle {
 /// (dx^2 / 8 each, their rest density) within 2 mm of the puddle's middle, over 4 mm.
 inline Puddle glycerol_puddle(double dx, double seconds) {
   constexpr double rho = 1260, mu = 1.41, sigma = 0.0634, g = 9.81;
-  slurry::Scene s;
+  slurry::Scene s = drop_scene<2>(1, sigma, mu);  // APIC, linear kernel, double precision
   s.source = "puddle";
-  s.solver.type = slurry::SolverType::FLIP;
-  s.solver.dimension = 2;
-  s.solver.precision = slurry::Precision::Double;
-  s.solver.transfer = slurry::TransferKind::APIC;
-  s.solver.kernel = slurry::KernelKind::Linear;
-  s.solver.cfl = 1;
   s.solver.max_dt = 1.0 / 240;
   s.solver.gravity = {0, -g, 0};
   s.domain.max = Eigen::Vector3d(0.04, 0.01, 0);
   s.domain.dx = dx;
-  slurry::MaterialParams m;
-  m.name = "glycerol";
-  m.model = slurry::ElasticModel::Fluid;
-  m.density = rho;
-  m.viscosity = mu;
-  m.surface_tension = sigma;
-  s.materials = {m};
-  slurry::BodyParams b;
+  s.materials[0].density = rho;
+  slurry::BodyParams& b = s.bodies[0];
   b.shape = slurry::Shape::Box;
   b.min = Eigen::Vector3d(0.014, 0, 0);
   b.max = Eigen::Vector3d(0.026, 0.005, 0);
-  b.material = "glycerol";
   b.particles_per_cell = 8;
-  s.bodies = {b};
   slurry::flip::FlipSolver<double, 2> sim(s);
   while (sim.time() < seconds - 1e-12) sim.step(std::min(sim.stable_dt(), seconds - sim.time()));
   const auto& x = sim.particles().x;

@@ -153,7 +153,7 @@ TEST(FlipSurfaceTension, OscillatingBallHasRayleighsPeriod) {
 // disk in the domain's corner and a half disk on a collider count only their free part.
 // Gravity against surface tension: a block of glycerol on the floor settles into a puddle whose
 // height is set by the capillary length (surface_tension_drop.h). At dx = 0.5 mm (the height is
-// 6.4 cells) it measured 5.3% low after 1 s. Without surface tension the block spreads over the
+// 6.4 cells) it measured 6.3% low after 1 s. Without surface tension the block spreads over the
 // whole floor, 1.6 mm high; a jump off by 16% moves the height by 8% (it goes as sqrt(sigma)).
 // Finer: the validation label.
 TEST(FlipSurfaceTension, GlycerolPuddleHasTheCapillaryHeight) {
