@@ -23,6 +23,7 @@
 #include <string>
 
 #include "slurry/transfer/parallel.h"
+#include "vdb/lanes.h"
 #include "vdb/radix_sort.h"
 
 namespace slurry::io::detail {
@@ -34,10 +35,6 @@ constexpr int kBits = 21;
 /// particle treated as deep (a round kernel, no neighbour sums).
 constexpr std::uint32_t kDeepCell = 6;
 constexpr std::int64_t kRange = std::int64_t(1) << kBits;
-/// The neighbour sums' partial sums (a multiple of the widest vector's float lanes, 16).
-constexpr std::size_t kLanes = 16;
-/// A padding coordinate: beyond any neighbourhood, its square still a finite float.
-constexpr float kFar = 1e15f;
 
 /// Integer cells of side `side` (m) holding `pos`, numbered x fastest over the box of cells they
 /// span plus `pad` cells on each side (so that a row of cells along x is a contiguous key range,
@@ -234,9 +231,8 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
         const std::uint32_t i = order[a];
         const auto& xi = points.position[i];
         const float xi0 = sorted[0][a], xi1 = sorted[1][a], xi2 = sorted[2][a];
-        // Every candidate, branch-free (one beyond R weighs 0), summed in kLanes partial sums
-        // (candidate q into lane q mod kLanes), then the lanes in order: the same additions
-        // whatever the machine's vector width. The particle itself is inside, counted once.
+        // Every candidate, branch-free (one beyond R weighs 0), in the partial sums of lanes.h.
+        // The particle itself is inside, counted once.
         float W[kLanes] = {}, m0[kLanes] = {}, m1[kLanes] = {}, m2[kLanes] = {}, c00[kLanes] = {},
               c11[kLanes] = {}, c22[kLanes] = {}, c01[kLanes] = {}, c02[kLanes] = {}, c12[kLanes] = {};
         std::int32_t in[kLanes] = {};
@@ -253,19 +249,10 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
             c00[l] += w * d0 * d0, c11[l] += w * d1 * d1, c22[l] += w * d2 * d2;
             c01[l] += w * d0 * d1, c02[l] += w * d0 * d2, c12[l] += w * d1 * d2;
           }
-        // The lanes' sum in double as a tree of halving strides: the same additions on every
-        // machine, four dependent steps instead of sixteen.
-        const auto total = [](const auto& lanes) {
-          double h[kLanes];
-          for (std::size_t l = 0; l < kLanes; ++l) h[l] = double(lanes[l]);
-          for (std::size_t w = kLanes / 2; w > 0; w /= 2)
-            for (std::size_t l = 0; l < w; ++l) h[l] += h[l + w];
-          return h[0];
-        };
-        const int inside = int(total(in));
-        double mean[3] = {total(m0), total(m1), total(m2)};
-        const double second[6] = {total(c00), total(c11), total(c22), total(c01), total(c02), total(c12)};
-        const double W_sum = total(W);
+        const int inside = int(lane_total(in));
+        double mean[3] = {lane_total(m0), lane_total(m1), lane_total(m2)};
+        const double second[6] = {lane_total(c00), lane_total(c11), lane_total(c22), lane_total(c01), lane_total(c02), lane_total(c12)};
+        const double W_sum = lane_total(W);
         const int count = inside - 1;
         for (int m = 0; m < 3; ++m) mean[m] /= W_sum;  // W_sum >= 1: the particle itself
         Kernel& ker = kernel[i];
