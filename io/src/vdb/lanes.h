@@ -1,8 +1,8 @@
 #pragma once
 // Sums over many candidates in kLanes partial sums (candidate q in lane q mod kLanes, written as
 // a loop of whole vectors that compilers vectorize), then the lanes added as a tree in double:
-// the same additions on any machine, whatever its vector width. Shared by the anisotropic field
-// (anisotropic.cpp) and the velocity samples (mesh.cpp).
+// the same additions on any machine, whatever its vector width. Used by the anisotropic field's
+// neighbour sums (anisotropic.cpp).
 #include <cstddef>
 
 namespace slurry::io::detail {

@@ -12,7 +12,6 @@
 #include "slurry/io/obj.h"
 #include "slurry/io/surface.h"
 #include "slurry/transfer/parallel.h"
-#include "vdb/lanes.h"
 #include "vdb/radix_sort.h"
 #include "vdb/velocities.h"
 
@@ -119,10 +118,8 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
     velocity[std::size_t(t)] = points.velocity[index[std::size_t(t)]];
   });
 
-  // One point, by itself: the 27 cells around its own, one particle at a time (the points
-  // beyond the particles' box of cells and its margin of one cell, where no particle is near).
-  const auto one_point = [&](std::size_t vi) {
-    const auto& q = vertices[vi];
+  slurry::parallel::parallel_for(0, std::int64_t(vertices.size()), [&](std::int64_t vi) {
+    const auto& q = vertices[std::size_t(vi)];
     std::array<std::int64_t, 3> c;
     cell_of(q, c);
     double w_sum = 0, u[3] = {0, 0, 0}, nearest = 1e300;
@@ -147,7 +144,7 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
           for (int d = 0; d < 3; ++d) u[d] += w * velocity[t][d];
         }
       }
-    auto& o = out[vi];
+    auto& o = out[std::size_t(vi)];
     if (w_sum > 0) {
       for (int d = 0; d < 3; ++d) o[d] = float(u[d] / w_sum);
     } else if (nearest < 1e300) {
@@ -166,94 +163,7 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
       }
       o = points.velocity[best];
     }
-    if (found) (*found)[vi] = 1;
-  };
-
-  // The other points grouped by cell: a group gathers its 27 cells' particles once, and each of
-  // its points sums them in one branch-free loop of float partial sums (lanes.h). The nearest
-  // candidate is the first of the smallest distances in the cells' order.
-  const std::size_t m = vertices.size();
-  const std::array<std::int64_t, 3> ext{dims[0] + 2, dims[1] + 2, dims[2] + 2};  // with the margin
-  const std::uint64_t far_key = std::uint64_t(ext[0] * ext[1] * ext[2]);
-  std::vector<std::uint64_t> point_key(m);
-  std::vector<std::uint32_t> point_order(m);
-  slurry::parallel::parallel_for(0, std::int64_t(m), [&](std::int64_t vi) {
-    std::array<std::int64_t, 3> c;
-    cell_of(vertices[std::size_t(vi)], c);
-    bool near = true;
-    for (int d = 0; d < 3; ++d) near = near && c[d] >= -1 && c[d] <= dims[d];
-    point_key[std::size_t(vi)] = near ? std::uint64_t(((c[0] + 1) * ext[1] + c[1] + 1) * ext[2] + c[2] + 1) : far_key;
-    point_order[std::size_t(vi)] = std::uint32_t(vi);
-  });
-  radix_sort_pairs(point_key, point_order);
-  std::vector<std::uint32_t> group;
-  for (std::size_t i = 0; i < m; ++i)
-    if (i == 0 || point_key[i] != point_key[i - 1]) group.push_back(std::uint32_t(i));
-  group.push_back(std::uint32_t(m));
-  const float h2 = float(h * h), inv_h2 = float(1 / (h * h));
-  slurry::parallel::parallel_for_grain(0, std::int64_t(group.size()) - 1, 8, [&](std::int64_t g) {
-    const std::uint32_t g0 = group[std::size_t(g)], g1 = group[std::size_t(g) + 1];
-    const std::uint64_t k = point_key[g0];
-    if (k == far_key) {
-      for (std::uint32_t i = g0; i < g1; ++i) one_point(point_order[i]);
-      return;
-    }
-    const std::array<std::int64_t, 3> c{std::int64_t(k) / (ext[1] * ext[2]) - 1, std::int64_t(k) / ext[2] % ext[1] - 1,
-                                        std::int64_t(k) % ext[2] - 1};
-    thread_local std::vector<float> gp[3], gv[3];
-    thread_local std::vector<std::uint32_t> gt;
-    for (int d = 0; d < 3; ++d) gp[d].clear(), gv[d].clear();
-    gt.clear();
-    // The cells (a, b, c[2] - 1 .. c[2] + 1) are consecutive keys: one range per row.
-    for (std::int64_t a = c[0] - 1; a <= c[0] + 1; ++a)
-      for (std::int64_t b = c[1] - 1; b <= c[1] + 1; ++b) {
-        if (a < 0 || b < 0 || a >= dims[0] || b >= dims[1]) continue;
-        const std::int64_t e0 = std::max<std::int64_t>(c[2] - 1, 0), e1 = std::min(c[2] + 1, dims[2] - 1);
-        if (e0 > e1) continue;
-        const std::uint64_t k_end = std::uint64_t(key({a, b, e1}));
-        for (std::size_t t = row_begin(key({a, b, e0})); t < n && keys[t] <= k_end; ++t) {
-          for (int d = 0; d < 3; ++d) gp[d].push_back(position[t][d]), gv[d].push_back(velocity[t][d]);
-          gt.push_back(std::uint32_t(t));
-        }
-      }
-    const std::size_t real = gt.size(), padded = (real + kLanes - 1) / kLanes * kLanes;
-    for (int d = 0; d < 3; ++d) gp[d].resize(padded, kFar), gv[d].resize(padded, 0.0f);
-    const float *px = gp[0].data(), *py = gp[1].data(), *pz = gp[2].data();
-    const float *vx = gv[0].data(), *vy = gv[1].data(), *vz = gv[2].data();
-    for (std::uint32_t i = g0; i < g1; ++i) {
-      const std::size_t vi = point_order[i];
-      const float qx = vertices[vi][0], qy = vertices[vi][1], qz = vertices[vi][2];
-      float W[kLanes] = {}, U0[kLanes] = {}, U1[kLanes] = {}, U2[kLanes] = {}, best[kLanes];
-      std::int32_t best_q[kLanes] = {};
-      std::fill(best, best + kLanes, std::numeric_limits<float>::infinity());
-      for (std::size_t q0 = 0; q0 < padded; q0 += kLanes)
-        for (std::size_t l = 0; l < kLanes; ++l) {
-          const std::size_t q = q0 + l;
-          const float dx = px[q] - qx, dy = py[q] - qy, dz = pz[q] - qz;
-          const float r2 = dx * dx + dy * dy + dz * dz;
-          const bool closer = r2 < best[l];
-          best[l] = closer ? r2 : best[l];
-          best_q[l] = closer ? std::int32_t(q) : best_q[l];
-          const float s = 1.0f - r2 * inv_h2;
-          const float w = r2 < h2 ? s * s * s : 0.0f;  // poly6 (Mueller et al. 2003, eq. 20), unnormalized
-          W[l] += w, U0[l] += w * vx[q], U1[l] += w * vy[q], U2[l] += w * vz[q];
-        }
-      const double w_sum = lane_total(W);
-      auto& o = out[vi];
-      if (w_sum > 0) {
-        const double u[3] = {lane_total(U0), lane_total(U1), lane_total(U2)};
-        for (int d = 0; d < 3; ++d) o[d] = float(u[d] / w_sum);
-      } else if (real > 0) {
-        std::size_t at = 0;
-        for (std::size_t l = 1; l < kLanes; ++l)
-          if (best[l] < best[at] || (best[l] == best[at] && best_q[l] < best_q[at])) at = l;
-        o = velocity[gt[std::size_t(best_q[at])]];
-      } else {
-        one_point(vi);  // no particle in the 27 cells: left to the caller, or the nearest of all
-        continue;
-      }
-      if (found) (*found)[vi] = 1;
-    }
+    if (found) (*found)[std::size_t(vi)] = 1;
   });
   return out;
 }
