@@ -142,7 +142,7 @@ struct Kernel {
   std::array<float, 3> centre;
   std::array<float, 9> map;  ///< row-major A^-1 V^T: world offset to the unit ball
   float weight;              ///< V K / (a_1 a_2 a_3)
-  float reach;               ///< the longest axis (m)
+  float reach;               ///< the longest axis (m), or a bound above it (the Cholesky path)
 };
 
 }  // namespace
@@ -220,7 +220,10 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
         std::vector<float>& g = gathered[d];
         g.resize(m_all);
         std::size_t at = 0;
-        for (const auto& [b, e] : rows) at = std::size_t(std::copy(sorted[d].begin() + b, sorted[d].begin() + e, g.begin() + std::ptrdiff_t(at)) - g.begin());
+        for (const auto& [b, e] : rows) {
+          std::copy(sorted[d].begin() + b, sorted[d].begin() + e, g.begin() + std::ptrdiff_t(at));
+          at += e - b;
+        }
         std::fill(g.begin() + std::ptrdiff_t(at), g.end(), kFar);
       }
       const float* const px = gathered[0].data();
@@ -251,7 +254,8 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
           }
         const int inside = int(lane_total(in));
         double mean[3] = {lane_total(m0), lane_total(m1), lane_total(m2)};
-        const double second[6] = {lane_total(c00), lane_total(c11), lane_total(c22), lane_total(c01), lane_total(c02), lane_total(c12)};
+        const double second[6] = {lane_total(c00), lane_total(c11), lane_total(c22),
+                                  lane_total(c01), lane_total(c02), lane_total(c12)};
         const double W_sum = lane_total(W);
         const int count = inside - 1;
         for (int m = 0; m < 3; ++m) mean[m] /= W_sum;  // W_sum >= 1: the particle itself
@@ -357,7 +361,8 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
     for (int d = 0; d < 3; ++d) b0[d] = block_of(lo[d]) - blocks.lo[d], b1[d] = block_of(hi[d]) - blocks.lo[d];
     for (std::int64_t z = b0[2]; z <= b1[2]; ++z)
       for (std::int64_t y = b0[1]; y <= b1[1]; ++y)
-        for (std::int64_t x = b0[0]; x <= b1[0]; ++x) target.push_back(blocks.key(x, y, z)), listed.push_back(std::uint32_t(q));
+        for (std::int64_t x = b0[0]; x <= b1[0]; ++x)
+          target.push_back(blocks.key(x, y, z)), listed.push_back(std::uint32_t(q));
   }
   radix_sort_pairs(target, listed);  // stable: within a block, the kernels' order above
   const std::vector<std::uint32_t> lists = runs(target);
