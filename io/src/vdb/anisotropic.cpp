@@ -23,7 +23,6 @@
 #include <string>
 
 #include "slurry/transfer/parallel.h"
-#include "vdb/lanes.h"
 #include "vdb/radix_sort.h"
 
 namespace slurry::io::detail {
@@ -35,6 +34,23 @@ constexpr int kBits = 21;
 /// particle treated as deep (a round kernel, no neighbour sums).
 constexpr std::uint32_t kDeepCell = 6;
 constexpr std::int64_t kRange = std::int64_t(1) << kBits;
+/// The neighbour sums run over every candidate in kLanes partial sums (candidate q in lane
+/// q mod kLanes, a loop of whole vectors that compilers vectorize), then the lanes are added as a
+/// tree in double: the same additions on any machine, whatever its vector width. kLanes is a
+/// multiple of the widest vector's float lanes (16).
+constexpr std::size_t kLanes = 16;
+/// A padding coordinate for the candidates: beyond any neighbourhood, its square still finite.
+constexpr float kFar = 1e15f;
+
+/// The sum of kLanes lanes in double, as a tree of halving strides.
+template <class T>
+double lane_total(const T (&lanes)[kLanes]) {
+  double s[kLanes];
+  for (std::size_t l = 0; l < kLanes; ++l) s[l] = double(lanes[l]);
+  for (std::size_t w = kLanes / 2; w > 0; w /= 2)
+    for (std::size_t l = 0; l < w; ++l) s[l] += s[l + w];
+  return s[0];
+}
 
 /// Integer cells of side `side` (m) holding `pos`, numbered x fastest over the box of cells they
 /// span plus `pad` cells on each side (so that a row of cells along x is a contiguous key range,
@@ -232,9 +248,9 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
       const float R2 = float(R * R), inv_R = float(1 / R);
       for (std::uint32_t a = cells[std::size_t(c)]; a < cells[std::size_t(c) + 1]; ++a) {
         const std::uint32_t i = order[a];
-        const auto& xi = points.position[i];
-        const float xi0 = sorted[0][a], xi1 = sorted[1][a], xi2 = sorted[2][a];
-        // Every candidate, branch-free (one beyond R weighs 0), in the partial sums of lanes.h.
+        const float xi[3] = {sorted[0][a], sorted[1][a], sorted[2][a]};
+        const float xi0 = xi[0], xi1 = xi[1], xi2 = xi[2];
+        // Every candidate, branch-free (one beyond R weighs 0), in kLanes partial sums.
         // The particle itself is inside, counted once.
         float W[kLanes] = {}, m0[kLanes] = {}, m1[kLanes] = {}, m2[kLanes] = {}, c00[kLanes] = {},
               c11[kLanes] = {}, c22[kLanes] = {}, c01[kLanes] = {}, c02[kLanes] = {}, c12[kLanes] = {};
@@ -276,9 +292,11 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
           // the kernel's quadratic form V A^-2 V^T is (s_bulk / H^2) C^-1: its Cholesky factor
           // maps offsets to the unit ball without an eigendecomposition. Decided on bounds:
           // s_3 >= 1 / |C^-1|_F, s_1 <= the smaller of |C|_F and the largest Gershgorin row sum.
-          const double det = C.determinant();
-          if (det > 0) {
-            const Eigen::Matrix3d inverse = C.inverse();
+          Eigen::Matrix3d inverse;
+          double det = 0;
+          bool invertible = false;
+          C.computeInverseAndDetWithCheck(inverse, det, invertible, 0.0);
+          if (invertible && det > 0) {
             double rows = 0;
             for (int row = 0; row < 3; ++row) rows = std::max(rows, C.row(row).cwiseAbs().sum());
             const double largest = std::min(C.norm(), rows);

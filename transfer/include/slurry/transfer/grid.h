@@ -69,13 +69,13 @@ class DenseGrid {
   Vec position(const IVec& i) const { return origin_ + dx_ * i.template cast<T>(); }
 
   Node& node(std::int64_t k) { return nodes_[std::size_t(k)]; }
+  const Node& node(std::int64_t k) const { return nodes_[std::size_t(k)]; }
   /// The node at lattice coordinates i, or nullptr outside the grid (SparseGrid's interface).
   Node* find(const IVec& i) {
     for (int d = 0; d < Dim; ++d)
       if (i[d] < 0 || i[d] >= res_[d]) return nullptr;
     return &nodes_[std::size_t(index(i))];
   }
-  const Node& node(std::int64_t k) const { return nodes_[std::size_t(k)]; }
   Node* data() { return nodes_.data(); }
   const Node* data() const { return nodes_.data(); }
 
