@@ -2,10 +2,13 @@
 
 #include <mpi.h>
 
+#include <algorithm>
 #include <climits>
 #include <cstdint>
 #include <cstdlib>
 #include <stdexcept>
+#include <string>
+#include <vector>
 
 namespace slurry::mpi {
 namespace {
@@ -89,48 +92,46 @@ void Session::max(double* values, int n) {
         "MPI_Allreduce (max)");
 }
 
-std::pair<std::string, std::string> Session::exchange(const std::string& to_lower,
-                                                      const std::string& to_upper) {
-  const int lower = rank_ > 0 ? rank_ - 1 : MPI_PROC_NULL;
-  const int upper = rank_ + 1 < size_ ? rank_ + 1 : MPI_PROC_NULL;
+std::vector<std::string> Session::exchange(const std::vector<int>& peers,
+                                           const std::vector<std::string>& out) {
+  if (peers.size() != out.size())
+    throw std::invalid_argument("MPI: exchange: one message per peer expected");
+  const std::size_t n = peers.size();
   // Sizes first, so that each side can receive into a buffer of the right length.
-  std::uint64_t send[2] = {to_lower.size(), to_upper.size()}, recv[2] = {0, 0};
-  MPI_Request size_requests[4];
-  check(MPI_Irecv(&recv[0], 1, MPI_UINT64_T, lower, kSizeTag, MPI_COMM_WORLD, &size_requests[0]),
-        "MPI_Irecv");
-  check(MPI_Irecv(&recv[1], 1, MPI_UINT64_T, upper, kSizeTag, MPI_COMM_WORLD, &size_requests[1]),
-        "MPI_Irecv");
-  check(MPI_Isend(&send[0], 1, MPI_UINT64_T, lower, kSizeTag, MPI_COMM_WORLD, &size_requests[2]),
-        "MPI_Isend");
-  check(MPI_Isend(&send[1], 1, MPI_UINT64_T, upper, kSizeTag, MPI_COMM_WORLD, &size_requests[3]),
-        "MPI_Isend");
-  check(MPI_Waitall(4, size_requests, MPI_STATUSES_IGNORE), "MPI_Waitall");
-  std::pair<std::string, std::string> got;
-  got.first.resize(lower == MPI_PROC_NULL ? 0 : std::size_t(recv[0]));
-  got.second.resize(upper == MPI_PROC_NULL ? 0 : std::size_t(recv[1]));
-  std::vector<MPI_Request> requests;
+  std::vector<std::uint64_t> send(n), recv(n, 0);
+  std::vector<MPI_Request> requests(2 * n);
+  for (std::size_t i = 0; i < n; ++i) {
+    send[i] = out[i].size();
+    check(MPI_Irecv(&recv[i], 1, MPI_UINT64_T, peers[i], kSizeTag, MPI_COMM_WORLD, &requests[i]),
+          "MPI_Irecv");
+    check(MPI_Isend(&send[i], 1, MPI_UINT64_T, peers[i], kSizeTag, MPI_COMM_WORLD,
+                    &requests[n + i]),
+          "MPI_Isend");
+  }
+  if (n) check(MPI_Waitall(int(2 * n), requests.data(), MPI_STATUSES_IGNORE), "MPI_Waitall");
+  std::vector<std::string> got(n);
+  requests.clear();
   auto post = [&](bool receive, char* data, std::size_t bytes, int peer) {
-    if (peer == MPI_PROC_NULL) return;
     for (std::size_t at = 0, piece = 0; at < bytes; at += kPiece, ++piece) {
-      const int n = int(std::min(kPiece, bytes - at));
+      const int count = int(std::min(kPiece, bytes - at));
       requests.emplace_back();
       const int tag = kDataTag + int(piece % 1000);
-      check(receive
-                ? MPI_Irecv(data + at, n, MPI_BYTE, peer, tag, MPI_COMM_WORLD, &requests.back())
-                : MPI_Isend(data + at, n, MPI_BYTE, peer, tag, MPI_COMM_WORLD, &requests.back()),
+      check(receive ? MPI_Irecv(data + at, count, MPI_BYTE, peer, tag, MPI_COMM_WORLD,
+                                &requests.back())
+                    : MPI_Isend(data + at, count, MPI_BYTE, peer, tag, MPI_COMM_WORLD,
+                                &requests.back()),
             receive ? "MPI_Irecv" : "MPI_Isend");
     }
   };
-  post(true, got.first.data(), got.first.size(), lower);
-  post(true, got.second.data(), got.second.size(), upper);
-  post(false, const_cast<char*>(to_lower.data()), lower == MPI_PROC_NULL ? 0 : to_lower.size(),
-       lower);
-  post(false, const_cast<char*>(to_upper.data()), upper == MPI_PROC_NULL ? 0 : to_upper.size(),
-       upper);
+  for (std::size_t i = 0; i < n; ++i) {
+    got[i].resize(std::size_t(recv[i]));
+    post(true, got[i].data(), got[i].size(), peers[i]);
+  }
+  for (std::size_t i = 0; i < n; ++i)
+    post(false, const_cast<char*>(out[i].data()), out[i].size(), peers[i]);
   if (!requests.empty())
     check(MPI_Waitall(int(requests.size()), requests.data(), MPI_STATUSES_IGNORE), "MPI_Waitall");
-  if (lower != MPI_PROC_NULL) exchanged_bytes_ += to_lower.size();
-  if (upper != MPI_PROC_NULL) exchanged_bytes_ += to_upper.size();
+  for (const auto& m : out) exchanged_bytes_ += m.size();
   return got;
 }
 

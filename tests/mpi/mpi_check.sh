@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # A run split over processes against the same run in one process (ctest label "mpi"):
-#   mpi_check.sh CLI SCENE FRAMES NP [NP ...]      frames of mpirun -np NP equal one process's
+#   mpi_check.sh CLI SCENE FRAMES NP [NP ...]      frames of mpirun -np NP equal one process's; NP:GRID
+#                                                  (e.g. 4:2x2) also requires that many processes per axis
 #   mpi_check.sh CLI SCENE FRAMES resume NP1 NP2   a run split over NP1 processes, stopped at
 #                                                  frame FRAMES/2 and resumed over NP2, equals one process
 #   mpi_check.sh CLI SCENE FRAMES refused NP       mpirun -np NP is refused with exit 2 (one-process solvers)
@@ -129,13 +130,20 @@ if [ "${1:-}" = per_rank ]; then
   exit 0
 fi
 
-for np in "$@"; do
+for spec in "$@"; do
+  # NP, or NP:GRID to require the processes per axis (GRID as the log prints it, e.g. 2x2x1).
+  np=${spec%%:*} grid=
+  [ "$spec" = "$np" ] || grid=${spec#*:}
   mkdir -p "$work/np$np"
   split_run "$np" "$work/np$np" --frames "$frames" || fail "mpirun -np $np failed"
   if [ "$np" -gt 1 ]; then
-    line=$(grep -m1 -o "$np ranks along [xyz]: .*" "$work/np$np.log" || true)
+    line=$(grep -m1 -o "$np ranks in [0-9 x]* boxes: .*" "$work/np$np.log" || true)
     [ -n "$line" ] || { cat "$work/np$np.log"; fail "mpirun -np $np: the log names no split over $np ranks"; }
-    last=$(grep -o "$np ranks along [xyz]: .*" "$work/np$np.log" | tail -1)
+    if [ -n "$grid" ]; then
+      want="$np ranks in ${grid//x/ x } boxes:"
+      [ "${line#"$want"}" != "$line" ] || fail "mpirun -np $np: split as '${line%%:*}', expected '$want'"
+    fi
+    last=$(grep -o "$np ranks in [0-9 x]* boxes: .*" "$work/np$np.log" | tail -1)
     echo "$name: np $np, last frame: $last"
   fi
   compare "$work/np$np" "mpirun -np $np"

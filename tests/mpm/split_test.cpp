@@ -1,5 +1,5 @@
 // What a run split over processes rests on, tested in one process (the runs under mpirun are
-// tests/mpi): slab borders, particles packed for another rank, and frames that depend on the
+// tests/mpi): slab and box borders, the nodes a border block shares, particles packed for another rank, and frames that depend on the
 // set of particles alone, not on the order they are stored in.
 #include <gtest/gtest.h>
 
@@ -9,6 +9,7 @@
 
 #include "determinism_scene.h"
 #include "mpm/domain_split.h"
+#include "slurry/transfer/lattice.h"
 #include "slurry/engine/mpm/mpm_solver.h"
 
 namespace slurry {
@@ -46,6 +47,99 @@ TEST(BalancedCuts, NoSlabHoldsMoreThanTheMeanPlusOneColumn) {
       EXPECT_LE(n, total / ranks + widest + 1e-9) << "trial " << trial << " rank " << r;
     }
   }
+}
+
+TEST(ProcessGrid, CutsACubeIntoBoxesAndAChannelIntoSlabs) {
+  using I2 = Eigen::Vector2i;
+  using I3 = Eigen::Vector3i;
+  EXPECT_EQ(detail::process_grid<2>(4, I2(10, 10)), (std::vector<int>{2, 2}));
+  EXPECT_EQ(detail::process_grid<2>(4, I2(40, 5)), (std::vector<int>{4, 1}));
+  EXPECT_EQ(detail::process_grid<2>(4, I2(5, 40)), (std::vector<int>{1, 4}));
+  EXPECT_EQ(detail::process_grid<3>(4, I3(10, 10, 10)), (std::vector<int>{2, 2, 1}));
+  EXPECT_EQ(detail::process_grid<3>(8, I3(10, 10, 10)), (std::vector<int>{2, 2, 2}));
+  EXPECT_EQ(detail::process_grid<3>(64, I3(20, 20, 20)), (std::vector<int>{4, 4, 4}));
+  EXPECT_EQ(detail::process_grid<3>(2048, I3(125, 125, 125)), (std::vector<int>{16, 16, 8}));
+  EXPECT_EQ(detail::process_grid<3>(8, I3(100, 5, 5)), (std::vector<int>{8, 1, 1}));
+  // A prime count: slabs along the longest axis.
+  EXPECT_EQ(detail::process_grid<3>(3, I3(4, 9, 4)), (std::vector<int>{1, 3, 1}));
+  // No box of a block for every rank along some factorisation: refused (empty).
+  EXPECT_TRUE(detail::process_grid<2>(7, I2(5, 5)).empty());
+  EXPECT_EQ(detail::process_grid<2>(25, I2(5, 5)), (std::vector<int>{5, 5}));
+}
+
+// Cuts every level of `split` by the counts in `lattice` (as MpmSolver::set_borders does).
+template <int Dim>
+void cut(detail::BoxSplit<Dim>& split, const std::vector<double>& lattice) {
+  for (int k = 0; k < Dim; ++k) {
+    const int a = split.order[std::size_t(k)], n = split.procs[a], parts = split.boxes(k);
+    const std::size_t columns = std::size_t(split.res[a]);
+    std::vector<double> counts(std::size_t(parts) * columns, 0.0);
+    for (std::size_t j = 0; j < lattice.size(); ++j) {
+      const auto b = transfer::lattice_coord<Dim>(std::int64_t(j), split.res);
+      counts[std::size_t(split.box_of(b, k)) * columns + std::size_t(b[a])] += lattice[j];
+    }
+    split.cuts[std::size_t(k)].clear();
+    for (int i = 0; i < parts; ++i) {
+      const auto c = detail::balanced_cuts(
+          std::vector<double>(counts.begin() + std::ptrdiff_t(std::size_t(i) * columns),
+                              counts.begin() + std::ptrdiff_t(std::size_t(i + 1) * columns)),
+          n);
+      split.cuts[std::size_t(k)].insert(split.cuts[std::size_t(k)].end(), c.begin(), c.end());
+    }
+  }
+}
+
+TEST(BoxSplit, TilesTheLatticeWithOneNonEmptyBoxPerRank) {
+  std::mt19937 rng(11);
+  for (int trial = 0; trial < 50; ++trial) {
+    const Eigen::Vector3i res(3 + int(rng() % 12), 3 + int(rng() % 12), 3 + int(rng() % 12));
+    const int ranks = 1 + int(rng() % 12);
+    const auto per_axis = detail::process_grid<3>(ranks, res);
+    if (per_axis.empty()) continue;
+    detail::BoxSplit<3> split(res, per_axis);
+    // Particles in a ball in one corner: most boxes are balanced over few blocks.
+    std::vector<double> lattice(std::size_t(res.prod()), 0.0);
+    for (std::size_t j = 0; j < lattice.size(); ++j) {
+      const auto b = transfer::lattice_coord<3>(std::int64_t(j), res);
+      if (b.squaredNorm() < res.squaredNorm() / 4) lattice[j] = double(1 + rng() % 50);
+    }
+    cut(split, lattice);
+    std::vector<int> owned(std::size_t(ranks), 0);
+    for (std::size_t j = 0; j < lattice.size(); ++j) {
+      const auto b = transfer::lattice_coord<3>(std::int64_t(j), res);
+      const int r = split.owner(b);
+      ASSERT_GE(r, 0);
+      ASSERT_LT(r, ranks);
+      Eigen::Vector3i lo, hi;
+      split.box(r, lo, hi);
+      ASSERT_TRUE((b.array() >= lo.array()).all() && (b.array() < hi.array()).all())
+          << "trial " << trial << ": block " << b.transpose() << " owned by " << r << " outside its box";
+      ++owned[std::size_t(r)];
+    }
+    for (int r = 0; r < ranks; ++r) {
+      Eigen::Vector3i lo, hi;
+      split.box(r, lo, hi);
+      EXPECT_TRUE(((hi - lo).array() >= 1).all()) << "trial " << trial << ": rank " << r << " has an empty box";
+      EXPECT_EQ(owned[std::size_t(r)], (hi - lo).prod()) << "trial " << trial << ": rank " << r;
+    }
+  }
+}
+
+TEST(BoxSplit, BalancesEachLevelByItsOwnCounts) {
+  // 2 x 2 over 8 x 8 blocks, 20 particles in each block row along axis 0: the slabs split at 4.
+  // In the lower slab they all lie in the first two columns along axis 1, in the upper slab they
+  // are spread evenly: each slab's cut along axis 1 follows its own particles.
+  detail::BoxSplit<2> split(Eigen::Vector2i(8, 8), {2, 2});
+  std::vector<double> lattice(64, 0.0);
+  for (int i = 0; i < 8; ++i)
+    for (int j = 0; j < 8; ++j) lattice[std::size_t(i * 8 + j)] = i < 4 ? (j < 2 ? 10 : 0) : 2.5;
+  cut(split, lattice);
+  EXPECT_EQ(split.cuts[0], (std::vector<int>{0, 4, 8}));
+  EXPECT_EQ(split.cuts[1], (std::vector<int>{0, 1, 8, 0, 4, 8}));
+  EXPECT_EQ(split.owner(Eigen::Vector2i(3, 0)), 0);
+  EXPECT_EQ(split.owner(Eigen::Vector2i(3, 1)), 1);
+  EXPECT_EQ(split.owner(Eigen::Vector2i(4, 3)), 2);
+  EXPECT_EQ(split.owner(Eigen::Vector2i(7, 4)), 3);
 }
 
 TEST(PackParticles, RoundTripsEveryStoredChannel) {

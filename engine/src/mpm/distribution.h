@@ -1,49 +1,88 @@
 // MpmSolver<T, Dim>, part of its definition (mpm_solver_impl.h includes the parts in order).
-// The domain split over MPI ranks (mpm_solver.h, "Runs split over processes"): slab borders from
-// particle counts, migrating particles to the rank that owns their slab, the grid halo (the
-// border node layers' partial sums swapped with the neighbours), gathering every particle for
-// frames and checkpoints.
+// The domain split over MPI ranks (mpm_solver.h, "Runs split over processes"): box borders from
+// particle counts, migrating particles to the rank that owns their box, the grid halo (the
+// border nodes' partial sums swapped with the ranks whose boxes touch), gathering every particle
+// for frames and checkpoints.
 #pragma once
 
 namespace slurry {
 
 template <class T, int Dim>
-bool MpmSolver<T, Dim>::set_borders(const std::vector<double>& counts) {
+bool MpmSolver<T, Dim>::set_borders(const std::vector<double>& lattice, bool summed) {
   auto& S = *split_;
   const int ranks = S.comm->size(), rank = S.comm->rank();
-  const auto cuts = detail::balanced_cuts(counts, ranks);
-  S.fewest = double(S.total), S.most = 0;
-  for (int r = 0; r < ranks; ++r) {
-    double n = 0;
-    for (int c = cuts[std::size_t(r)]; c < cuts[std::size_t(r) + 1]; ++c) n += counts[std::size_t(c)];
-    S.fewest = std::min(S.fewest, n), S.most = std::max(S.most, n);
+  auto next = S.boxes;
+  std::vector<double> per_rank(std::size_t(ranks), 0.0);
+  for (int k = 0; k < Dim; ++k) {
+    // Level k cuts each of the boxes the earlier levels made along axis order[k], by the particle
+    // counts of that box's block columns along it.
+    const int a = next.order[std::size_t(k)], n = next.procs[a], parts = next.boxes(k);
+    const std::size_t columns = std::size_t(next.res[a]);
+    std::vector<double> counts(std::size_t(parts) * columns, 0.0);
+    for (std::size_t j = 0; j < lattice.size(); ++j) {
+      if (lattice[j] == 0) continue;
+      const IVec b = transfer::lattice_coord<Dim>(std::int64_t(j), next.res);
+      counts[std::size_t(next.box_of(b, k)) * columns + std::size_t(b[a])] += lattice[j];
+    }
+    if (!summed) S.comm->sum(counts.data(), int(counts.size()));
+    auto& cuts = next.cuts[std::size_t(k)];
+    cuts.clear();
+    for (int i = 0; i < parts; ++i) {
+      const std::vector<double> column(counts.begin() + std::ptrdiff_t(std::size_t(i) * columns),
+                                       counts.begin() + std::ptrdiff_t(std::size_t(i + 1) * columns));
+      const auto c = detail::balanced_cuts(column, n);
+      cuts.insert(cuts.end(), c.begin(), c.end());
+      if (k == Dim - 1)
+        for (int r = 0; r < n; ++r)
+          for (int j = c[std::size_t(r)]; j < c[std::size_t(r) + 1]; ++j) per_rank[std::size_t(i * n + r)] += column[std::size_t(j)];
+    }
   }
-  if (cuts == S.cuts) return false;
-  S.cuts = cuts;
-  S.lo = S.cuts[std::size_t(rank)];
-  S.hi = S.cuts[std::size_t(rank) + 1];
+  S.fewest = *std::min_element(per_rank.begin(), per_rank.end());
+  S.most = *std::max_element(per_rank.begin(), per_rank.end());
+  if (next.cuts == S.boxes.cuts) return false;
+  S.boxes = std::move(next);
+  S.boxes.box(rank, S.lo, S.hi);
+  // The peers: the owners of the blocks that touch this box (faces, edges, corners).
+  std::vector<std::uint8_t> peer(std::size_t(ranks), 0);
+  IVec from, to;
+  for (int d = 0; d < Dim; ++d) from[d] = std::max(S.lo[d] - 1, 0), to[d] = std::min(S.hi[d] + 1, S.boxes.res[d]);
+  for (IVec b = from;;) {
+    if (!((b.array() >= S.lo.array()).all() && (b.array() < S.hi.array()).all())) peer[std::size_t(S.boxes.owner(b))] = 1;
+    int d = Dim - 1;
+    while (d >= 0 && ++b[d] == to[d]) b[d] = from[d], --d;
+    if (d < 0) break;
+  }
+  S.peers.clear();
+  for (int r = 0; r < ranks; ++r)
+    if (peer[std::size_t(r)] && r != rank) S.peers.push_back(r);
   return true;
 }
 
 template <class T, int Dim>
-std::vector<double> MpmSolver<T, Dim>::column_counts(const std::vector<Vec>& x, std::vector<double> counts) const {
-  counts.resize(std::size_t(bins_.block_res()[split_->axis]), 0.0);
-  for (const auto& p : x) counts[std::size_t(column(p))] += 1;
+std::vector<double> MpmSolver<T, Dim>::block_counts(const std::vector<Vec>& x, std::vector<double> counts) const {
+  const IVec& res = split_->boxes.res;
+  counts.resize(std::size_t(res.prod()), 0.0);
+  for (const auto& p : x) {
+    const IVec b = block_of(p);
+    std::int64_t k = 0;
+    for (int d = 0; d < Dim; ++d) k = k * res[d] + b[d];
+    counts[std::size_t(k)] += 1;
+  }
   return counts;
 }
 
 template <class T, int Dim>
 bool MpmSolver<T, Dim>::owns(const Vec& x) const {
-  const int c = column(x);
-  return c >= split_->lo && c < split_->hi;
+  const IVec b = block_of(x);
+  return (b.array() >= split_->lo.array()).all() && (b.array() < split_->hi.array()).all();
 }
 
 template <class T, int Dim>
 void MpmSolver<T, Dim>::split_particles() {
   // Every rank holds the same full set here, so every rank computes the same borders.
   auto& S = *split_;
-  S.cuts.clear();
-  set_borders(column_counts(particles_.x));
+  for (auto& c : S.boxes.cuts) c.clear();
+  set_borders(block_counts(particles_.x), true);
   std::vector<std::uint8_t> drop(particles_.size());
   for (std::size_t p = 0; p < drop.size(); ++p) drop[p] = !owns(particles_.x[p]);
   detail::drop_particles(particles_, drop);
@@ -51,208 +90,260 @@ void MpmSolver<T, Dim>::split_particles() {
 
 template <class T, int Dim>
 void MpmSolver<T, Dim>::rebalance() {
-  auto counts = column_counts(particles_.x);
-  split_->comm->sum(counts.data(), int(counts.size()));
-  if (set_borders(counts)) migrate();
+  if (set_borders(block_counts(particles_.x), false)) migrate();
 }
 
 template <class T, int Dim>
 void MpmSolver<T, Dim>::migrate() {
   auto& S = *split_;
   auto& P = particles_;
-  for (;;) {
-    std::vector<std::uint32_t> down, up;
-    std::vector<std::uint8_t> drop(P.size(), 0);
-    for (std::size_t p = 0; p < P.size(); ++p) {
-      const int c = column(P.x[p]);
-      if (c < S.lo) down.push_back(std::uint32_t(p)), drop[p] = 1;
-      if (c >= S.hi) up.push_back(std::uint32_t(p)), drop[p] = 1;
-    }
-    std::string to_lower, to_upper;
-    if (!down.empty()) detail::pack_particles(P, down, to_lower);
-    if (!up.empty()) detail::pack_particles(P, up, to_upper);
-    if (!down.empty() || !up.empty()) detail::drop_particles(P, drop);
-    const auto [from_lower, from_upper] = S.comm->exchange(to_lower, to_upper);
-    detail::unpack_particles(from_lower, P);
-    detail::unpack_particles(from_upper, P);
-    // After a substep one round settles every particle (each moved less than a column, and every
-    // slab is a column wide at least); after new borders, particles pass one rank per round.
-    double stray = 0;
-    for (const auto& x : P.x) stray += !owns(x);
-    S.comm->max(&stray, 1);
-    if (stray == 0) break;
+  const int ranks = S.comm->size(), rank = S.comm->rank();
+  // Each leaving particle goes straight to the owner of its block: after a substep that is a
+  // peer (a particle moves less than a block), after new borders it may be any rank.
+  std::vector<std::vector<std::uint32_t>> leaving(static_cast<std::size_t>(ranks));
+  std::vector<std::uint8_t> drop(P.size(), 0);
+  bool left = false;
+  for (std::size_t p = 0; p < P.size(); ++p) {
+    const IVec b = block_of(P.x[p]);
+    if ((b.array() >= S.lo.array()).all() && (b.array() < S.hi.array()).all()) continue;
+    leaving[std::size_t(S.boxes.owner(b))].push_back(std::uint32_t(p));
+    drop[p] = 1, left = true;
   }
+  double far = 0;
+  for (int r = 0; r < ranks; ++r)
+    if (!leaving[std::size_t(r)].empty() && !std::binary_search(S.peers.begin(), S.peers.end(), r)) far = 1;
+  S.comm->max(&far, 1);
+  std::vector<int> peers;
+  if (far > 0) {
+    for (int r = 0; r < ranks; ++r)
+      if (r != rank) peers.push_back(r);
+  } else {
+    peers = S.peers;
+  }
+  std::vector<std::string> out(peers.size());
+  for (std::size_t i = 0; i < peers.size(); ++i)
+    if (!leaving[std::size_t(peers[i])].empty()) detail::pack_particles(P, leaving[std::size_t(peers[i])], out[i]);
+  if (left) detail::drop_particles(P, drop);
+  for (const auto& in : S.comm->exchange(peers, out)) detail::unpack_particles(in, P);
 }
 
 // The grid halo. A block's patch (blocks.h) covers its own nodes and the first Order node
-// layers of the next block along each axis, so along the split axis the nodes of the layers
-// [size c, size c + Order) at the border column c = hi of rank r (= lo of rank r + 1) receive the
-// contributions of columns c - 1 (rank r) and c (rank r + 1), and no others; every other node a
-// rank's particles reach is summed from its own patches alone. One process adds the patches into
-// a node colour after colour (a node takes at most one patch per colour), starting from zero.
-// Each of the two ranks keeps its border blocks' patch nodes in those layers, sends them to the
-// other, and adds its own and the received ones for every layer node again from zero in colour
-// order: the same additions in the same order, so the node holds the one-process sum bit for bit
-// on both ranks, which then update it alike. What crosses a border per substep is Order node
-// layers of the occupied border blocks (4 values a node), against the particles of a whole block
-// column that ghost copies would take.
+// layers of the next block along each axis, so a node is reached by the patches of at most 2^Dim
+// blocks, all touching one another (each differs from the node's own block by 0 or -1 per
+// axis). Along axis d, the patch node at local coordinate l is shared with the patch of the
+// block before when l < Order and with the block after when l >= size; a node's class records
+// that per axis, and the neighbours b + delta whose patches hold the node are those with
+// delta_d in {0} plus -1 or +1 as its class allows. One process adds the patches into a node
+// colour after colour (a node takes at most one patch per colour), starting from zero. In a split
+// run a rank keeps the patches of its blocks that touch another rank's box, sends each such rank
+// the nodes the two share, and for every node it shares sums its own and the received
+// contributions again from zero in colour order: the same additions in the same order, so the
+// node holds the one-process sum bit for bit on every rank that reaches it, and they update it
+// alike. What crosses a border per substep is the shared nodes of the occupied border blocks (4
+// values a node), against the particles of a whole block layer that ghost copies would take.
 
 namespace detail {
 
-/// Calls fn(patch-local node index, patch-local coordinates) for the nodes of a patch whose
-/// coordinate along `axis` lies in [from, from + Order), in index order.
-template <class T, int Dim, int Order, class Fn>
-void for_each_layer_node(int axis, int from, Fn&& fn) {
-  using P = transfer::Patch<T, Dim, Order>;
-  Eigen::Matrix<int, Dim, 1> l;
-  for (int k = 0; k < P::count; ++k) {
-    int r = k;
-    for (int d = Dim - 1; d >= 0; --d) l[d] = r % P::extent, r /= P::extent;
-    if (l[axis] >= from && l[axis] < from + Order) fn(k, l);
-  }
+/// 3^Dim: the neighbours of a block, itself included (offset index: sum (delta_d + 1) 3^(Dim-1-d)).
+template <int Dim>
+constexpr int kNeighbours = Dim == 3 ? 27 : 9;
+
+/// For each class of patch node (per axis: 0 shared with the block before, 1 with neither, 2
+/// with the block after; class index sum c_d 3^(Dim-1-d)), the bit set of the neighbour offsets
+/// (bit = offset index) whose patches also hold such a node, the block itself excluded.
+template <int Dim>
+std::array<std::uint32_t, kNeighbours<Dim>> class_offsets() {
+  std::array<std::uint32_t, kNeighbours<Dim>> out{};
+  for (int c = 0; c < kNeighbours<Dim>; ++c)
+    for (int o = 0; o < kNeighbours<Dim>; ++o) {
+      bool fits = o != kNeighbours<Dim> / 2;
+      for (int d = Dim - 1, cc = c, oo = o; d >= 0; --d, cc /= 3, oo /= 3) {
+        const int cls = cc % 3, delta = oo % 3 - 1;
+        fits = fits && (delta == 0 || (delta == -1 && cls == 0) || (delta == 1 && cls == 2));
+      }
+      if (fits) out[std::size_t(c)] |= std::uint32_t(1) << o;
+    }
+  return out;
 }
 
-/// Nodes of one block's slice: Order layers of the patch across the split axis.
+/// Each patch node's class (class_offsets), in patch order.
 template <class T, int Dim, int Order>
-constexpr std::size_t halo_slice_nodes() {
-  std::size_t n = Order;
-  for (int d = 1; d < Dim; ++d) n *= std::size_t(transfer::Patch<T, Dim, Order>::extent);
-  return n;
+std::array<std::uint8_t, transfer::Patch<T, Dim, Order>::count> patch_node_classes() {
+  using P = transfer::Patch<T, Dim, Order>;
+  constexpr int size = transfer::BlockShape<Dim>::size;
+  std::array<std::uint8_t, P::count> out{};
+  for (int k = 0; k < P::count; ++k) {
+    int r = k, c = 0, scale = 1;
+    for (int d = Dim - 1; d >= 0; --d, scale *= 3) {
+      const int l = r % P::extent;
+      r /= P::extent;
+      c += scale * (l < Order ? 0 : l >= size ? 2 : 1);
+    }
+    out[std::size_t(k)] = std::uint8_t(c);
+  }
+  return out;
 }
 
 }  // namespace detail
 
 template <class T, int Dim>
-template <int Order>
-void MpmSolver<T, Dim>::prepare_halo() {
-  auto& S = *split_;
-  const int rank = S.comm->rank(), ranks = S.comm->size();
-  const std::size_t groups = bins_.groups();
-  for (int side = 0; side < 2; ++side) {
-    auto& B = S.border[side];
-    auto& slot = S.slot[side];
-    B.blocks.clear();
-    slot.assign(groups, -1);
-    const bool shared = side == 0 ? rank > 0 : rank + 1 < ranks;
-    const int column = side == 0 ? S.lo : S.hi - 1;
-    for (std::size_t g = 0; shared && g < groups; ++g) {
-      const auto& block = bins_.bins()[bins_.group_begin(g)].block;
-      if (block[S.axis] != column) continue;
-      slot[g] = std::int32_t(B.blocks.size());
-      B.blocks.push_back(block);
+std::uint32_t MpmSolver<T, Dim>::neighbours_owned_by(const IVec& block, int rank, bool foreign) const {
+  // Bit o set: the neighbour at offset o exists and is owned by `rank` (foreign: by another rank
+  // than this one).
+  const auto& S = *split_;
+  const int me = S.comm->rank();
+  std::uint32_t bits = 0;
+  for (int o = 0; o < detail::kNeighbours<Dim>; ++o) {
+    if (o == detail::kNeighbours<Dim> / 2) continue;
+    IVec b = block;
+    bool inside = true;
+    for (int d = Dim - 1, oo = o; d >= 0; --d, oo /= 3) {
+      b[d] += oo % 3 - 1;
+      inside = inside && b[d] >= 0 && b[d] < S.boxes.res[d];
     }
-    B.nodes.resize(B.blocks.size() * detail::halo_slice_nodes<T, Dim, Order>());
+    if (!inside) continue;
+    const int owner = S.boxes.owner(b);
+    if (foreign ? owner != me : owner == rank) bits |= std::uint32_t(1) << o;
   }
+  return bits;
 }
 
 template <class T, int Dim>
 template <int Order>
-void MpmSolver<T, Dim>::keep_halo_slices(std::size_t group, const transfer::Patch<T, Dim, Order>& patch) {
+void MpmSolver<T, Dim>::prepare_halo() {
   auto& S = *split_;
-  for (int side = 0; side < 2; ++side) {
-    const std::int32_t s = S.slot[side][group];
-    if (s < 0) continue;
-    auto* out = S.border[side].nodes.data() + std::size_t(s) * detail::halo_slice_nodes<T, Dim, Order>();
-    // The lower border's layers are the patch's first Order along the axis; the upper border's
-    // are those past the block (the next column's first).
-    detail::for_each_layer_node<T, Dim, Order>(S.axis, side == 0 ? 0 : transfer::BlockShape<Dim>::size,
-                                               [&](int k, const auto&) { *out++ = patch.nodes[std::size_t(k)]; });
+  const std::size_t groups = bins_.groups();
+  S.slot.assign(groups, -1);
+  S.border.clear();
+  S.border_foreign.clear();
+  for (std::size_t g = 0; g < groups; ++g) {
+    const IVec& block = bins_.bins()[bins_.group_begin(g)].block;
+    // A block one or more blocks inside the box touches no other box.
+    if (((block.array() > S.lo.array()).all() && (block.array() + 1 < S.hi.array()).all())) continue;
+    const std::uint32_t foreign = neighbours_owned_by(block, -1, true);
+    if (!foreign) continue;
+    S.slot[g] = std::int32_t(S.border.size());
+    S.border.push_back(block);
+    S.border_foreign.push_back(foreign);
   }
+  S.kept.resize(S.border.size() * std::size_t(transfer::Patch<T, Dim, Order>::count));
+}
+
+template <class T, int Dim>
+template <int Order>
+void MpmSolver<T, Dim>::keep_halo_patch(std::size_t group, const transfer::Patch<T, Dim, Order>& patch) {
+  auto& S = *split_;
+  const std::int32_t s = S.slot[group];
+  if (s < 0) return;
+  std::copy(patch.nodes.begin(), patch.nodes.end(), S.kept.begin() + std::ptrdiff_t(std::size_t(s) * patch.nodes.size()));
 }
 
 template <class T, int Dim>
 template <int Order, class G>
 void MpmSolver<T, Dim>::exchange_halo(G& grid) {
   using Node = transfer::GridNode<T, Dim>;
-  using IVec = Eigen::Matrix<int, Dim, 1>;
+  using Patch = transfer::Patch<T, Dim, Order>;
   auto& S = *split_;
   constexpr int size = transfer::BlockShape<Dim>::size;
-  constexpr std::size_t slice = detail::halo_slice_nodes<T, Dim, Order>();
-  // A message: the count of slices, then per slice its block (Dim int32) and its nodes.
-  auto pack = [&](const typename Split::Border& B) {
-    std::string out;
-    if (B.blocks.empty()) return out;
-    const std::uint64_t n = B.blocks.size();
-    out.reserve(sizeof n + n * (Dim * sizeof(std::int32_t) + slice * sizeof(Node)));
-    out.append(reinterpret_cast<const char*>(&n), sizeof n);
-    for (std::size_t b = 0; b < n; ++b) {
+  static const auto offsets = detail::class_offsets<Dim>();
+  static const auto classes = detail::patch_node_classes<T, Dim, Order>();
+  const int me = S.comm->rank();
+  // A message to a peer: per border block of this rank next to the peer's box, the block (Dim
+  // int32) and its patch nodes that the peer's patches also hold, in patch order. The receiver
+  // knows which nodes those are from the block and the split.
+  std::vector<std::string> out(S.peers.size());
+  for (std::size_t i = 0; i < S.peers.size(); ++i) {
+    for (std::size_t b = 0; b < S.border.size(); ++b) {
+      const std::uint32_t bits = S.border_foreign[b] & neighbours_owned_by(S.border[b], S.peers[i], false);
+      if (!bits) continue;
       std::int32_t c[Dim];
-      for (int d = 0; d < Dim; ++d) c[d] = B.blocks[b][d];
-      out.append(reinterpret_cast<const char*>(c), sizeof c);
-      out.append(reinterpret_cast<const char*>(B.nodes.data() + b * slice), slice * sizeof(Node));
+      for (int d = 0; d < Dim; ++d) c[d] = S.border[b][d];
+      out[i].append(reinterpret_cast<const char*>(c), sizeof c);
+      const Node* nodes = S.kept.data() + b * std::size_t(Patch::count);
+      for (int k = 0; k < Patch::count; ++k)
+        if (offsets[classes[std::size_t(k)]] & bits)
+          out[i].append(reinterpret_cast<const char*>(nodes + k), sizeof(Node));
     }
-    return out;
+    S.halo_bytes += out[i].size();
+  }
+  const auto in = S.comm->exchange(S.peers, out);
+  // Every contribution to a shared node: (node, colour, value, this rank's).
+  struct Entry {
+    std::int64_t node;
+    int colour;
+    bool own;
+    const void* value;  // a received node need not be aligned as a Node
   };
-  std::string to_lower = pack(S.border[0]), to_upper = pack(S.border[1]);
-  S.halo_bytes += to_lower.size() + to_upper.size();
-  const auto [from_lower, from_upper] = S.comm->exchange(to_lower, to_upper);
+  std::vector<Entry> entries;
   const IVec res = grid.res();
-  for (int side = 0; side < 2; ++side) {
-    auto& B = S.border[side];
-    if (B.blocks.empty()) continue;  // no node of this border's layers is read here
-    const std::string& in = side == 0 ? from_lower : from_upper;
-    // The slices of both ranks: (colour, block, nodes, this rank's).
-    struct Slice {
-      int colour;
-      IVec block;
-      const Node* nodes;
-      bool own;
-    };
-    std::vector<Slice> slices;
-    for (std::size_t b = 0; b < B.blocks.size(); ++b)
-      slices.push_back({transfer::BlockShape<Dim>::colour(B.blocks[b]), B.blocks[b], B.nodes.data() + b * slice, true});
-    std::vector<Node> received;
-    if (!in.empty()) {
-      std::uint64_t n = 0;
-      const std::size_t each = Dim * sizeof(std::int32_t) + slice * sizeof(Node);
-      if (in.size() < sizeof n) throw SimulationError("a message of grid nodes from another rank is truncated");
-      std::memcpy(&n, in.data(), sizeof n);
-      if (in.size() != sizeof n + n * each)
-        throw SimulationError("a message of grid nodes from another rank has " + std::to_string(in.size()) +
-                              " bytes; expected " + std::to_string(sizeof n + n * each));
-      received.resize(n * slice);
-      for (std::size_t b = 0; b < n; ++b) {
-        const char* at = in.data() + sizeof n + b * each;
-        std::int32_t c[Dim];
-        std::memcpy(c, at, sizeof c);
-        IVec block;
-        for (int d = 0; d < Dim; ++d) block[d] = c[d];
-        std::memcpy(static_cast<void*>(received.data() + b * slice), at + sizeof c, slice * sizeof(Node));
-        slices.push_back({transfer::BlockShape<Dim>::colour(block), block, received.data() + b * slice, false});
-      }
+  auto key = [&](const IVec& i) {
+    std::int64_t k = 0;
+    for (int d = 0; d < Dim; ++d) k = k * res[d] + i[d];
+    return k;
+  };
+  // Calls fn(node coordinates, patch index k, index among the shared nodes) for the nodes of
+  // block's patch in the classes that `bits` admits and that lie in the grid; returns how many
+  // nodes those classes hold (as a message carries them, the grid's edge included).
+  auto for_each_shared = [&](const IVec& block, std::uint32_t bits, auto&& fn) {
+    std::size_t n = 0;
+    const IVec corner = block * size;
+    for (int k = 0; k < Patch::count; ++k) {
+      if (!(offsets[classes[std::size_t(k)]] & bits)) continue;
+      IVec i = corner;
+      for (int d = Dim - 1, r = k; d >= 0; --d, r /= Patch::extent) i[d] += r % Patch::extent;
+      if ((i.array() < res.array()).all()) fn(i, k, n);
+      ++n;
     }
-    std::stable_sort(slices.begin(), slices.end(), [](const Slice& a, const Slice& b) { return a.colour < b.colour; });
-    // The layers: Order nodes along the axis from `first`, every node across.
-    const int first = size * (side == 0 ? S.lo : S.hi);
-    IVec dims = res;
-    dims[S.axis] = Order;
-    std::int64_t count = 1;
-    for (int d = 0; d < Dim; ++d) count *= dims[d];
-    B.sum.assign(std::size_t(count), Node::Zero());
-    auto layer_index = [&](IVec i) {
-      i[S.axis] -= first;
-      std::int64_t k = 0;
-      for (int d = 0; d < Dim; ++d) k = k * dims[d] + i[d];
-      return k;
-    };
-    // Calls fn(layer index, coordinates, value) for a slice's nodes inside the grid, in packing order.
-    const auto for_each_node = [&](const Slice& sl, auto&& fn) {
-      // A slice of the lower neighbour's column or this rank's upper column starts past its block.
-      const int from = sl.block[S.axis] * size == first ? 0 : size;
-      const IVec corner = sl.block * size;
-      const Node* v = sl.nodes;
-      detail::for_each_layer_node<T, Dim, Order>(S.axis, from, [&](int, const IVec& l) {
-        const IVec i = corner + l;
-        const Node& value = *v++;
-        if ((i.array() < res.array()).all()) fn(layer_index(i), i, value);
+    return n;
+  };
+  for (std::size_t b = 0; b < S.border.size(); ++b) {
+    const Node* nodes = S.kept.data() + b * std::size_t(Patch::count);
+    const int colour = transfer::BlockShape<Dim>::colour(S.border[b]);
+    for_each_shared(S.border[b], S.border_foreign[b], [&](const IVec& node, int k, std::size_t) {
+      entries.push_back({key(node), colour, true, nodes + k});
+    });
+  }
+  for (std::size_t i = 0; i < in.size(); ++i) {
+    const std::string& m = in[i];
+    std::size_t at = 0;
+    while (at < m.size()) {
+      std::int32_t c[Dim];
+      if (m.size() - at < sizeof c) throw SimulationError("a message of grid nodes from another rank is truncated");
+      std::memcpy(c, m.data() + at, sizeof c);
+      at += sizeof c;
+      IVec block;
+      for (int d = 0; d < Dim; ++d) block[d] = c[d];
+      if ((block.array() < 0).any() || (block.array() >= S.boxes.res.array()).any())
+        throw SimulationError("a message of grid nodes from another rank names a block outside the grid");
+      const std::uint32_t bits = neighbours_owned_by(block, me, false);
+      const int colour = transfer::BlockShape<Dim>::colour(block);
+      const char* base = m.data() + at;
+      const std::size_t n = for_each_shared(block, bits, [&](const IVec& node, int, std::size_t j) {
+        entries.push_back({key(node), colour, false, base + j * sizeof(Node)});
       });
-    };
-    for (const auto& sl : slices)
-      for_each_node(sl, [&](std::int64_t k, const IVec&, const Node& value) { B.sum[std::size_t(k)] += value; });
-    // The nodes this rank's patches reach take the sums; the others are not read here.
-    for (const auto& sl : slices)
-      if (sl.own)
-        for_each_node(sl, [&](std::int64_t k, const IVec& i, const Node&) { *grid.find(i) = B.sum[std::size_t(k)]; });
+      if (m.size() - at < n * sizeof(Node)) throw SimulationError("a message of grid nodes from another rank is truncated");
+      at += n * sizeof(Node);
+    }
+  }
+  std::sort(entries.begin(), entries.end(), [](const Entry& a, const Entry& b) {
+    return a.node != b.node ? a.node < b.node : a.colour < b.colour;
+  });
+  // A node that this rank's patches reach and another rank's too takes the sum of all in colour
+  // order; one that only this rank reaches holds it already, one it does not reach is not read.
+  for (std::size_t j = 0; j < entries.size();) {
+    std::size_t e = j;
+    bool own = false, other = false;
+    while (e < entries.size() && entries[e].node == entries[j].node) own |= entries[e].own, other |= !entries[e].own, ++e;
+    if (own && other) {
+      Node sum = Node::Zero();
+      for (std::size_t k = j; k < e; ++k) {
+        Node v;
+        std::memcpy(static_cast<void*>(&v), entries[k].value, sizeof v);
+        sum += v;
+      }
+      *grid.find(transfer::lattice_coord<Dim>(entries[j].node, res)) = sum;
+    }
+    j = e;
   }
 }
 

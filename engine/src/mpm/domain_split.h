@@ -1,16 +1,20 @@
 #pragma once
-// The MPM domain split over processes (private to the engine): slab borders balanced by particle
-// counts, and whole particles packed into bytes for another rank and unpacked there.
+// The MPM domain split over processes (private to the engine): boxes of grid blocks balanced by
+// particle counts, and whole particles packed into bytes for another rank and unpacked there.
 //
-// A rank owns the particles whose stencil base node lies in its slab of grid-block columns
-// (blocks.h) along the split axis; the grid halo that joins the slabs' node sums is in
-// distribution.h.
+// A rank owns the particles whose stencil base node lies in its box of grid blocks (blocks.h);
+// the grid halo that joins the boxes' node sums is in distribution.h.
 #include <algorithm>
+#include <array>
 #include <cstdint>
 #include <cstring>
+#include <functional>
+#include <limits>
 #include <string>
 #include <string_view>
 #include <vector>
+
+#include <Eigen/Core>
 
 #include "slurry/engine/errors.h"
 #include "slurry/engine/mpm/particles.h"
@@ -43,6 +47,96 @@ inline std::vector<int> balanced_cuts(const std::vector<double>& counts, int ran
   }
   return cuts;
 }
+
+/// Processes along each axis for `ranks` processes over a lattice of `blocks` grid blocks: of the
+/// factorisations ranks = p_0 ... p_{Dim-1} with every p_a <= blocks[a], the one whose cuts cross
+/// the fewest block faces, sum_a (p_a - 1) x (the lattice's section across a), so that a cube is
+/// cut into boxes and a long channel into slabs; among equals, the most processes along the
+/// lowest axis. Empty if no factorisation fits (more processes than the lattice can give a block
+/// each along some axis).
+template <int Dim>
+std::vector<int> process_grid(int ranks, const Eigen::Matrix<int, Dim, 1>& blocks) {
+  std::vector<int> best, p(Dim, 1);
+  double best_faces = std::numeric_limits<double>::infinity();
+  std::function<void(int, int)> place = [&](int axis, int left) {
+    if (axis == Dim - 1) {
+      if (left > blocks[axis]) return;
+      p[std::size_t(axis)] = left;
+      double faces = 0;
+      for (int a = 0; a < Dim; ++a) {
+        double section = 1;
+        for (int b = 0; b < Dim; ++b)
+          if (b != a) section *= blocks[b];
+        faces += (p[std::size_t(a)] - 1) * section;
+      }
+      if (faces < best_faces) best_faces = faces, best = p;
+      return;
+    }
+    for (int n = std::min(left, int(blocks[axis])); n >= 1; --n)
+      if (left % n == 0) p[std::size_t(axis)] = n, place(axis + 1, left / n);
+  };
+  place(0, ranks);
+  return best;
+}
+
+/// The split of a lattice of grid blocks into boxes, one per rank: cut along the axis with the
+/// most processes into slabs of whole block columns, each slab along the next axis into pencils,
+/// each pencil along the last (3D) into boxes, every cut balanced by the particle counts of what
+/// it cuts (balanced_cuts). Rank r is the box reached by the digits of r in the mixed radix of
+/// the processes per cut axis, the first cut's digit the most significant. Every box is at least
+/// one block thick along every axis, so a particle, which moves less than a block per substep,
+/// only ever passes to a rank whose box touches its own.
+template <int Dim>
+struct BoxSplit {
+  using IVec = Eigen::Matrix<int, Dim, 1>;
+  IVec res = IVec::Zero();    ///< blocks along each axis
+  IVec procs = IVec::Ones();  ///< processes along each axis
+  std::array<int, Dim> order{};  ///< the axes in the order they are cut
+  /// cuts[k]: for each box of level k (boxes(k) of them, those that the cuts before level k make),
+  /// the procs[order[k]] + 1 borders of its parts along axis order[k].
+  std::array<std::vector<int>, Dim> cuts;
+
+  BoxSplit() = default;
+  BoxSplit(const IVec& blocks, const std::vector<int>& per_axis) : res(blocks) {
+    for (int a = 0; a < Dim; ++a) procs[a] = per_axis[std::size_t(a)], order[std::size_t(a)] = a;
+    std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return procs[a] > procs[b]; });
+  }
+  int ranks() const { return procs.prod(); }
+  /// Boxes before level k's cuts.
+  int boxes(int k) const {
+    int n = 1;
+    for (int j = 0; j < k; ++j) n *= procs[order[std::size_t(j)]];
+    return n;
+  }
+  /// The level-k box (index in [0, boxes(k))) that holds block b: the cuts of levels < k applied.
+  int box_of(const IVec& b, int k) const {
+    int at = 0;
+    for (int j = 0; j < k; ++j) {
+      const int a = order[std::size_t(j)], n = procs[a];
+      const int* c = cuts[std::size_t(j)].data() + std::size_t(at) * std::size_t(n + 1);
+      const int i = int(std::upper_bound(c + 1, c + n, b[a]) - (c + 1));
+      at = at * n + i;
+    }
+    return at;
+  }
+  /// The rank owning block b (any block of the lattice; outside it, the nearest box's).
+  int owner(const IVec& b) const { return box_of(b, Dim); }
+  /// Rank r's box of blocks, [lo, hi).
+  void box(int r, IVec& lo, IVec& hi) const {
+    std::array<int, Dim> digit{};
+    for (int k = Dim - 1; k >= 0; --k) {
+      const int n = procs[order[std::size_t(k)]];
+      digit[std::size_t(k)] = r % n, r /= n;
+    }
+    int at = 0;
+    for (int k = 0; k < Dim; ++k) {
+      const int a = order[std::size_t(k)], n = procs[a];
+      const int* c = cuts[std::size_t(k)].data() + std::size_t(at) * std::size_t(n + 1);
+      lo[a] = c[digit[std::size_t(k)]], hi[a] = c[digit[std::size_t(k)] + 1];
+      at = at * n + digit[std::size_t(k)];
+    }
+  }
+};
 
 /// How a message stores a ScalarChannel: a flag (1 = one value for every particle) and that value.
 template <class T>

@@ -132,24 +132,22 @@ struct MpmSolver<T, Dim>::SleepState {
 template <class T, int Dim>
 struct MpmSolver<T, Dim>::Split {
   Communicator* comm = nullptr;
-  int axis = 0;            ///< the split axis: the block lattice's longest
-  std::vector<int> cuts;   ///< rank r owns block columns [cuts[r], cuts[r + 1]) along `axis`
-  int lo = 0, hi = 0;      ///< this rank's columns
+  detail::BoxSplit<Dim> boxes;  ///< rank r owns the blocks of box r
+  IVec lo = IVec::Zero(), hi = IVec::Zero();  ///< this rank's box of blocks, [lo, hi)
+  std::vector<int> peers;  ///< the ranks whose boxes touch this one's, ascending
   std::size_t total = 0;   ///< particles of all ranks (MPM keeps every particle)
   double fewest = 0, most = 0;  ///< particles of the emptiest and the fullest rank at the last rebalance
   double bytes_per_substep = 0;  ///< this rank's halo and migration bytes per substep over the last advance_to
   double halo_bytes_per_substep = 0;  ///< of which the grid halo's
   std::uint64_t halo_bytes = 0;       ///< grid halo bytes this rank has sent
   Particles<T, Dim> gathered;    ///< rank 0: every particle, as of the last frame()
-  /// The grid halo (distribution.h): at each border shared with a neighbour ([0] the lower,
-  /// [1] the upper), this rank's occupied blocks of the border column and their patches' nodes
-  /// in the border's node layers, slice after slice; slot[g] is group g's slice (-1: none).
-  struct Border {
-    std::vector<Eigen::Matrix<int, Dim, 1>> blocks;
-    std::vector<transfer::GridNode<T, Dim>> nodes;
-    std::vector<transfer::GridNode<T, Dim>> sum;  ///< scratch: the layers' nodes summed in colour order
-  } border[2];
-  std::vector<std::int32_t> slot[2];
+  /// The grid halo (distribution.h): this rank's occupied blocks that touch another rank's box,
+  /// which of their neighbours are another rank's (bits by offset), and their patches' nodes,
+  /// patch after patch; slot[g] is group g's (-1: none).
+  std::vector<IVec> border;
+  std::vector<std::uint32_t> border_foreign;
+  std::vector<transfer::GridNode<T, Dim>> kept;
+  std::vector<std::int32_t> slot;
 };
 
 template <class T, int Dim>
@@ -221,13 +219,17 @@ MpmSolver<T, Dim>::MpmSolver(const Scene& scene, Communicator* communicator) : s
                        std::to_string(ranks) + " processes (mpirun -np " + std::to_string(ranks) + "), or mpirun -np 1");
     split_ = std::make_unique<Split>();
     split_->comm = communicator;
-    const auto& br = bins_.block_res();
-    for (int d = 1; d < Dim; ++d)
-      if (br[d] > br[split_->axis]) split_->axis = d;
-    if (br[split_->axis] < ranks)
-      throw SceneError(scene_.source + ": domain: split over " + std::to_string(ranks) + " processes, but the grid has " +
-                       std::to_string(br[split_->axis]) + " block columns (" + std::to_string(transfer::BlockShape<Dim>::size) +
-                       " nodes each) along its longest axis; expected at most that many processes (mpirun -np)");
+    const IVec br = bins_.block_res();
+    const auto per_axis = detail::process_grid<Dim>(ranks, br);
+    if (per_axis.empty()) {
+      std::string lattice;
+      for (int d = 0; d < Dim; ++d) lattice += (d ? " x " : "") + std::to_string(br[d]);
+      throw SceneError(scene_.source + ": domain: split over " + std::to_string(ranks) + " processes, but the grid's " +
+                       lattice + " blocks (" + std::to_string(transfer::BlockShape<Dim>::size) +
+                       " nodes along each axis of a block) give no box of at least one block to each; expected a process count "
+                       "that factors into at most that many along each axis (mpirun -np)");
+    }
+    split_->boxes = detail::BoxSplit<Dim>(br, per_axis);
     split_->total = particles_.size();
     split_particles();
   }
@@ -388,12 +390,14 @@ std::string MpmSolver<T, Dim>::solver_status() const {
   if (split_) {
     const auto& S = *split_;
     const double mean = double(S.total) / S.comm->size();
-    char buf[200];
+    std::string grid;
+    for (int d = 0; d < Dim; ++d) grid += (d ? " x " : "") + std::to_string(S.boxes.procs[d]);
+    char buf[240];
     std::snprintf(buf, sizeof buf,
-                  "%d ranks along %c: %.0f-%.0f particles per rank (imbalance %.3f), rank %d sent %.3g kB per substep "
-                  "(grid halo %.3g kB)",
-                  S.comm->size(), "xyz"[S.axis], S.fewest, S.most, mean > 0 ? S.most / mean : 1.0, S.comm->rank(),
-                  S.bytes_per_substep / 1e3, S.halo_bytes_per_substep / 1e3);
+                  "%d ranks in %s boxes: %.0f-%.0f particles per rank (imbalance %.3f), rank %d sent %.3g kB per "
+                  "substep (grid halo %.3g kB) to %d peers",
+                  S.comm->size(), grid.c_str(), S.fewest, S.most, mean > 0 ? S.most / mean : 1.0, S.comm->rank(),
+                  S.bytes_per_substep / 1e3, S.halo_bytes_per_substep / 1e3, int(S.peers.size()));
     return buf;
   }
   if (sleep_) {

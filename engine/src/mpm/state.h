@@ -276,7 +276,7 @@ template <class T, int Dim>
 void MpmSolver<T, Dim>::load_state_parts(int parts, const std::function<std::string(int)>& part,
                                          const std::string& what) {
   // Each part is read whole, one at a time; a split run reads every part twice: first its
-  // positions, for the particle counts per block column that place the slab borders of this
+  // positions, for the particle counts per block that place the box borders of this
   // run's process count, then its particles, keeping those of its own slab. No process holds more
   // than its own particles and one part.
   if (parts < 1) throw IoError(what + ": a checkpoint of no parts");
@@ -302,10 +302,10 @@ void MpmSolver<T, Dim>::load_state_parts(int parts, const std::function<std::str
       std::vector<Vec> x;
       r->vec(x, -1, "x");
       detail::require_inside(*r, x, x_lo_, x_hi_);
-      counts = column_counts(x, std::move(counts));
+      counts = block_counts(x, std::move(counts));
     }
-    split_->cuts.clear();
-    set_borders(counts);
+    for (auto& c : split_->boxes.cuts) c.clear();
+    set_borders(counts, true);
   }
   Particles<T, Dim> P = particles_.empty_like();
   std::uint64_t total = 0;

@@ -197,21 +197,24 @@ void MpmSolver<T, Dim>::bin_particles_order() {
 
 template <class T, int Dim>
 template <int Order>
-int MpmSolver<T, Dim>::column_order(const Vec& x) const {
-  // The expression of bin_particles_order, so that a particle's column is its bin's.
-  const int d = split_->axis;
+typename MpmSolver<T, Dim>::IVec MpmSolver<T, Dim>::block_order(const Vec& x) const {
+  // The expression of bin_particles_order, so that a particle's block is its bin's.
   const T inv_dx = T(1) / dx_;
-  return transfer::BSpline<Order>::base((x[d] - origin_[d]) * inv_dx) >> transfer::BlockShape<Dim>::log2;
+  IVec b;
+  for (int d = 0; d < Dim; ++d)
+    b[d] = std::clamp(transfer::BSpline<Order>::base((x[d] - origin_[d]) * inv_dx) >> transfer::BlockShape<Dim>::log2, 0,
+                      split_->boxes.res[d] - 1);
+  return b;
 }
 
 template <class T, int Dim>
-int MpmSolver<T, Dim>::column(const Vec& x) const {
+typename MpmSolver<T, Dim>::IVec MpmSolver<T, Dim>::block_of(const Vec& x) const {
   switch (scene_.solver.kernel) {
-    case KernelKind::Linear: return column_order<1>(x);
-    case KernelKind::Quadratic: return column_order<2>(x);
+    case KernelKind::Linear: return block_order<1>(x);
+    case KernelKind::Quadratic: return block_order<2>(x);
     case KernelKind::Cubic: break;
   }
-  return column_order<3>(x);
+  return block_order<3>(x);
 }
 
 }  // namespace slurry

@@ -109,7 +109,7 @@ void MpmSolver<T, Dim>::particles_to_grid_order(G& grid, T dt) {
           }
           for (auto b = first; b < last; ++b) scatter_bin<Order, S>(patch, bins[b], dt, true);
           grid.add_patch(patch);
-          if (split_) keep_halo_slices<Order>(g, patch);
+          if (split_) keep_halo_patch<Order>(g, patch);
         });
       }
       if (split_) exchange_halo<Order>(grid);

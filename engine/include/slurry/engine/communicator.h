@@ -4,14 +4,13 @@
 /// more: the engine stays free of MPI (the solver core builds and runs without it), and
 /// slurry::mpi (mpi/, OpenMPI) implements this interface with MPI_COMM_WORLD.
 ///
-/// The split MPM solver (mpm/mpm_solver.h) cuts the domain into slabs of grid-block columns along
-/// its longest axis, one slab per rank in rank order, so that every exchange (the grid nodes of
-/// the borders, particles that cross them) is with the two neighbouring ranks; reductions serve the time step, the health check and the
-/// run statistics, gathers the frames and checkpoints. Every call is collective: all ranks make
-/// the same calls in the same order.
+/// The split MPM solver (mpm/mpm_solver.h) cuts the domain into boxes of grid blocks, one per rank,
+/// so that the exchanges of a substep (the grid nodes of the borders, particles that cross them)
+/// are with the ranks whose boxes touch this one's; reductions serve the time step, the health
+/// check and the run statistics, gathers the frames and checkpoints. Every call is collective:
+/// all ranks make the same calls in the same order.
 #include <cstdint>
 #include <string>
-#include <utility>
 #include <vector>
 
 namespace slurry {
@@ -26,10 +25,11 @@ class Communicator {
   virtual void sum(double* values, int n) = 0;
   /// Element-wise maximum over the ranks, in place.
   virtual void max(double* values, int n) = 0;
-  /// Sends `to_lower` to rank - 1 and `to_upper` to rank + 1 (nothing beyond the first and the
-  /// last rank) and returns {what rank - 1 sent, what rank + 1 sent} (empty beyond the ends).
-  virtual std::pair<std::string, std::string> exchange(const std::string& to_lower,
-                                                       const std::string& to_upper) = 0;
+  /// Sends out[i] to rank peers[i] and returns what each peers[i] sent this rank, in the same
+  /// order. The lists must be mutual (rank a names b exactly when b names a); peers are distinct
+  /// and exclude this rank; a message may be empty.
+  virtual std::vector<std::string> exchange(const std::vector<int>& peers,
+                                            const std::vector<std::string>& out) = 0;
   /// Every rank's `mine`, in rank order, on every rank.
   virtual std::vector<std::string> all_gather(const std::string& mine) = 0;
   /// Every rank's `mine`, in rank order, on rank 0; an empty list on the others.

@@ -39,8 +39,8 @@ class Session final : public Communicator {
   int size() const override { return size_; }
   void sum(double* values, int n) override;
   void max(double* values, int n) override;
-  std::pair<std::string, std::string> exchange(const std::string& to_lower,
-                                               const std::string& to_upper) override;
+  std::vector<std::string> exchange(const std::vector<int>& peers,
+                                    const std::vector<std::string>& out) override;
   std::vector<std::string> all_gather(const std::string& mine) override;
   std::vector<std::string> gather(const std::string& mine) override;
   void barrier() override;

@@ -17,14 +17,15 @@
 ///   check_health    non-finite state, CFL violation, particle outside the domain -> SimulationError
 ///
 /// Split over processes (a Communicator with more than one rank, communicator.h; `mpirun -np N
-/// slurry run`): the domain is cut into slabs of grid-block columns along its longest axis, one
-/// per rank, with borders that follow the particle counts at every frame (balanced_cuts). Each
-/// substep a rank bins and scatters its own particles only; the grid nodes of the Order node
-/// layers at a border, which the particles of both neighbouring columns reach, are then summed
-/// again from both ranks' contributions (the grid halo: each rank sends its border blocks' patch
-/// nodes in those layers to the neighbour, distribution.h). Each rank updates the grid, gathers and
-/// projects its own particles and hands particles that crossed a border to the neighbour; the time
-/// step and the health check are global. Bins are ordered by persistent id and the halo's nodes
+/// slurry run`): the lattice of grid blocks is cut into boxes, one per rank (slabs, pencils or
+/// boxes: process_grid picks the processes per axis whose cuts cross the fewest block faces), with
+/// borders that follow the particle counts at every frame (BoxSplit, balanced_cuts). Each substep
+/// a rank bins and scatters its own particles only; the grid nodes near a border, which the
+/// particles of blocks on both sides reach, are then summed again from every rank's
+/// contributions (the grid halo: each rank sends its border blocks' shared patch nodes to the
+/// ranks whose boxes touch its own, distribution.h). Each rank updates the grid, gathers and
+/// projects its own particles and hands particles that crossed a border to their new owner; the
+/// time step and the health check are global. Bins are ordered by persistent id and the halo's nodes
 /// are summed in the colour order of the scatter, so every node a rank reads holds the same sum as
 /// in one process and frames are bitwise those of one process.
 /// Frames and checkpoints are gathered to every rank in one piece (rank 0 writes them), or with
@@ -98,6 +99,7 @@ class MpmSolver final : public Solver {
  public:
   using Vec = Eigen::Matrix<T, Dim, 1>;
   using Mat = Eigen::Matrix<T, Dim, Dim>;
+  using IVec = Eigen::Matrix<int, Dim, 1>;
   using DenseGrid = transfer::DenseGrid<T, Dim>;
   using SparseGrid = transfer::SparseGrid<T, Dim>;
 
@@ -163,16 +165,18 @@ class MpmSolver final : public Solver {
   // The split over processes (null in one process): see the file comment.
   struct Split;
   template <int Order>
-  int column_order(const Vec& x) const;
-  /// The block column along the split axis of the block a particle at x is binned to.
-  int column(const Vec& x) const;
-  /// `counts` plus the particles at positions x per block column along the split axis.
-  std::vector<double> column_counts(const std::vector<Vec>& x, std::vector<double> counts = {}) const;
-  /// Whether a particle at x lies in this rank's slab.
+  IVec block_order(const Vec& x) const;
+  /// The grid block a particle at x is binned to (clamped to the block lattice).
+  IVec block_of(const Vec& x) const;
+  /// `counts` plus the particles at positions x per block of the lattice (linear index, the last
+  /// axis fastest).
+  std::vector<double> block_counts(const std::vector<Vec>& x, std::vector<double> counts = {}) const;
+  /// Whether a particle at x lies in this rank's box.
   bool owns(const Vec& x) const;
-  /// Slab borders balanced for all ranks' column counts (and the per-rank extremes for the
-  /// log); true if they moved.
-  bool set_borders(const std::vector<double>& counts);
+  /// Box borders balanced for the particle counts per block (this rank's, summed over the ranks
+  /// level by level; or, `summed`, every rank's already), the per-rank extremes for the log, and
+  /// this rank's peers; true if they moved.
+  bool set_borders(const std::vector<double>& lattice, bool summed);
   /// The state of particles P (every process's, or this process's part of a split run:
   /// `part`); and the readers of its sections.
   void write_state(const Particles<T, Dim>& P, const StateSink& sink, bool part) const;
@@ -180,19 +184,21 @@ class MpmSolver final : public Solver {
   void read_scalars(detail::StateReader& r);
   /// Keeps this rank's particles of a full set (after seeding and after load_state).
   void split_particles();
-  /// New slab borders from the particle counts; particles move to their new owners.
+  /// New box borders from the particle counts; particles move to their new owners.
   void rebalance();
-  /// Hands the particles outside this rank's slab to the neighbours, in rounds until none is
-  /// left (one round after a substep: particles move less than a column).
+  /// Hands the particles outside this rank's box to their owners: the peers after a substep
+  /// (particles move less than a block), any rank after new borders.
   void migrate();
-  /// The grid halo: which occupied blocks lie in a border column (before P2G); a border block's
-  /// patch nodes in the border's layers, kept during P2G (any thread, its own slot); after P2G,
-  /// the slices swapped with the neighbours and the border layers' nodes summed again in colour
-  /// order.
+  /// The neighbours of `block` (bit o: offset o, distribution.h) that lie in the lattice and are
+  /// owned by `rank` (foreign: by any rank but this one).
+  std::uint32_t neighbours_owned_by(const IVec& block, int rank, bool foreign) const;
+  /// The grid halo: which occupied blocks touch another rank's box (before P2G); their patches,
+  /// kept during P2G (any thread, its own slot); after P2G, the shared nodes swapped with the
+  /// peers and summed again in colour order.
   template <int Order>
   void prepare_halo();
   template <int Order>
-  void keep_halo_slices(std::size_t group, const transfer::Patch<T, Dim, Order>& patch);
+  void keep_halo_patch(std::size_t group, const transfer::Patch<T, Dim, Order>& patch);
   template <int Order, class G>
   void exchange_halo(G& grid);
   /// Every rank's particles, on every rank or on rank 0 only (empty elsewhere).
