@@ -95,20 +95,32 @@ void MpmSolver<T, Dim>::rebalance() {
 
 template <class T, int Dim>
 void MpmSolver<T, Dim>::migrate() {
+  switch (scene_.solver.kernel) {
+    case KernelKind::Linear: migrate_order<1>(); return;
+    case KernelKind::Quadratic: migrate_order<2>(); return;
+    case KernelKind::Cubic: break;
+  }
+  migrate_order<3>();
+}
+
+template <class T, int Dim>
+template <int Order>
+void MpmSolver<T, Dim>::migrate_order() {
   auto& S = *split_;
   auto& P = particles_;
   const int ranks = S.comm->size(), rank = S.comm->rank();
+  // Which particles left the box (in parallel: every particle is looked at every substep).
+  std::vector<std::uint8_t> drop(P.size(), 0);
+  parallel::parallel_for(0, std::int64_t(P.size()), [&](std::int64_t p) {
+    const IVec b = block_order<Order>(P.x[std::size_t(p)]);
+    drop[std::size_t(p)] = !((b.array() >= S.lo.array()).all() && (b.array() < S.hi.array()).all());
+  });
   // Each leaving particle goes straight to the owner of its block: after a substep that is a
   // peer (a particle moves less than a block), after new borders it may be any rank.
   std::vector<std::vector<std::uint32_t>> leaving(static_cast<std::size_t>(ranks));
-  std::vector<std::uint8_t> drop(P.size(), 0);
   bool left = false;
-  for (std::size_t p = 0; p < P.size(); ++p) {
-    const IVec b = block_of(P.x[p]);
-    if ((b.array() >= S.lo.array()).all() && (b.array() < S.hi.array()).all()) continue;
-    leaving[std::size_t(S.boxes.owner(b))].push_back(std::uint32_t(p));
-    drop[p] = 1, left = true;
-  }
+  for (std::size_t p = 0; p < P.size(); ++p)
+    if (drop[p]) leaving[std::size_t(S.boxes.owner(block_order<Order>(P.x[p])))].push_back(std::uint32_t(p)), left = true;
   double far = 0;
   for (int r = 0; r < ranks; ++r)
     if (!leaving[std::size_t(r)].empty() && !std::binary_search(S.peers.begin(), S.peers.end(), r)) far = 1;
@@ -267,13 +279,14 @@ void MpmSolver<T, Dim>::exchange_halo(G& grid) {
     S.halo_bytes += out[i].size();
   }
   const auto in = S.comm->exchange(S.peers, out);
-  // Every contribution to a shared node: (node, colour, value, this rank's).
+  // Every contribution to a shared node: (node and colour as node 2^Dim + colour, value, this
+  // rank's), sorted by node, then colour.
   struct Entry {
-    std::int64_t node;
-    int colour;
-    bool own;
+    std::uint64_t key;
     const void* value;  // a received node need not be aligned as a Node
+    bool own;
   };
+  constexpr int kColourBits = Dim;
   std::vector<Entry> entries;
   const IVec res = grid.res();
   auto key = [&](const IVec& i) {
@@ -300,7 +313,7 @@ void MpmSolver<T, Dim>::exchange_halo(G& grid) {
     const Node* nodes = S.kept.data() + b * std::size_t(Patch::count);
     const int colour = transfer::BlockShape<Dim>::colour(S.border[b]);
     for_each_shared(S.border[b], S.border_foreign[b], [&](const IVec& node, int k, std::size_t) {
-      entries.push_back({key(node), colour, true, nodes + k});
+      entries.push_back({(std::uint64_t(key(node)) << kColourBits) | std::uint64_t(colour), nodes + k, true});
     });
   }
   for (std::size_t i = 0; i < in.size(); ++i) {
@@ -319,21 +332,20 @@ void MpmSolver<T, Dim>::exchange_halo(G& grid) {
       const int colour = transfer::BlockShape<Dim>::colour(block);
       const char* base = m.data() + at;
       const std::size_t n = for_each_shared(block, bits, [&](const IVec& node, int, std::size_t j) {
-        entries.push_back({key(node), colour, false, base + j * sizeof(Node)});
+        entries.push_back({(std::uint64_t(key(node)) << kColourBits) | std::uint64_t(colour), base + j * sizeof(Node), false});
       });
       if (m.size() - at < n * sizeof(Node)) throw SimulationError("a message of grid nodes from another rank is truncated");
       at += n * sizeof(Node);
     }
   }
-  std::sort(entries.begin(), entries.end(), [](const Entry& a, const Entry& b) {
-    return a.node != b.node ? a.node < b.node : a.colour < b.colour;
-  });
+  std::sort(entries.begin(), entries.end(), [](const Entry& a, const Entry& b) { return a.key < b.key; });
   // A node that this rank's patches reach and another rank's too takes the sum of all in colour
   // order; one that only this rank reaches holds it already, one it does not reach is not read.
   for (std::size_t j = 0; j < entries.size();) {
     std::size_t e = j;
     bool own = false, other = false;
-    while (e < entries.size() && entries[e].node == entries[j].node) own |= entries[e].own, other |= !entries[e].own, ++e;
+    const std::uint64_t node = entries[j].key >> kColourBits;
+    while (e < entries.size() && entries[e].key >> kColourBits == node) own |= entries[e].own, other |= !entries[e].own, ++e;
     if (own && other) {
       Node sum = Node::Zero();
       for (std::size_t k = j; k < e; ++k) {
@@ -341,7 +353,7 @@ void MpmSolver<T, Dim>::exchange_halo(G& grid) {
         std::memcpy(static_cast<void*>(&v), entries[k].value, sizeof v);
         sum += v;
       }
-      *grid.find(transfer::lattice_coord<Dim>(entries[j].node, res)) = sum;
+      *grid.find(transfer::lattice_coord<Dim>(std::int64_t(node), res)) = sum;
     }
     j = e;
   }

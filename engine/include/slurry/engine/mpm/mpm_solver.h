@@ -189,6 +189,8 @@ class MpmSolver final : public Solver {
   /// Hands the particles outside this rank's box to their owners: the peers after a substep
   /// (particles move less than a block), any rank after new borders.
   void migrate();
+  template <int Order>
+  void migrate_order();
   /// The neighbours of `block` (bit o: offset o, distribution.h) that lie in the lattice and are
   /// owned by `rank` (foreign: by any rank but this one).
   std::uint32_t neighbours_owned_by(const IVec& block, int rank, bool foreign) const;
