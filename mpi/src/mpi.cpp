@@ -77,6 +77,7 @@ Session::Session(int& argc, char**& argv) {
 }
 
 Session::~Session() {
+  finalize_petsc();
   int finalised = 0;
   MPI_Finalized(&finalised);
   if (!finalised) MPI_Finalize();

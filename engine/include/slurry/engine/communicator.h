@@ -9,11 +9,37 @@
 /// are with the ranks whose boxes touch this one's; reductions serve the time step, the health
 /// check and the run statistics, gathers the frames and checkpoints. Every call is collective:
 /// all ranks make the same calls in the same order.
+///
+/// A linear system too large for one process (a liquid's pressure) is solved through the same
+/// layer: slurry::mpi hands it to PETSc's conjugate gradients preconditioned by hypre's
+/// BoomerAMG (solve_spd), so that no distributed Krylov solver is written here.
 #include <cstdint>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
 namespace slurry {
+
+/// A sparse symmetric positive (semi)definite system A x = b split by rows over the ranks: this
+/// rank holds the global rows [first, first + rhs.size()), rank r's rows right after rank
+/// r - 1's, in compressed rows with global column indices.
+struct DistributedSystem {
+  std::int64_t first = 0;
+  std::vector<std::int64_t> row_start{0};  ///< rhs.size() + 1 offsets into columns and values
+  std::vector<std::int64_t> columns;
+  std::vector<double> values;
+  std::vector<double> rhs;
+  /// A's null space is the constant vector (the pressure of a closed container): b's component
+  /// along it is removed and x is the solution orthogonal to it.
+  bool constant_null_space = false;
+};
+
+/// What solve_spd did: iterations, the final ||b - A x|| / ||b||, and whether it met rtol.
+struct DistributedSolve {
+  int iterations = 0;
+  double residual = 0;
+  bool converged = false;
+};
 
 class Communicator {
  public:
@@ -36,6 +62,16 @@ class Communicator {
   virtual std::vector<std::string> gather(const std::string& mine) = 0;
   /// Returns when every rank has called it.
   virtual void barrier() = 0;
+  /// Solves A x = b (A symmetric positive definite, or semidefinite with constant_null_space) by
+  /// conjugate gradients with an algebraic multigrid preconditioner, to ||b - A x|| <= rtol ||b||
+  /// or max_iterations; x is this rank's rows of the solution, its start value on entry (resized
+  /// to the rank's rows if it differs). Throws std::logic_error where this layer has no
+  /// distributed solver.
+  virtual DistributedSolve solve_spd(const DistributedSystem& A, std::vector<double>& x, double rtol,
+                                     int max_iterations) {
+    (void)A, (void)x, (void)rtol, (void)max_iterations;
+    throw std::logic_error("this build has no distributed linear solver (slurry::mpi without PETSc)");
+  }
 
   /// Payload bytes this rank has sent through exchange() (the grid halo's nodes and migrating
   /// particles), for the scaling figures of benchmarks/.

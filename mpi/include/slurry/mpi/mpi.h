@@ -44,6 +44,13 @@ class Session final : public Communicator {
   std::vector<std::string> all_gather(const std::string& mine) override;
   std::vector<std::string> gather(const std::string& mine) override;
   void barrier() override;
+  /// PETSc's KSPCG with hypre's BoomerAMG (PCHYPRE; strong threshold 0.5, hypre's advice for 3D
+  /// Laplacians, unless PETSC_OPTIONS sets it), the unpreconditioned residual norm; PETSc starts
+  /// on the first call, without its signal handlers, and stops with the session. The options
+  /// database (PETSC_OPTIONS, e.g. -ksp_view or -pc_type gamg) applies on top. Throws
+  /// std::logic_error in a build without PETSc (SLURRY_MPI_WITH_PETSC unset).
+  DistributedSolve solve_spd(const DistributedSystem& A, std::vector<double>& x, double rtol,
+                             int max_iterations) override;
 
   /// Ranks on this machine (OMPI_COMM_WORLD_LOCAL_SIZE; 1 if the launcher does not say), to
   /// share its cores among them.
@@ -54,6 +61,8 @@ class Session final : public Communicator {
 
  private:
   int rank_ = 0, size_ = 1, local_size_ = 1;
+  bool petsc_ = false;  // PETSc started by solve_spd
+  void finalize_petsc();
 };
 
 }  // namespace slurry::mpi
