@@ -7,7 +7,8 @@
 // cell, a block filling the middle half of the domain, sparse grid), one worker thread per rank.
 // BM_Strong/res: the same res^3 particles on every N (strong scaling). BM_Weak/res: res^3
 // particles per rank, the block and the domain stretched along x by N (weak scaling). The split
-// axis is the domain's longest (x in BM_Weak for N > 1).
+// is the engine's (domain_split.h process_grid): on 4 processes 2 x 2 x 1 boxes for BM_Strong, 4
+// slabs along x for BM_Weak.
 //
 // A substep's time is the slowest rank's (MPI_Allreduce max; manual time). Counters:
 //   particle-steps/s   all ranks' particles x substeps / time

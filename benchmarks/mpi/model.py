@@ -3,28 +3,35 @@
 
     python3 benchmarks/mpi/model.py [--plot FILE.png]
 
-Prints the tables of benchmarks/RESULTS.md ("MPI: the grid halo, measured and modelled"): first
-the grid-halo bytes the model predicts for bench_mpi's cases (to hold against its measured
-"halo kB/substep/rank"), then the projection for a cluster. Inputs are figures measured by
-bench_mpi / bench_mpm_step on this machine (marked MEASURED) and stated assumptions about a
-cluster node and its network (marked ASSUMED).
+Prints the tables of benchmarks/RESULTS.md ("MPI: boxes"): first the grid-halo bytes the model
+predicts for bench_mpi's cases (to hold against its measured "halo kB/substep/rank"), then the
+projection for a cluster. Inputs are figures measured by bench_mpi / bench_mpm_step on this
+machine (marked MEASURED) and stated assumptions about a cluster node and its network (marked
+ASSUMED).
 
-The grid halo (engine/src/mpm/distribution.h): at each border between two slabs, each of the two
-ranks sends the other, per occupied grid block of its border column, that block's patch nodes in
-the Order node layers the two columns share: Order x (4 + Order)^2 nodes of 16 B (float momentum
-and mass) and the block's 3 int32 coordinates, 1164 B per block for the quadratic kernel, after an
-8 B count. Per substep and rank:
+The split (engine/src/mpm/domain_split.h): the lattice of grid blocks (4^3 nodes) is cut into
+p_x x p_y x p_z boxes, the factorisation of the process count whose cuts cross the fewest block
+faces, each cut balanced by particle counts. The grid halo (engine/src/mpm/distribution.h): a
+block's patch reaches Order node layers into the next block along each axis, so each process
+sends every process whose box touches its own, per occupied block of its box next to that box,
+the block's patch nodes the two share (16 B each: float momentum and mass) after the block's 3
+int32 coordinates: across a face Order (4 + Order)^2 nodes (1164 B a block, quadratic kernel),
+across an edge Order^2 (4 + Order) (396 B), across a corner Order^3 (140 B). For bench_mpi the
+prediction repeats the split and the halo's rules on the bench scene's particle counts exactly.
+
+Per substep and rank:
 
   compute  = N_own / R_node                         no particle is scattered twice
   transfer = (H + M) / bandwidth                    H halo bytes, M migrating particles' bytes
   pack     = 2 (H + M) / copy_rate                  packing on the sender, unpacking on the receiver
-  latency  = (4 + 2 log2 P) alpha                   two neighbour exchanges of two rounds each
-                                                    (sizes, then bytes), two MPI_Allreduce
+  latency  = (4 + 2 log2 P) alpha + 4 peers o       two exchanges with the peers of two rounds each
+                                                    (sizes, then bytes), two MPI_Allreduce, and
+                                                    each message's overhead o
   efficiency = (N_own / R_node) / (compute + transfer + pack + latency)   (nothing overlaps)
 
-For comparison the ghost-particle halo it replaced: every substep each rank received copies of its
-neighbours' border columns (4 cells x the section x 8 particles x 108 B) and scattered them again
-(0.59 of a particle-step each, the P2G share).
+For comparison, slabs (the split before boxes) and the ghost-particle halo before the grid halo:
+every substep each rank received copies of its neighbours' border columns (4 cells x the section
+x 8 particles x 108 B) and scattered them again (0.59 of a particle-step each, the P2G share).
 """
 import math
 import sys
@@ -35,84 +42,252 @@ B = 108             # bytes per 3D float MLS solid particle: x, v, m, V0, F, C, 
 PPC = 8             # particles per cell
 BLOCK = 4           # cells per grid block along an axis (4^3-node blocks in 3D)
 ORDER = 2           # the quadratic kernel: a patch reaches 2 node layers into the next block
+PATCH = BLOCK + ORDER
 NODE = 16           # bytes per grid node sent (float momentum and mass)
-BLOCK_BYTES = 3 * 4 + ORDER * (BLOCK + ORDER) ** 2 * NODE  # 1164 B: one block's slice of the halo
+HEAD = 3 * 4        # a block's coordinates
+FACE_BYTES = HEAD + ORDER * PATCH ** 2 * NODE     # 1164 B: one block's nodes shared across a face
+EDGE_BYTES = HEAD + ORDER ** 2 * PATCH * NODE     # 396 B: across an edge
+CORNER_BYTES = HEAD + ORDER ** 3 * NODE           # 140 B: across a corner
 MIGRATION = 0.2     # MEASURED: migrating particles' bytes / halo bytes, jelly_cubes_3d on 2 processes (cubes thrown across the border at 2.5 m/s; 0 in bench_mpi)
-CORES = 32          # ASSUMED: cores per node (2 x 16), one rank per node with 32 threads
-THREAD_EFF = 0.8    # ASSUMED: 32-thread efficiency (measured 0.93 at 2 threads: 15.5-15.9 M vs 2 x 8.4 M)
+CORES = 32          # ASSUMED: cores per node (2 x 16)
+THREAD_EFF = 0.8    # ASSUMED: 32-core efficiency (measured 0.93 at 2 threads: 15.5-15.9 M vs 2 x 8.4 M)
 COPY = 10e9         # ASSUMED: bytes/s a node packs or unpacks (gather of SoA channels, threaded)
+OVERHEAD = 0.5e-6   # ASSUMED: a message's software overhead on the sender and the receiver (LogP's o)
 NETWORKS = {"25 Gb/s (RoCE, 5 us)": (25e9 / 8, 5e-6), "100 Gb/s (InfiniBand, 2 us)": (100e9 / 8, 2e-6)}
 N_TOTAL = 1e9       # the target scene
 NODES = 64
 R_NODE = CORES * R_CORE * THREAD_EFF
 
 
-def halo_message(blocks_across):
-    """Bytes one rank sends across one border: the count and the slices of the occupied blocks."""
-    return 8 + blocks_across * BLOCK_BYTES
+# ---- The split and the halo's rules, as the engine applies them ----------------------------------
+
+def process_grid(ranks, blocks):
+    """Processes per axis (domain_split.h process_grid): the factorisation with every p_a <= blocks[a]
+    whose cuts cross the fewest block faces; among equals the first in descending order per axis."""
+    best, best_faces = None, math.inf
+
+    def place(axis, left, p):
+        nonlocal best, best_faces
+        if axis == len(blocks) - 1:
+            if left > blocks[axis]:
+                return
+            q = p + [left]
+            faces = sum((q[a] - 1) * math.prod(blocks[b] for b in range(len(q)) if b != a) for a in range(len(q)))
+            if faces < best_faces:
+                best, best_faces = q, faces
+            return
+        for n in range(min(left, blocks[axis]), 0, -1):
+            if left % n == 0:
+                place(axis + 1, left // n, p + [n])
+
+    place(0, ranks, [])
+    return best
 
 
-def bench_blocks_across(res):
-    """Occupied blocks across the border column of bench_mpi's block (cells [res/4, 3 res/4) in y
-    and z, two particles per cell per axis at 1/4 and 3/4): quadratic base nodes res/4 - 1 ..
-    3 res/4 - 1, shifted by the grid's 3 padding nodes (engine/src/mpm: kPad), blocks of 4 nodes."""
+def balanced_cuts(counts, ranks):
+    """domain_split.h balanced_cuts."""
+    columns = len(counts)
+    cuts = [0] * (ranks + 1)
+    cuts[ranks] = columns
+    total = sum(counts)
+    below, k = 0.0, 0
+    for r in range(1, ranks):
+        target = total * r / ranks
+        lo, hi = cuts[r - 1] + 1, columns - (ranks - r)
+        while k < lo:
+            below += counts[k]
+            k += 1
+        while k < hi and below + counts[k] <= target:
+            below += counts[k]
+            k += 1
+        if k < hi and target - below > below + counts[k] - target:
+            below += counts[k]
+            k += 1
+        cuts[r] = k
+    return cuts
+
+
+def box_split(counts, res, procs):
+    """Each rank's box [lo, hi) of blocks (domain_split.h BoxSplit), for particle counts per block
+    (a dict of block -> count): the axes with the most processes cut first, each part of a level
+    by its own counts; rank digits in the order of the cuts."""
+    dim = len(res)
+    order = sorted(range(dim), key=lambda a: -procs[a])  # stable, as std::stable_sort
+    boxes = [([0] * dim, list(res), counts)]
+    for a in order:
+        n = procs[a]
+        parts = []
+        for lo, hi, inside in boxes:
+            column = [0.0] * res[a]
+            for b, c in inside.items():
+                column[b[a]] += c
+            cuts = balanced_cuts(column, n)
+            for i in range(n):
+                l, h = list(lo), list(hi)
+                l[a], h[a] = cuts[i], cuts[i + 1]
+                parts.append((l, h, {b: c for b, c in inside.items() if cuts[i] <= b[a] < cuts[i + 1]}))
+        boxes = parts
+    return [(lo, hi) for lo, hi, _ in boxes]
+
+
+def halo_bytes_per_rank(counts, res, procs):
+    """Grid-halo bytes each rank sends per substep (distribution.h exchange_halo): per occupied
+    border block and per other rank owning one of its 3^3 - 1 neighbours, the block's coordinates
+    and the patch nodes whose class admits one of those neighbours."""
+    boxes = box_split(counts, res, procs)
+    dim = len(res)
+
+    def owner(b):
+        for r, (lo, hi) in enumerate(boxes):
+            if all(lo[d] <= b[d] < hi[d] for d in range(dim)):
+                return r
+        return None
+
+    offsets = [o for o in __import__("itertools").product((-1, 0, 1), repeat=dim) if any(o)]
+    # Nodes of each class (per axis 0: l < ORDER, 1: between, 2: l >= BLOCK) and the offsets it admits.
+    per_axis = {0: ORDER, 1: BLOCK - ORDER, 2: ORDER}
+    classes = []
+    for c in __import__("itertools").product((0, 1, 2), repeat=dim):
+        admits = {o for o in offsets if all(o[d] == 0 or (o[d] == -1 and c[d] == 0) or (o[d] == 1 and c[d] == 2) for d in range(dim))}
+        classes.append((math.prod(per_axis[x] for x in c), admits))
+    sent = [0] * len(boxes)
+    for b, c in counts.items():
+        if c <= 0:
+            continue
+        me = owner(b)
+        by_rank = {}
+        for o in offsets:
+            nb = tuple(b[d] + o[d] for d in range(dim))
+            if all(0 <= nb[d] < res[d] for d in range(dim)):
+                r = owner(nb)
+                if r != me:
+                    by_rank.setdefault(r, set()).add(o)
+        for r, owned in by_rank.items():
+            sent[me] += HEAD + NODE * sum(n for n, admits in classes if admits & owned)
+    return sent
+
+
+def bench_counts(res, stretch):
+    """Particles per block of bench_mpi's scene (benchmarks/block_scene.h): cells [res/4, 3 res/4)
+    in y and z and [res/4, res/4 + stretch res/2) in x, two particles per cell per axis at 1/4 and
+    3/4, whose quadratic base nodes are c - 1 and c, shifted by the grid's 3 padding nodes."""
     pad = 3
-    lo, hi = res // 4 - 1 + pad, 3 * res // 4 - 1 + pad
-    per_axis = hi // BLOCK - lo // BLOCK + 1
-    return per_axis * per_axis
+    cells = [res * (stretch + 1) // 2, res, res]
+    body = [(res // 4, res // 4 + stretch * res // 2), (res // 4, 3 * res // 4), (res // 4, 3 * res // 4)]
+    nodes = [c + 1 + 2 * pad for c in cells]
+    blocks = [(n + BLOCK - 1) // BLOCK for n in nodes]
+    per_axis = []
+    for a in range(3):
+        column = [0] * blocks[a]
+        for c in range(*body[a]):
+            for base in (c - 1 + pad, c + pad):
+                column[base // BLOCK] += 1
+        per_axis.append(column)
+    counts = {}
+    for i, x in enumerate(per_axis[0]):
+        for j, y in enumerate(per_axis[1]):
+            for k, z in enumerate(per_axis[2]):
+                if x * y * z:
+                    counts[(i, j, k)] = x * y * z
+    return counts, blocks
 
 
-def step(n_own, halo_bytes, ghosts, ranks, bandwidth, alpha):
-    """Substep time and weak efficiency; `ghosts` > 0 charges the replaced ghost-particle halo."""
+# ---- The cluster projection ----------------------------------------------------------------------
+
+def box_halo(box, procs):
+    """Halo bytes and peers of a rank inside the split (neighbours on every cut side), its box
+    `box` blocks along each axis, every block of the box's faces occupied."""
+    dim = len(box)
+    cut = [procs[a] > 1 for a in range(dim)]
+    halo, peers = 0.0, 0
+    for a in range(dim):
+        if cut[a]:
+            halo += 2 * math.prod(box[b] for b in range(dim) if b != a) * FACE_BYTES
+            peers += 2
+    for a in range(dim):
+        for b in range(a + 1, dim):
+            if cut[a] and cut[b]:
+                third = [c for c in range(dim) if c not in (a, b)]
+                halo += 4 * (box[third[0]] if third else 1) * EDGE_BYTES
+                peers += 4
+    if all(cut):
+        halo += 8 * CORNER_BYTES
+        peers += 8
+    return halo, peers
+
+
+def step(n_own, halo_bytes, ghosts, ranks, peers, bandwidth, alpha):
+    """A node's substep time and weak efficiency; `ghosts` > 0 charges the replaced ghost-particle
+    halo. n_own, halo_bytes and ghosts are the node's (summed over its ranks); `peers` one rank's."""
     compute = (n_own + G * ghosts) / R_NODE
     sent = halo_bytes * (1 + MIGRATION) + B * ghosts
     transfer = sent / bandwidth
     pack = 2 * sent / COPY
-    latency = (4 + 2 * math.log2(max(ranks, 1))) * alpha
+    latency = (4 + 2 * math.log2(max(ranks, 1))) * alpha + 4 * peers * OVERHEAD
     total = compute + transfer + pack + latency
     return total, sent, (n_own / R_NODE) / total
 
 
 def geometries(p):
-    """(name, particles per node, halo bytes per node, ghost particles per node) at p nodes,
-    weak scaling: 1e9 / 64 per node; a middle rank (two borders)."""
+    """(name, particles per node, halo bytes per node, ghost particles per node, ranks, peers,
+    processes per axis) at p
+    nodes, weak scaling: 1e9 / 64 particles per node; a rank inside the split (every side cut)."""
     n = N_TOTAL / NODES
     cells = n * p / PPC
+    side = cells ** (1 / 3) / BLOCK  # blocks across the cube
     out = []
-    # A cube growing in all three directions, cut into slabs along x.
-    side = cells ** (1 / 3)
-    halo = 0 if p == 1 else 2 * halo_message((side / BLOCK) ** 2)
-    out.append(("cube, slabs, grid halo", n, halo, 0))
-    ghost = 0 if p == 1 else 2 * BLOCK * side * side * PPC
-    out.append(("cube, slabs, ghost particles (replaced)", n, 0, ghost))
-    # A channel (a flood down a street) of fixed 250 x 250 cell section, growing in length: slabs.
-    section = 250 * 250
-    halo = 0 if p == 1 else 2 * halo_message(section / BLOCK ** 2)
-    out.append(("channel 250 x 250 cells, slabs, grid halo", n, halo, 0))
+    # A cube growing in all three directions: boxes, one process per node (32 threads each).
+    procs = process_grid(p, [int(side)] * 3)
+    halo, peers = box_halo([side / q for q in procs], procs)
+    out.append(("cube, boxes, a process per node", n, halo, 0, p, peers, procs))
+    # The same cube, one process per core: the node sends its 32 ranks' halos (all counted as
+    # leaving the node).
+    procs = process_grid(p * CORES, [int(side)] * 3)
+    halo, peers = box_halo([side / q for q in procs], procs)
+    out.append(("cube, boxes, a process per core", n, CORES * halo, 0, p * CORES, peers, procs))
+    # The cube in slabs (the split before boxes) and with ghost particles (the halo before the grid's).
+    halo = 0 if p == 1 else 2 * side * side * FACE_BYTES
+    out.append(("cube, slabs, a process per node", n, halo, 0, p, 0 if p == 1 else 2, [p, 1, 1]))
+    ghost = 0 if p == 1 else 2 * BLOCK * (side * BLOCK) ** 2 * PPC
+    out.append(("cube, slabs, ghost particles (replaced)", n, 0, ghost, p, 0 if p == 1 else 2, [p, 1, 1]))
+    # A channel (a flood down a street) of fixed 250 x 250 cell section, growing in length.
+    section = 250 / BLOCK
+    length = cells / 250 ** 2 / BLOCK
+    procs = process_grid(p, [int(length), int(section), int(section)])
+    halo, peers = box_halo([length / procs[0], section / procs[1], section / procs[2]], procs)
+    out.append(("channel 250 x 250 cells, a process per node", n, halo, 0, p, peers, procs))
     return out
 
 
-print("Grid-halo bytes predicted for bench_mpi (kB per substep per rank, mean over the ranks):")
-print()
-print("| case | occupied blocks across | np 2 | np 4 |")
-print("| --- | --- | --- | --- |")
-for name, res in (("BM_Strong/64", 64), ("BM_Strong/100", 100), ("BM_Weak/64", 64)):
-    msg = halo_message(bench_blocks_across(res))
-    # np ranks have np - 1 borders, each crossed by one message each way: 2 (np - 1) / np per rank.
-    print("| %s | %d | %.1f | %.1f |" % (name, bench_blocks_across(res), msg * 2 * 1 / 2 / 1e3, msg * 2 * 3 / 4 / 1e3))
-print()
-print("node: %d cores x %.1f M particle-steps/s x %.2f = %.0f M particle-steps/s; %.3g particles per node"
-      % (CORES, R_CORE / 1e6, THREAD_EFF, R_NODE / 1e6, N_TOTAL / NODES))
-print("one node: %.0f ms per substep (efficiency 1 by definition)" % (1e3 * N_TOTAL / NODES / R_NODE))
-print()
-print("| nodes | geometry | MB sent per substep | network | substep ms | of which transfer ms | weak efficiency |")
-print("| --- | --- | --- | --- | --- | --- | --- |")
-for p in (8, 64):
-    for name, n, halo, ghosts in geometries(p):
-        for net, (bw, alpha) in NETWORKS.items():
-            t, sent, eff = step(n, halo, ghosts, p, bw, alpha)
-            print("| %d | %s | %.1f | %s | %.0f | %.1f | %.2f |"
-                  % (p, name, sent / 1e6, net, 1e3 * t, 1e3 * sent / bw, eff))
+def main():
+    print("Grid-halo bytes predicted for bench_mpi (kB per substep per rank, mean / largest over the ranks):")
+    print()
+    print("| case | np 2: split, kB | np 4: split, kB |")
+    print("| --- | --- | --- |")
+    for name, res, weak in (("BM_Strong/64", 64, False), ("BM_Strong/100", 100, False), ("BM_Weak/64", 64, True)):
+        cells = []
+        for np_ in (2, 4):
+            counts, blocks = bench_counts(res, np_ if weak else 1)
+            procs = process_grid(np_, blocks)
+            sent = halo_bytes_per_rank(counts, blocks, procs)
+            cells.append("%s: %.1f / %.1f" % (" x ".join(map(str, procs)), sum(sent) / np_ / 1e3, max(sent) / 1e3))
+        print("| %s | %s | %s |" % (name, cells[0], cells[1]))
+    print()
+    print("node: %d cores x %.1f M particle-steps/s x %.2f = %.0f M particle-steps/s; %.3g particles per node"
+          % (CORES, R_CORE / 1e6, THREAD_EFF, R_NODE / 1e6, N_TOTAL / NODES))
+    print("one node: %.0f ms per substep (efficiency 1 by definition)" % (1e3 * N_TOTAL / NODES / R_NODE))
+    print()
+    print("| nodes | geometry | processes per axis (peers of a rank) | MB sent per substep per node | network | substep ms | of which transfer ms | weak efficiency |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    for p in (8, 64):
+        for name, n, halo, ghosts, ranks, peers, procs in geometries(p):
+            for net, (bw, alpha) in NETWORKS.items():
+                t, sent, eff = step(n, halo, ghosts, ranks, peers, bw, alpha)
+                print("| %d | %s | %s (%d) | %.1f | %s | %.0f | %.1f | %.2f |"
+                      % (p, name, " x ".join(map(str, procs)), peers, sent / 1e6, net, 1e3 * t, 1e3 * sent / bw, eff))
+
+
+main()
 
 if "--plot" in sys.argv:
     # Weak efficiency against the node count (1e9 / 64 particles per node), the README's figure.
@@ -121,14 +296,15 @@ if "--plot" in sys.argv:
     import matplotlib.pyplot as plt
     nodes = [1, 2, 4, 8, 16, 32, 64, 128]
     fig, ax = plt.subplots(figsize=(6.4, 3.6), dpi=100)
-    styles = {"cube, slabs, grid halo": "C0", "channel 250 x 250 cells, slabs, grid halo": "C2",
+    styles = {"cube, boxes, a process per node": "C0", "cube, boxes, a process per core": "C1",
+              "cube, slabs, a process per node": "C7", "channel 250 x 250 cells, a process per node": "C2",
               "cube, slabs, ghost particles (replaced)": "C3"}
     for name, colour in styles.items():
         for net, (bw, alpha) in NETWORKS.items():
             eff = []
             for p in nodes:
                 row = next(g for g in geometries(p) if g[0] == name)
-                eff.append(step(row[1], row[2], row[3], p, bw, alpha)[2])
+                eff.append(step(row[1], row[2], row[3], row[4], row[5], bw, alpha)[2])
             ax.plot(nodes, eff, color=colour, linestyle="-" if bw > 5e9 else "--", marker="o", markersize=3,
                     label="%s, %s" % (name, net.split(" (")[0]))
     ax.axhline(0.85, color="0.6", linewidth=0.8)
@@ -139,6 +315,6 @@ if "--plot" in sys.argv:
     ax.set_xlabel("nodes (32 cores each), 1.56e7 particles per node")
     ax.set_ylabel("weak efficiency (model)")
     ax.set_title("MPM split over processes: benchmarks/mpi/model.py", fontsize=10)
-    ax.legend(fontsize=6.5, loc="lower left")
+    ax.legend(fontsize=5.5, loc="lower left", ncol=2)
     fig.tight_layout()
     fig.savefig(sys.argv[sys.argv.index("--plot") + 1])
