@@ -199,26 +199,31 @@ std::array<std::uint8_t, transfer::Patch<T, Dim, Order>::count> patch_node_class
 }  // namespace detail
 
 template <class T, int Dim>
-std::uint32_t MpmSolver<T, Dim>::neighbours_owned_by(const IVec& block, int rank, bool foreign) const {
-  // Bit o set: the neighbour at offset o exists and is owned by `rank` (foreign: by another rank
-  // than this one).
+void MpmSolver<T, Dim>::neighbour_owners(const IVec& block, int* owners) const {
   const auto& S = *split_;
-  const int me = S.comm->rank();
-  std::uint32_t bits = 0;
   for (int o = 0; o < detail::kNeighbours<Dim>; ++o) {
-    if (o == detail::kNeighbours<Dim> / 2) continue;
     IVec b = block;
     bool inside = true;
     for (int d = Dim - 1, oo = o; d >= 0; --d, oo /= 3) {
       b[d] += oo % 3 - 1;
       inside = inside && b[d] >= 0 && b[d] < S.boxes.res[d];
     }
-    if (!inside) continue;
-    const int owner = S.boxes.owner(b);
-    if (foreign ? owner != me : owner == rank) bits |= std::uint32_t(1) << o;
+    owners[o] = inside ? S.boxes.owner(b) : -1;
   }
+}
+
+namespace detail {
+
+/// Bit o set: owners[o] (neighbour_owners) is `rank`, the block itself (the middle offset) aside.
+template <int Dim>
+std::uint32_t offsets_owned_by(const int* owners, int rank) {
+  std::uint32_t bits = 0;
+  for (int o = 0; o < kNeighbours<Dim>; ++o)
+    if (owners[o] == rank && o != kNeighbours<Dim> / 2) bits |= std::uint32_t(1) << o;
   return bits;
 }
+
+}  // namespace detail
 
 template <class T, int Dim>
 template <int Order>
@@ -228,15 +233,22 @@ void MpmSolver<T, Dim>::prepare_halo() {
   S.slot.assign(groups, -1);
   S.border.clear();
   S.border_foreign.clear();
+  S.border_owners.clear();
+  const int me = S.comm->rank();
+  int owners[detail::kNeighbours<Dim>];
   for (std::size_t g = 0; g < groups; ++g) {
     const IVec& block = bins_.bins()[bins_.group_begin(g)].block;
     // A block one or more blocks inside the box touches no other box.
     if (((block.array() > S.lo.array()).all() && (block.array() + 1 < S.hi.array()).all())) continue;
-    const std::uint32_t foreign = neighbours_owned_by(block, -1, true);
+    neighbour_owners(block, owners);
+    std::uint32_t foreign = 0;
+    for (int o = 0; o < detail::kNeighbours<Dim>; ++o)
+      if (owners[o] >= 0 && owners[o] != me) foreign |= std::uint32_t(1) << o;
     if (!foreign) continue;
     S.slot[g] = std::int32_t(S.border.size());
     S.border.push_back(block);
     S.border_foreign.push_back(foreign);
+    S.border_owners.insert(S.border_owners.end(), owners, owners + detail::kNeighbours<Dim>);
   }
   S.kept.resize(S.border.size() * std::size_t(transfer::Patch<T, Dim, Order>::count));
 }
@@ -264,20 +276,25 @@ void MpmSolver<T, Dim>::exchange_halo(G& grid) {
   // int32) and its patch nodes that the peer's patches also hold, in patch order. The receiver
   // knows which nodes those are from the block and the split.
   std::vector<std::string> out(S.peers.size());
-  for (std::size_t i = 0; i < S.peers.size(); ++i) {
-    for (std::size_t b = 0; b < S.border.size(); ++b) {
-      const std::uint32_t bits = S.border_foreign[b] & neighbours_owned_by(S.border[b], S.peers[i], false);
-      if (!bits) continue;
+  for (std::size_t b = 0; b < S.border.size(); ++b) {
+    const int* owners = S.border_owners.data() + b * std::size_t(detail::kNeighbours<Dim>);
+    for (int o = 0; o < detail::kNeighbours<Dim>; ++o) {
+      const int r = owners[o];
+      // Each other rank once per block, at its first offset.
+      if (r < 0 || r == me || std::find(owners, owners + o, r) != owners + o) continue;
+      const std::uint32_t bits = detail::offsets_owned_by<Dim>(owners, r);
+      const auto peer = std::lower_bound(S.peers.begin(), S.peers.end(), r);
+      if (peer == S.peers.end() || *peer != r) throw SimulationError("a border block's neighbour belongs to a rank that is not a peer");
+      std::string& m = out[std::size_t(peer - S.peers.begin())];
       std::int32_t c[Dim];
       for (int d = 0; d < Dim; ++d) c[d] = S.border[b][d];
-      out[i].append(reinterpret_cast<const char*>(c), sizeof c);
+      m.append(reinterpret_cast<const char*>(c), sizeof c);
       const Node* nodes = S.kept.data() + b * std::size_t(Patch::count);
       for (int k = 0; k < Patch::count; ++k)
-        if (offsets[classes[std::size_t(k)]] & bits)
-          out[i].append(reinterpret_cast<const char*>(nodes + k), sizeof(Node));
+        if (offsets[classes[std::size_t(k)]] & bits) m.append(reinterpret_cast<const char*>(nodes + k), sizeof(Node));
     }
-    S.halo_bytes += out[i].size();
   }
+  for (const auto& m : out) S.halo_bytes += m.size();
   const auto in = S.comm->exchange(S.peers, out);
   // Every contribution to a shared node: (node and colour as node 2^Dim + colour, value, this
   // rank's), sorted by node, then colour.
@@ -316,6 +333,7 @@ void MpmSolver<T, Dim>::exchange_halo(G& grid) {
       entries.push_back({(std::uint64_t(key(node)) << kColourBits) | std::uint64_t(colour), nodes + k, true});
     });
   }
+  int owners[detail::kNeighbours<Dim>];
   for (std::size_t i = 0; i < in.size(); ++i) {
     const std::string& m = in[i];
     std::size_t at = 0;
@@ -328,7 +346,8 @@ void MpmSolver<T, Dim>::exchange_halo(G& grid) {
       for (int d = 0; d < Dim; ++d) block[d] = c[d];
       if ((block.array() < 0).any() || (block.array() >= S.boxes.res.array()).any())
         throw SimulationError("a message of grid nodes from another rank names a block outside the grid");
-      const std::uint32_t bits = neighbours_owned_by(block, me, false);
+      neighbour_owners(block, owners);
+      const std::uint32_t bits = detail::offsets_owned_by<Dim>(owners, me);
       const int colour = transfer::BlockShape<Dim>::colour(block);
       const char* base = m.data() + at;
       const std::size_t n = for_each_shared(block, bits, [&](const IVec& node, int, std::size_t j) {

@@ -191,9 +191,9 @@ class MpmSolver final : public Solver {
   void migrate();
   template <int Order>
   void migrate_order();
-  /// The neighbours of `block` (bit o: offset o, distribution.h) that lie in the lattice and are
-  /// owned by `rank` (foreign: by any rank but this one).
-  std::uint32_t neighbours_owned_by(const IVec& block, int rank, bool foreign) const;
+  /// The owner of each neighbour of `block` (owners[o] for offset o, distribution.h; -1 outside
+  /// the lattice).
+  void neighbour_owners(const IVec& block, int* owners) const;
   /// The grid halo: which occupied blocks touch another rank's box (before P2G); their patches,
   /// kept during P2G (any thread, its own slot); after P2G, the shared nodes swapped with the
   /// peers and summed again in colour order.
