@@ -109,11 +109,29 @@ void MpmSolver<T, Dim>::migrate_order() {
   auto& S = *split_;
   auto& P = particles_;
   const int ranks = S.comm->size(), rank = S.comm->rank();
-  // Which particles left the box (in parallel: every particle is looked at every substep).
+  // Which particles left the box (in parallel: every particle is looked at every substep): the
+  // base node of block_order against the box's node bounds, whose clamp at the lattice's ends
+  // leaves the box unbounded there; branch-free.
+  const T inv_dx = T(1) / dx_;
+  constexpr int size = transfer::BlockShape<Dim>::size;
+  IVec low, high;
+  for (int d = 0; d < Dim; ++d) {
+    low[d] = S.lo[d] == 0 ? std::numeric_limits<int>::min() : size * S.lo[d];
+    high[d] = S.hi[d] == S.boxes.res[d] ? std::numeric_limits<int>::max() : size * S.hi[d];
+  }
   std::vector<std::uint8_t> drop(P.size(), 0);
-  parallel::parallel_for(0, std::int64_t(P.size()), [&](std::int64_t p) {
-    const IVec b = block_order<Order>(P.x[std::size_t(p)]);
-    drop[std::size_t(p)] = !((b.array() >= S.lo.array()).all() && (b.array() < S.hi.array()).all());
+  // Captured by value: the byte stores may alias any reference, which would be read again per particle.
+  const Vec* xs = P.x.data();
+  std::uint8_t* flags = drop.data();
+  const Vec origin = origin_;
+  parallel::parallel_for(0, std::int64_t(P.size()), [=](std::int64_t p) {
+    const Vec& x = xs[p];
+    bool inside = true;
+    for (int d = 0; d < Dim; ++d) {
+      const int base = transfer::BSpline<Order>::base((x[d] - origin[d]) * inv_dx);
+      inside &= base >= low[d] && base < high[d];
+    }
+    flags[p] = !inside;
   });
   // Each leaving particle goes straight to the owner of its block: after a substep that is a
   // peer (a particle moves less than a block), after new borders it may be any rank.
