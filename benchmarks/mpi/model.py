@@ -33,6 +33,7 @@ For comparison, slabs (the split before boxes) and the ghost-particle halo befor
 every substep each rank received copies of its neighbours' border columns (4 cells x the section
 x 8 particles x 108 B) and scattered them again (0.59 of a particle-step each, the P2G share).
 """
+import itertools
 import math
 import sys
 
@@ -143,11 +144,11 @@ def halo_bytes_per_rank(counts, res, procs):
                 return r
         return None
 
-    offsets = [o for o in __import__("itertools").product((-1, 0, 1), repeat=dim) if any(o)]
+    offsets = [o for o in itertools.product((-1, 0, 1), repeat=dim) if any(o)]
     # Nodes of each class (per axis 0: l < ORDER, 1: between, 2: l >= BLOCK) and the offsets it admits.
     per_axis = {0: ORDER, 1: BLOCK - ORDER, 2: ORDER}
     classes = []
-    for c in __import__("itertools").product((0, 1, 2), repeat=dim):
+    for c in itertools.product((0, 1, 2), repeat=dim):
         admits = {o for o in offsets if all(o[d] == 0 or (o[d] == -1 and c[d] == 0) or (o[d] == 1 and c[d] == 2) for d in range(dim))}
         classes.append((math.prod(per_axis[x] for x in c), admits))
     sent = [0] * len(boxes)

@@ -27,12 +27,13 @@ void check(PetscErrorCode code, const char* what) {
 // Destroys PETSc objects on every path out of solve_spd.
 struct Objects {
   Mat A = nullptr;
-  Vec b = nullptr, x = nullptr;
+  Vec b = nullptr, x = nullptr, r = nullptr;
   KSP ksp = nullptr;
   MatNullSpace null_space = nullptr;
   ~Objects() {
     if (null_space) MatNullSpaceDestroy(&null_space);
     if (ksp) KSPDestroy(&ksp);
+    if (r) VecDestroy(&r);
     if (x) VecDestroy(&x);
     if (b) VecDestroy(&b);
     if (A) MatDestroy(&A);
@@ -132,14 +133,12 @@ DistributedSolve Session::solve_spd(const DistributedSystem& S, std::vector<doub
   out.iterations = int(iterations);
   out.converged = reason > 0;
   // The true relative residual, whatever norm the options chose.
-  Vec r = nullptr;
-  check(VecDuplicate(o.b, &r), "VecDuplicate");
+  check(VecDuplicate(o.b, &o.r), "VecDuplicate");
   PetscReal rn = 0, bn = 0;
-  check(MatMult(o.A, o.x, r), "MatMult");
-  check(VecAYPX(r, -1.0, o.b), "VecAYPX");
-  check(VecNorm(r, NORM_2, &rn), "VecNorm");
+  check(MatMult(o.A, o.x, o.r), "MatMult");
+  check(VecAYPX(o.r, -1.0, o.b), "VecAYPX");
+  check(VecNorm(o.r, NORM_2, &rn), "VecNorm");
   check(VecNorm(o.b, NORM_2, &bn), "VecNorm");
-  VecDestroy(&r);
   out.residual = bn > 0 ? double(rn / bn) : double(rn);
   const PetscScalar* result = nullptr;
   check(VecGetArrayRead(o.x, &result), "VecGetArrayRead");

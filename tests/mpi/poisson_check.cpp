@@ -56,20 +56,7 @@ int run(slurry::mpi::Session& mpi, const Case& c, double rtol, double tolerance)
     for (int j = 0; j < n; ++j)
       for (int k = 0; k < n; ++k)
         if (liquid[std::size_t(index(i, j, k))]) counts[block_index(Eigen::Vector3i(i, j, k) / block)] += 1;
-  for (int level = 0; level < 3; ++level) {
-    const int a = split.order[std::size_t(level)], parts = split.boxes(level);
-    std::vector<double> column(std::size_t(parts) * nb, 0.0);
-    for (std::size_t q = 0; q < counts.size(); ++q) {
-      const Eigen::Vector3i b(int(q / (std::size_t(nb) * nb)), int(q / nb % nb), int(q % nb));
-      column[std::size_t(split.box_of(b, level)) * nb + std::size_t(b[a])] += counts[q];
-    }
-    for (int p = 0; p < parts; ++p) {
-      const auto cuts = slurry::detail::balanced_cuts(
-          std::vector<double>(column.begin() + std::ptrdiff_t(p) * nb, column.begin() + std::ptrdiff_t(p + 1) * nb),
-          split.procs[a]);
-      split.cuts[std::size_t(level)].insert(split.cuts[std::size_t(level)].end(), cuts.begin(), cuts.end());
-    }
-  }
+  split.cut(counts);
   // Global numbering: rank after rank, each rank's liquid cells in lexicographic order.
   std::vector<int> owner(liquid.size(), -1);
   std::vector<std::int64_t> per_rank(std::size_t(ranks) + 1, 0), number(liquid.size(), -1);

@@ -67,28 +67,6 @@ TEST(ProcessGrid, CutsACubeIntoBoxesAndAChannelIntoSlabs) {
   EXPECT_EQ(detail::process_grid<2>(25, I2(5, 5)), (std::vector<int>{5, 5}));
 }
 
-// Cuts every level of `split` by the counts in `lattice` (as MpmSolver::set_borders does).
-template <int Dim>
-void cut(detail::BoxSplit<Dim>& split, const std::vector<double>& lattice) {
-  for (int k = 0; k < Dim; ++k) {
-    const int a = split.order[std::size_t(k)], n = split.procs[a], parts = split.boxes(k);
-    const std::size_t columns = std::size_t(split.res[a]);
-    std::vector<double> counts(std::size_t(parts) * columns, 0.0);
-    for (std::size_t j = 0; j < lattice.size(); ++j) {
-      const auto b = transfer::lattice_coord<Dim>(std::int64_t(j), split.res);
-      counts[std::size_t(split.box_of(b, k)) * columns + std::size_t(b[a])] += lattice[j];
-    }
-    split.cuts[std::size_t(k)].clear();
-    for (int i = 0; i < parts; ++i) {
-      const auto c = detail::balanced_cuts(
-          std::vector<double>(counts.begin() + std::ptrdiff_t(std::size_t(i) * columns),
-                              counts.begin() + std::ptrdiff_t(std::size_t(i + 1) * columns)),
-          n);
-      split.cuts[std::size_t(k)].insert(split.cuts[std::size_t(k)].end(), c.begin(), c.end());
-    }
-  }
-}
-
 TEST(BoxSplit, TilesTheLatticeWithOneNonEmptyBoxPerRank) {
   std::mt19937 rng(11);
   for (int trial = 0; trial < 50; ++trial) {
@@ -103,7 +81,7 @@ TEST(BoxSplit, TilesTheLatticeWithOneNonEmptyBoxPerRank) {
       const auto b = transfer::lattice_coord<3>(std::int64_t(j), res);
       if (b.squaredNorm() < res.squaredNorm() / 4) lattice[j] = double(1 + rng() % 50);
     }
-    cut(split, lattice);
+    split.cut(lattice);
     std::vector<int> owned(std::size_t(ranks), 0);
     for (std::size_t j = 0; j < lattice.size(); ++j) {
       const auto b = transfer::lattice_coord<3>(std::int64_t(j), res);
@@ -133,7 +111,7 @@ TEST(BoxSplit, BalancesEachLevelByItsOwnCounts) {
   std::vector<double> lattice(64, 0.0);
   for (int i = 0; i < 8; ++i)
     for (int j = 0; j < 8; ++j) lattice[std::size_t(i * 8 + j)] = i < 4 ? (j < 2 ? 10 : 0) : 2.5;
-  cut(split, lattice);
+  split.cut(lattice);
   EXPECT_EQ(split.cuts[0], (std::vector<int>{0, 4, 8}));
   EXPECT_EQ(split.cuts[1], (std::vector<int>{0, 1, 8, 0, 4, 8}));
   EXPECT_EQ(split.owner(Eigen::Vector2i(3, 0)), 0);

@@ -12,31 +12,8 @@ bool MpmSolver<T, Dim>::set_borders(const std::vector<double>& lattice, bool sum
   auto& S = *split_;
   const int ranks = S.comm->size(), rank = S.comm->rank();
   auto next = S.boxes;
-  std::vector<double> per_rank(std::size_t(ranks), 0.0);
-  for (int k = 0; k < Dim; ++k) {
-    // Level k cuts each of the boxes the earlier levels made along axis order[k], by the particle
-    // counts of that box's block columns along it.
-    const int a = next.order[std::size_t(k)], n = next.procs[a], parts = next.boxes(k);
-    const std::size_t columns = std::size_t(next.res[a]);
-    std::vector<double> counts(std::size_t(parts) * columns, 0.0);
-    for (std::size_t j = 0; j < lattice.size(); ++j) {
-      if (lattice[j] == 0) continue;
-      const IVec b = transfer::lattice_coord<Dim>(std::int64_t(j), next.res);
-      counts[std::size_t(next.box_of(b, k)) * columns + std::size_t(b[a])] += lattice[j];
-    }
-    if (!summed) S.comm->sum(counts.data(), int(counts.size()));
-    auto& cuts = next.cuts[std::size_t(k)];
-    cuts.clear();
-    for (int i = 0; i < parts; ++i) {
-      const std::vector<double> column(counts.begin() + std::ptrdiff_t(std::size_t(i) * columns),
-                                       counts.begin() + std::ptrdiff_t(std::size_t(i + 1) * columns));
-      const auto c = detail::balanced_cuts(column, n);
-      cuts.insert(cuts.end(), c.begin(), c.end());
-      if (k == Dim - 1)
-        for (int r = 0; r < n; ++r)
-          for (int j = c[std::size_t(r)]; j < c[std::size_t(r) + 1]; ++j) per_rank[std::size_t(i * n + r)] += column[std::size_t(j)];
-    }
-  }
+  const auto per_rank = summed ? next.cut(lattice)
+                               : next.cut(lattice, [&](std::vector<double>& c) { S.comm->sum(c.data(), int(c.size())); });
   S.fewest = *std::min_element(per_rank.begin(), per_rank.end());
   S.most = *std::max_element(per_rank.begin(), per_rank.end());
   if (next.cuts == S.boxes.cuts) return false;
@@ -232,12 +209,14 @@ void MpmSolver<T, Dim>::neighbour_owners(const IVec& block, int* owners) const {
 
 namespace detail {
 
-/// Bit o set: owners[o] (neighbour_owners) is `rank`, the block itself (the middle offset) aside.
+/// Bit o set: owners[o] (neighbour_owners) is `rank` (others: is a rank other than `rank`), the
+/// block itself (the middle offset) aside.
 template <int Dim>
-std::uint32_t offsets_owned_by(const int* owners, int rank) {
+std::uint32_t offsets_owned_by(const int* owners, int rank, bool others = false) {
   std::uint32_t bits = 0;
   for (int o = 0; o < kNeighbours<Dim>; ++o)
-    if (owners[o] == rank && o != kNeighbours<Dim> / 2) bits |= std::uint32_t(1) << o;
+    if ((others ? owners[o] >= 0 && owners[o] != rank : owners[o] == rank) && o != kNeighbours<Dim> / 2)
+      bits |= std::uint32_t(1) << o;
   return bits;
 }
 
@@ -250,7 +229,6 @@ void MpmSolver<T, Dim>::prepare_halo() {
   const std::size_t groups = bins_.groups();
   S.slot.assign(groups, -1);
   S.border.clear();
-  S.border_foreign.clear();
   S.border_owners.clear();
   const int me = S.comm->rank();
   int owners[detail::kNeighbours<Dim>];
@@ -259,13 +237,9 @@ void MpmSolver<T, Dim>::prepare_halo() {
     // A block one or more blocks inside the box touches no other box.
     if (((block.array() > S.lo.array()).all() && (block.array() + 1 < S.hi.array()).all())) continue;
     neighbour_owners(block, owners);
-    std::uint32_t foreign = 0;
-    for (int o = 0; o < detail::kNeighbours<Dim>; ++o)
-      if (owners[o] >= 0 && owners[o] != me) foreign |= std::uint32_t(1) << o;
-    if (!foreign) continue;
+    if (!detail::offsets_owned_by<Dim>(owners, me, true)) continue;
     S.slot[g] = std::int32_t(S.border.size());
     S.border.push_back(block);
-    S.border_foreign.push_back(foreign);
     S.border_owners.insert(S.border_owners.end(), owners, owners + detail::kNeighbours<Dim>);
   }
   S.kept.resize(S.border.size() * std::size_t(transfer::Patch<T, Dim, Order>::count));
@@ -347,7 +321,9 @@ void MpmSolver<T, Dim>::exchange_halo(G& grid) {
   for (std::size_t b = 0; b < S.border.size(); ++b) {
     const Node* nodes = S.kept.data() + b * std::size_t(Patch::count);
     const int colour = transfer::BlockShape<Dim>::colour(S.border[b]);
-    for_each_shared(S.border[b], S.border_foreign[b], [&](const IVec& node, int k, std::size_t) {
+    const std::uint32_t foreign =
+        detail::offsets_owned_by<Dim>(S.border_owners.data() + b * std::size_t(detail::kNeighbours<Dim>), me, true);
+    for_each_shared(S.border[b], foreign, [&](const IVec& node, int k, std::size_t) {
       entries.push_back({(std::uint64_t(key(node)) << kColourBits) | std::uint64_t(colour), nodes + k, true});
     });
   }

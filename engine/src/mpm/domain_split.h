@@ -18,6 +18,7 @@
 
 #include "slurry/engine/errors.h"
 #include "slurry/engine/mpm/particles.h"
+#include "slurry/transfer/lattice.h"
 
 namespace slurry::detail {
 
@@ -118,6 +119,39 @@ struct BoxSplit {
       at = at * n + i;
     }
     return at;
+  }
+  /// Places every level's cuts by the particle counts per block in `lattice` (linear index, the
+  /// last axis fastest): level k cuts each box the levels before it made, along axis order[k],
+  /// by balanced_cuts of that box's counts per block column. `sum`, if given, adds a level's
+  /// column counts over the ranks in place (for a lattice of this rank's particles only); every
+  /// rank must then call cut alike. Returns each rank's particles.
+  std::vector<double> cut(const std::vector<double>& lattice,
+                          const std::function<void(std::vector<double>&)>& sum = {}) {
+    std::vector<double> per_rank(std::size_t(ranks()), 0.0);
+    for (int k = 0; k < Dim; ++k) {
+      const int a = order[std::size_t(k)], n = procs[a], parts = boxes(k);
+      const std::size_t columns = std::size_t(res[a]);
+      std::vector<double> counts(std::size_t(parts) * columns, 0.0);
+      for (std::size_t j = 0; j < lattice.size(); ++j) {
+        if (lattice[j] == 0) continue;
+        const IVec b = transfer::lattice_coord<Dim>(std::int64_t(j), res);
+        counts[std::size_t(box_of(b, k)) * columns + std::size_t(b[a])] += lattice[j];
+      }
+      if (sum) sum(counts);
+      auto& level = cuts[std::size_t(k)];
+      level.clear();
+      for (int i = 0; i < parts; ++i) {
+        const auto first = counts.begin() + std::ptrdiff_t(std::size_t(i) * columns);
+        const std::vector<double> column(first, first + std::ptrdiff_t(columns));
+        const auto c = balanced_cuts(column, n);
+        level.insert(level.end(), c.begin(), c.end());
+        if (k == Dim - 1)
+          for (int r = 0; r < n; ++r)
+            for (int j = c[std::size_t(r)]; j < c[std::size_t(r) + 1]; ++j)
+              per_rank[std::size_t(i * n + r)] += column[std::size_t(j)];
+      }
+    }
+    return per_rank;
   }
   /// The rank owning block b (any block of the lattice; outside it, the nearest box's).
   int owner(const IVec& b) const { return box_of(b, Dim); }

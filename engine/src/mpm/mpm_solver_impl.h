@@ -142,10 +142,9 @@ struct MpmSolver<T, Dim>::Split {
   std::uint64_t halo_bytes = 0;       ///< grid halo bytes this rank has sent
   Particles<T, Dim> gathered;    ///< rank 0: every particle, as of the last frame()
   /// The grid halo (distribution.h): this rank's occupied blocks that touch another rank's box,
-  /// which of their neighbours are another rank's (bits by offset) and whose, their patches' nodes,
-  /// patch after patch; slot[g] is group g's (-1: none).
+  /// the owners of their neighbours, and their patches' nodes, patch after patch; slot[g] is
+  /// group g's (-1: none).
   std::vector<IVec> border;
-  std::vector<std::uint32_t> border_foreign;
   std::vector<int> border_owners;  ///< per border block, the owner of each neighbour (3^Dim, -1 outside the lattice)
   std::vector<transfer::GridNode<T, Dim>> kept;
   std::vector<std::int32_t> slot;
