@@ -39,21 +39,20 @@ std::unique_ptr<Solver> make_solver(const Scene& scene, Communicator* communicat
   scene.validate();
   check_resources(scene);  // before any allocation
   const bool dbl = scene.solver.precision == Precision::Double;
-  if (communicator && communicator->size() > 1 && scene.solver.type != SolverType::MPM) {
-    // FLIP's pressure solve and FEM's implicit solve are global linear systems: split, they need
-    // a distributed Krylov solver and preconditioner, which Slurry does not have yet.
+  if (communicator && communicator->size() > 1 && scene.solver.type == SolverType::FEM) {
+    // FEM's implicit solve is not distributed.
     const std::string n = std::to_string(communicator->size());
     throw SceneError(scene.source + ": solver.type \"" + std::string(to_string(scene.solver.type)) +
-                     "\": runs in one process only (its pressure or implicit solve is not distributed); expected an MPM "
+                     "\": runs in one process only (its implicit solve is not distributed); expected an MPM or FLIP "
                      "scene for a run split over " + n + " processes (mpirun -np " + n + "), or mpirun -np 1");
   }
   if (scene.solver.type == SolverType::FLIP) {
     if (scene.solver.dimension == 2) {
-      if (dbl) return std::make_unique<flip::FlipSolver<double, 2>>(scene);
-      return std::make_unique<flip::FlipSolver<float, 2>>(scene);
+      if (dbl) return std::make_unique<flip::FlipSolver<double, 2>>(scene, communicator);
+      return std::make_unique<flip::FlipSolver<float, 2>>(scene, communicator);
     }
-    if (dbl) return std::make_unique<flip::FlipSolver<double, 3>>(scene);
-    return std::make_unique<flip::FlipSolver<float, 3>>(scene);
+    if (dbl) return std::make_unique<flip::FlipSolver<double, 3>>(scene, communicator);
+    return std::make_unique<flip::FlipSolver<float, 3>>(scene, communicator);
   }
   if (scene.solver.type == SolverType::FEM) {
     if (scene.solver.dimension == 2) {

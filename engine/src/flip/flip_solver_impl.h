@@ -6,10 +6,12 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <numeric>
 #include <ctime>
 #include <sstream>
 #include <string>
 
+#include "flip/split.h"
 #include "frame_builder.h"
 #include "geometry/scene_meshes.h"
 #include "state_io.h"
@@ -41,7 +43,7 @@ constexpr std::uint64_t kReseedSeed = 0x5EEDF11Bull;
 }  // namespace detail
 
 template <class T, int Dim>
-FlipSolver<T, Dim>::FlipSolver(const Scene& scene) : scene_(scene) {
+FlipSolver<T, Dim>::FlipSolver(const Scene& scene, Communicator* communicator) : scene_(scene) {
   scene_.validate();
   if (scene_.solver.type != SolverType::FLIP)
     throw SceneError(scene_.source + ": solver.type: FlipSolver needs \"flip\", got \"" +
@@ -109,6 +111,35 @@ FlipSolver<T, Dim>::FlipSolver(const Scene& scene) : scene_(scene) {
   for (const auto& e : scene_.emitters) emitters_.emplace_back(e, std::uint16_t(scene_.material_index(e.material)));
   if (scene_.solver.whitewater.enabled) whitewater_ = std::make_unique<Whitewater<T, Dim>>(scene_.solver.whitewater, gravity_);
   for (const auto& v : P.v) max_speed_ = std::max(max_speed_, v.norm());
+  if (communicator && communicator->size() > 1) {
+    // What the split does not carry yet is refused, by its scene key.
+    const int ranks = communicator->size();
+    std::string refused;
+    if (!scene_.emitters.empty()) refused = "emitters";
+    else if (!scene_.colliders.empty()) refused = "colliders";
+    else if (scene_.solver.reseed.min_per_cell > 0 || scene_.solver.reseed.max_per_cell > 0) refused = "solver.reseed";
+    else if (viscous_) refused = "materials[].viscosity";
+    else if (sigma_ > T(0)) refused = "materials[].surface_tension";
+    else if (whitewater_) refused = "solver.whitewater";
+    else if (scene_.output.checkpoint_every > 0) refused = "output.checkpoint_every";
+    else if (scene_.solver.on_instability == OnInstability::Retry) refused = "solver.on_instability \"retry\"";
+    if (!refused.empty())
+      throw SceneError(scene_.source + ": " + refused + ": a FLIP run split over " + std::to_string(ranks) +
+                       " processes (mpirun -np " + std::to_string(ranks) +
+                       ") does not support it yet; expected a liquid without emitters, colliders, reseeding, viscosity, "
+                       "surface tension or whitewater, with output.checkpoint_every 0 and solver.on_instability \"stop\", "
+                       "or mpirun -np 1");
+    split_ = std::make_unique<detail::FlipSplit<T, Dim>>(communicator, res, origin, dx);
+    split_particles();
+  }
+}
+
+template <class T, int Dim>
+FlipSolver<T, Dim>::~FlipSolver() = default;
+
+template <class T, int Dim>
+std::size_t FlipSolver<T, Dim>::particle_count() const {
+  return split_ ? std::size_t(split_->total) : particles_.size();
 }
 
 template <class T, int Dim>
@@ -116,9 +147,20 @@ std::string FlipSolver<T, Dim>::solver_status() const {
   if (steps_ == 0) return {};
   const auto& r = last_projection_;
   char buf[192];
-  std::snprintf(buf, sizeof buf, "pressure PCG %d iterations, residual %.2g%s, max |div u| %.2g 1/s", r.iterations,
-                r.relative_residual, r.converged ? "" : " (not converged)", r.max_divergence);
+  std::snprintf(buf, sizeof buf, "pressure %s %d iterations, residual %.2g%s, max |div u| %.2g 1/s",
+                split_ ? "CG (PETSc, BoomerAMG)" : "PCG", r.iterations, r.relative_residual,
+                r.converged ? "" : " (not converged)", r.max_divergence);
   std::string status = buf;
+  if (split_) {
+    const auto& S = *split_;
+    const double mean = double(S.total) / S.comm->size();
+    std::string grid;
+    for (int d = 0; d < Dim; ++d) grid += (d ? " x " : "") + std::to_string(S.boxes.procs[d]);
+    std::snprintf(buf, sizeof buf, "; %d ranks in %s boxes: %.0f-%.0f particles per rank (imbalance %.3f), rank %d sent %.3g kB per substep to %d peers",
+                  S.comm->size(), grid.c_str(), S.fewest, S.most, mean > 0 ? S.most / mean : 1.0, S.comm->rank(),
+                  S.bytes_per_substep / 1e3, int(S.peers.size()));
+    status += buf;
+  }
   if (viscous_) {
     const auto& v = last_viscosity_;
     std::snprintf(buf, sizeof buf, "; viscosity PCG %d iterations, residual %.2g%s", v.iterations, v.relative_residual,
@@ -145,6 +187,11 @@ std::size_t FlipSolver<T, Dim>::bytes() const {
   for (int d = 0; d < Dim; ++d)
     b += (grid_.u[d].capacity() + grid_.weight[d].capacity() + grid_.u_solid[d].capacity() +
           weight_sum_[d].capacity() + old_u_[d].capacity() + pre_u_[d].capacity()) * sizeof(T) + grid_.valid[d].capacity();
+  if (split_) {  // every rank's
+    double all = double(b);
+    split_->comm->sum(&all, 1);
+    b = std::size_t(all);
+  }
   return b;
 }
 
@@ -164,7 +211,10 @@ T FlipSolver<T, Dim>::stable_dt() const {
 
 template <class T, int Dim>
 std::int64_t FlipSolver<T, Dim>::advance_to(double t_end) {
-  return substep_to(time_, t_end, [&] { return dt_scale_ * double(stable_dt()); }, [&](double dt) { step(T(dt)); }, scene_);
+  const std::uint64_t sent = split_ ? split_->comm->exchanged_bytes() : 0;
+  const auto n = substep_to(time_, t_end, [&] { return dt_scale_ * double(stable_dt()); }, [&](double dt) { step(T(dt)); }, scene_);
+  if (split_ && n > 0) split_->bytes_per_substep = double(split_->comm->exchanged_bytes() - sent) / double(n);
+  return n;
 }
 
 template <class T, int Dim>
@@ -181,6 +231,7 @@ void FlipSolver<T, Dim>::step(T dt) {
     c0 = c1;
   };
   emit(dt);
+  if (split_) exchange_ghosts();
   lap(kEmit);
   sort_particles();
   lap(kSort);
@@ -191,18 +242,31 @@ void FlipSolver<T, Dim>::step(T dt) {
   apply_gravity(dt);
   lap(kGravity);
   build_boundaries(T(time_) + dt);
+  if (split_) drop_ghosts();
   lap(kBoundaries);
   if (viscous_) apply_viscosity(dt);
   lap(kViscosity);
   project(dt);
+  if (split_) {  // the window's faces as their owners projected them (split.h)
+    auto& S = *split_;
+    S.exchange_faces(grid_.u, S.band);
+    S.exchange_faces(grid_.valid, S.band);
+    S.exchange_faces(pre_u_, S.band);
+    S.exchange_faces(weight_sum_, S.band);
+  }
   lap(kProject);
   extrapolate_velocities(dt);
   lap(kExtrapolate);
   enforce_solids();
+  if (split_) {  // the faces the particles read, as their owners extrapolated them
+    split_->exchange_faces(grid_.u, split_->reach);
+    if (scheme_ == FaceScheme::FLIP) split_->exchange_faces(old_u_, split_->reach);
+  }
   lap(kEnforce);
   transfer_to_particles(dt);  // with the linear kernel, advection too (advects_in_g2p)
   lap(kToParticles);
   if (!advects_in_g2p()) advect(dt);
+  if (split_) migrate();
   lap(kAdvect);
   cfl_reached_ = std::max(cfl_reached_, max_speed_ * dt / grid_.dx);
   reseed();
@@ -224,7 +288,7 @@ void FlipSolver<T, Dim>::emit(T dt) {
 
 template <class T, int Dim>
 void FlipSolver<T, Dim>::sort_particles() {
-  sort_.build(particles_.x, grid_.origin, grid_.dx, grid_.res, true);
+  sort_.build(particles_.x, grid_.origin, grid_.dx, grid_.res, true, grid_.offset);
   // The sort's keys are dead once `order` is built: their storage is the spare of the 32-bit
   // channel (the ids), and the ids' old storage holds the next sort's keys (4 bytes a particle).
   permute_spare_.u32.swap(sort_.key);
@@ -318,7 +382,8 @@ void FlipSolver<T, Dim>::project(T dt) {
   copy_faces(grid_.u, pre_u_);
   const double beta = scene_.solver.volume_correction;
   if (beta <= 0) {
-    last_projection_ = pressure_.project(grid_, dt, projection_options_);
+    last_projection_ = split_ ? split_projection(dt, typename PressureSolver<T, Dim>::NoTarget{})
+                              : pressure_.project(grid_, dt, projection_options_);
     return;
   }
   // Volume correction. Particles bunched by large steps (or squeezed against walls) carry more
@@ -386,7 +451,7 @@ void FlipSolver<T, Dim>::project(T dt) {
     }
     return target;
   };
-  last_projection_ = pressure_.project(grid_, dt, projection_options_, target_flux);
+  last_projection_ = split_ ? split_projection(dt, target_flux) : pressure_.project(grid_, dt, projection_options_, target_flux);
 }
 
 template <class T, int Dim>
@@ -501,6 +566,11 @@ void FlipSolver<T, Dim>::transfer_to_particles(T dt) {
   } else {
     max_speed_ = faces_to_particles<2>(grid_, old, particles_, scheme_, ratio);
   }
+  if (split_) {  // every rank's fastest particle; a non-finite one stops every rank
+    double m = std::isfinite(double(max_speed_)) ? double(max_speed_) : std::numeric_limits<double>::infinity();
+    split_->comm->max(&m, 1);
+    max_speed_ = std::isfinite(m) ? T(m) : std::numeric_limits<T>::quiet_NaN();
+  }
   if (!std::isfinite(double(max_speed_))) {
     std::ostringstream msg;
     msg << scene_.source << ": simulation unstable at step " << steps_ + 1 << ", t = " << slurry::detail::fmt(time_)
@@ -596,6 +666,38 @@ RunStats FlipSolver<T, Dim>::take_stats() {
   s.particles = particles_.size();
   const double m = double(density()) * double(particle_volume_);
   add_particle_sums(s, particles_.x, particles_.v, static_cast<const T*>(nullptr), m, scene_.solver.gravity);
+  if (split_) {
+    // The sums of every rank (in another order than one process: the last digits may differ),
+    // and the volume from the counts of each rank's own cells, its ring's from their owners.
+    auto& S = *split_;
+    const std::vector<double> count = own_cell_counts();
+    double interior = 0, held = 0;
+    S.for_region(-1, S.lo, S.hi, [&](std::int64_t k) {
+      if (count[std::size_t(k)] == 0) return;
+      const IVec c = grid_.cell_coord(k), global = S.domain_cell(k);
+      bool inside = true;
+      for (int d = 0; d < Dim; ++d) inside = inside && global[d] > 0 && global[d] + 1 < S.res[d];
+      for (int o = 0; inside && o < (Dim == 3 ? 27 : 9); ++o) {
+        IVec q = c;
+        for (int d = 0, mo = o; d < Dim; ++d, mo /= 3) q[d] += mo % 3 - 1;
+        inside = count[std::size_t(grid_.cell(q))] > 0;
+      }
+      if (inside) interior += 1, held += count[std::size_t(k)];
+    });
+    double sums[] = {s.mass, s.momentum[0], s.momentum[1], s.momentum[2], s.angular_momentum[0], s.angular_momentum[1],
+                     s.angular_momentum[2], s.kinetic, s.potential, double(s.particles), interior, held};
+    S.comm->sum(sums, int(std::size(sums)));
+    s.mass = sums[0];
+    s.momentum = {sums[1], sums[2], sums[3]};
+    s.angular_momentum = {sums[4], sums[5], sums[6]};
+    s.kinetic = sums[7], s.potential = sums[8];
+    s.particles = std::size_t(sums[9]);
+    const double cell = std::pow(double(grid_.dx), Dim);
+    s.volume = double(s.particles) * (sums[10] > 0 ? cell * sums[10] / sums[11] : double(particle_volume_));
+    s.cfl = double(cfl_reached_);  // global already (max_speed_ is)
+    cfl_reached_ = 0;
+    return s;
+  }
   // Liquid volume: the particles times the volume each one fills in the bulk, dx^Dim over the mean
   // count of the interior cells (a cell whose 3^Dim block of cells all hold particles). Liquid
   // that bunches up raises that count and shows as lost volume; liquid that spreads lowers it.
@@ -658,6 +760,7 @@ void FlipSolver<T, Dim>::save_state(const StateSink& out) const {
   // projection), and the face velocities, validity, labels and level set of the last substep.
   // Face weights and solid velocities are rebuilt from the colliders at the next substep;
   // sorting, transfer weights and solver work vectors are scratch.
+  if (split_) throw SceneError(scene_.source + ": a FLIP run split over processes writes no state (checkpoints) yet");
   slurry::detail::StateWriter w(out);
   slurry::detail::write_layout<T, Dim>(w, slurry::detail::kTagFlip);
   const auto& P = particles_;
@@ -710,6 +813,7 @@ void FlipSolver<T, Dim>::save_state(const StateSink& out) const {
 
 template <class T, int Dim>
 void FlipSolver<T, Dim>::load_state(std::string_view in, const std::string& what) {
+  if (split_) throw IoError(what + ": a FLIP run split over processes cannot resume from a checkpoint yet");
   slurry::detail::StateReader r(in, what);
   slurry::detail::read_layout<T, Dim>(r, slurry::detail::kTagFlip, "FLIP");
   auto& P = particles_;
@@ -782,11 +886,13 @@ Frame FlipSolver<T, Dim>::frame(const std::vector<std::string>& attributes) cons
   return data;
 }
 
+namespace detail {
+/// The frame of particles P (columns borrowed from P).
 template <class T, int Dim>
-Frame FlipSolver<T, Dim>::frame_view(const std::vector<std::string>& attributes) const {
+Frame particle_frame(const FlipParticles<T, Dim>& P, double time, const std::string& source,
+                     const std::vector<std::string>& attributes) {
   static constexpr std::uint16_t kNoMaterial = 0;  // a scene of one liquid stores no material channel
-  const auto& P = particles_;
-  slurry::detail::VertexFrame out("flip ", time_, scene_.source, P.size());
+  slurry::detail::VertexFrame out("flip ", time, source, P.size());
   for (const auto& a : attributes) {
     if (a == "position") {
       out.borrow_positions<Dim>(P.x);
@@ -804,6 +910,51 @@ Frame FlipSolver<T, Dim>::frame_view(const std::vector<std::string>& attributes)
   return std::move(out.data());
 }
 
+/// P's particles in ascending id.
+template <class T, int Dim>
+void sort_by_id(FlipParticles<T, Dim>& P) {
+  std::vector<std::uint32_t> order(P.size());
+  std::iota(order.begin(), order.end(), 0u);
+  std::sort(order.begin(), order.end(), [&P](std::uint32_t a, std::uint32_t b) { return P.id[a] < P.id[b]; });
+  typename FlipParticles<T, Dim>::PermuteBuffers spare;
+  P.permute(order, spare);
+}
+}  // namespace detail
+
+template <class T, int Dim>
+Frame FlipSolver<T, Dim>::frame_view(const std::vector<std::string>& attributes) const {
+  if (!split_) return detail::particle_frame(particles_, time_, scene_.source, attributes);
+  // Gathered on rank 0 in ascending id (whatever the process count), which writes the frame;
+  // kept there for particle_storage().
+  auto& S = *split_;
+  std::string mine;
+  for (std::size_t p = 0; p < particles_.size(); ++p) detail::pack_particle(particles_, p, mine);
+  const auto parts = S.comm->gather(mine);
+  auto& G = S.gathered;
+  G = FlipParticles<T, Dim>();
+  G.affine = particles_.affine;
+  G.has_material = particles_.has_material;
+  if (S.comm->rank() != 0) return {};
+  for (const auto& part : parts) detail::unpack_particles(part, G);
+  detail::sort_by_id(G);
+  return detail::particle_frame(G, time_, scene_.source, attributes);
+}
+
+template <class T, int Dim>
+Frame FlipSolver<T, Dim>::own_frame(const std::vector<std::string>& attributes) const {
+  if (!split_) return frame(attributes);
+  FlipParticles<T, Dim> P = particles_;
+  detail::sort_by_id(P);
+  const bool requested = std::find(attributes.begin(), attributes.end(), "id") != attributes.end();
+  std::vector<std::string> columns = attributes;
+  if (!requested) columns.push_back("id");
+  Frame part = detail::particle_frame(P, time_, scene_.source, columns);
+  part.own();
+  part.comments.push_back("slurry part " + std::to_string(split_->comm->rank()) + " of " +
+                          std::to_string(split_->comm->size()) + (requested ? " id=requested" : " id=added"));
+  return part;
+}
+
 template <class T, int Dim>
 Frame FlipSolver<T, Dim>::whitewater_frame_view() const {
   if (!whitewater_) return {};
@@ -818,7 +969,8 @@ Frame FlipSolver<T, Dim>::whitewater_frame_view() const {
 
 template <class T, int Dim>
 ParticleStorage FlipSolver<T, Dim>::particle_storage() const {
-  const auto& P = particles_;
+  // A split run's rank 0 shows every particle as of the last frame; other ranks their own.
+  const auto& P = split_ && split_->comm->rank() == 0 ? split_->gathered : particles_;
   ParticleStorage s;
   s.precision = std::is_same_v<T, double> ? Precision::Double : Precision::Float;
   s.dimension = Dim;
@@ -831,3 +983,5 @@ ParticleStorage FlipSolver<T, Dim>::particle_storage() const {
 }
 
 }  // namespace slurry::flip
+
+#include "flip/split_phases.h"

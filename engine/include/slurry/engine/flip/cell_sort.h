@@ -28,10 +28,11 @@ struct CellSort {
   std::vector<std::uint32_t> order;  ///< sorted position i holds input particle order[i]
 
   /// Cell containing x (clamped to the grid).
-  static std::int64_t cell_of(const Vec& x, const Vec& origin, T inv_dx, const IVec& res) {
+  /// `offset`: the grid's first cell in a larger grid of the same origin (MacGrid::offset).
+  static std::int64_t cell_of(const Vec& x, const Vec& origin, T inv_dx, const IVec& res, const IVec& offset = IVec::Zero()) {
     std::int64_t k = 0;
     for (int d = 0; d < Dim; ++d) {
-      int i = int(std::floor((x[d] - origin[d]) * inv_dx));
+      int i = int(std::floor((x[d] - origin[d]) * inv_dx)) - offset[d];
       i = std::clamp(i, 0, res[d] - 1);
       k = k * res[d] + i;
     }
@@ -39,8 +40,9 @@ struct CellSort {
   }
 
   /// Computes key, the per-cell histogram `start` (prefix sums) and, if `permute`, the stable
-  /// sorting permutation `order`.
-  void build(const std::vector<Vec>& x, const Vec& origin, T dx, const IVec& res, bool permute = true) {
+  /// sorting permutation `order`. `offset` as in cell_of().
+  void build(const std::vector<Vec>& x, const Vec& origin, T dx, const IVec& res, bool permute = true,
+             const IVec& offset = IVec::Zero()) {
     const std::int64_t n = std::int64_t(x.size());
     std::int64_t cells = 1;
     for (int d = 0; d < Dim; ++d) cells *= res[d];
@@ -51,7 +53,7 @@ struct CellSort {
       throw std::length_error("FLIP cell sort: more than 2^32 - 1 cells or particles");
     key.resize(std::size_t(n));
     const T inv_dx = T(1) / dx;
-    parallel::parallel_for(0, n, [&](std::int64_t p) { key[p] = std::uint32_t(cell_of(x[p], origin, inv_dx, res)); });
+    parallel::parallel_for(0, n, [&](std::int64_t p) { key[p] = std::uint32_t(cell_of(x[p], origin, inv_dx, res, offset)); });
     start.assign(std::size_t(cells + 1), 0);
     for (std::int64_t p = 0; p < n; ++p) ++start[std::size_t(key[p] + 1)];
     for (std::int64_t k = 0; k < cells; ++k) start[k + 1] += start[k];

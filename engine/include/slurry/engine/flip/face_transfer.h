@@ -80,7 +80,7 @@ struct FaceStencil {
   FaceStencil(const MacGrid<T, Dim>& g, int d, const Vec& x) {
     const T inv_dx = T(1) / g.dx;
     for (int a = 0; a < Dim; ++a) {
-      const T s = (x[a] - g.origin[a]) * inv_dx - (a == d ? T(0) : T(0.5));
+      const T s = (x[a] - g.origin[a]) * inv_dx - (a == d ? T(0) : T(0.5)) - T(g.offset[a]);
       const int base = transfer::BSpline<Order>::base(s);
       const T f = s - T(base);
       transfer::BSpline<Order>::eval(f, w[a], dw[a]);
@@ -136,6 +136,7 @@ void particles_to_faces(MacGrid<T, Dim>& g, const FlipParticles<T, Dim>& P, cons
   static_assert(Order == 1 || Order == 2, "FLIP face transfers use the linear or quadratic B-spline");
   constexpr int kSlab = 4;  // >= 4 keeps same-parity slabs apart for both orders (see above)
   const T inv_dx = T(1) / g.dx, dx = g.dx;
+  const Vec offset = g.offset.template cast<T>();  // a window's place in the whole grid (MacGrid::offset)
   const bool affine = P.affine;
   const Vec* X = P.x.data();
   const Vec* V = P.v.data();
@@ -159,7 +160,7 @@ void particles_to_faces(MacGrid<T, Dim>& g, const FlipParticles<T, Dim>& P, cons
       const int s0 = int(2 * t + parity) * kSlab, s1 = std::min(g.res[0], s0 + kSlab);
       const std::int64_t p0 = start[std::int64_t(s0) * cells_per_layer], p1 = start[std::int64_t(s1) * cells_per_layer];
       for (std::int64_t p = p0; p < p1; ++p) {
-        const Vec xg = (X[p] - g.origin) * inv_dx;
+        const Vec xg = (X[p] - g.origin) * inv_dx - offset;
         // Per axis and staggering (1: the faces normal to that axis, at integer positions;
         // 0: the other faces, at half-integer ones) the first stencil index, the weights and the
         // offsets x_f - x_p in metres. Far outside the grid (or NaN) no face is reached.
@@ -289,7 +290,7 @@ inline void gather_faces_linear(const MacGrid<T, Dim>& g, const Eigen::Matrix<T,
   int idx[Dim][2][2];
   T wt[Dim][2][2];
   for (int a = 0; a < Dim; ++a) {
-    const T xa = (x[a] - g.origin[a]) * inv_dx;
+    const T xa = (x[a] - g.origin[a]) * inv_dx - T(g.offset[a]);
     for (int stag = 0; stag < 2; ++stag) {
       const int n = g.res[a] + stag;
       const T sa = stag ? xa : xa - T(0.5);

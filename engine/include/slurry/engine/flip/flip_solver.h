@@ -64,6 +64,10 @@
 #include "slurry/engine/substeps.h"
 
 namespace slurry::flip {
+namespace detail {
+template <class T, int Dim>
+struct FlipSplit;
+}  // namespace detail
 
 /// Named phases of a substep, for the per-phase timing (FlipSolver::phase_seconds).
 enum Phase : int {
@@ -82,7 +86,10 @@ class FlipSolver final : public Solver {
   using Grid = MacGrid<T, Dim>;
 
   /// Validates the scene (solver.type "flip") and seeds its bodies.
-  explicit FlipSolver(const Scene& scene);
+  /// With a communicator of more than one rank (every rank calls this with the same scene), the
+  /// domain's cells are split into boxes, one per rank (flip/split.h in the engine's sources).
+  explicit FlipSolver(const Scene& scene, Communicator* communicator = nullptr);
+  ~FlipSolver() override;
 
   /// The substep the CFL condition allows now (not clipped to a frame boundary): advective_dt(),
   /// and with surface tension at most the capillary limit.
@@ -94,12 +101,13 @@ class FlipSolver final : public Solver {
 
   double time() const override { return time_; }
   std::int64_t steps() const override { return steps_; }
-  std::size_t particle_count() const override { return particles_.size(); }
+  std::size_t particle_count() const override;
   std::size_t bytes() const override;
   std::int64_t advance_to(double t_end) override;
   /// position, velocity, material, id (the persistent particle id, uint32).
   Frame frame(const std::vector<std::string>& attributes) const override;
   Frame frame_view(const std::vector<std::string>& attributes) const override;
+  Frame own_frame(const std::vector<std::string>& attributes) const override;
 
   FlipParticles<T, Dim>& particles() { return particles_; }
   const FlipParticles<T, Dim>& particles() const { return particles_; }
@@ -190,6 +198,14 @@ class FlipSolver final : public Solver {
     std::vector<geometry::Pose> poses0_, poses1_;
   };
 
+  // A run split over processes (flip/split.h).
+  void split_particles();
+  void exchange_ghosts();
+  void drop_ghosts();
+  void migrate();
+  template <class Target>
+  ProjectionReport split_projection(T dt, const Target& target_flux);
+  std::vector<double> own_cell_counts() const;
   Scene scene_;
   FlipSolver(const FlipSolver&) = delete;
   FaceScheme scheme_ = FaceScheme::APIC;
@@ -224,6 +240,7 @@ class FlipSolver final : public Solver {
   double time_ = 0;
   std::int64_t steps_ = 0, reseed_added_ = 0, reseed_removed_ = 0;
   std::array<double, kPhaseCount> phase_seconds_{}, phase_cpu_seconds_{};
+  std::unique_ptr<detail::FlipSplit<T, Dim>> split_;  // only in a run split over processes
 };
 
 extern template class FlipSolver<float, 2>;

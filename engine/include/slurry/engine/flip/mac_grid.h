@@ -37,7 +37,13 @@ struct MacGrid {
 
   IVec res = IVec::Zero();  ///< cells per axis
   T dx = T(1);              ///< cell size
-  Vec origin = Vec::Zero(); ///< cell (0,..) spans [origin, origin + dx]
+  Vec origin = Vec::Zero(); ///< cell (0,..) spans [origin + offset dx, origin + (offset + 1) dx]
+  /// Where cell (0,..) lies in a larger grid of the same origin, of which this grid is a window
+  /// (a run split over processes, flip/split.h); zero otherwise. Positions are scaled to that
+  /// grid's cells first, (x - origin) / dx, and the offset subtracted after: the subtraction of
+  /// an integer is exact, so a window finds a particle's cell and weights bit for bit as the
+  /// whole grid does.
+  IVec offset = IVec::Zero();
   std::array<std::vector<T>, Dim> u;                  ///< face velocities; axis-d faces: res + e_d
   std::array<std::vector<T>, Dim> weight;             ///< open fraction of each face, [0, 1] (or none)
   std::array<std::vector<T>, Dim> u_solid;            ///< solid velocity component at each face (or none)
@@ -109,12 +115,12 @@ struct MacGrid {
   }
 
   Vec face_position(int d, const IVec& i) const {
-    Vec x = origin + dx * (i.template cast<T>() + Vec::Constant(T(0.5)));
+    Vec x = origin + dx * ((i + offset).template cast<T>() + Vec::Constant(T(0.5)));
     x[d] -= T(0.5) * dx;
     return x;
   }
   Vec cell_center(const IVec& i) const {
-    return origin + dx * (i.template cast<T>() + Vec::Constant(T(0.5)));
+    return origin + dx * ((i + offset).template cast<T>() + Vec::Constant(T(0.5)));
   }
 
   /// Open fraction of axis-d face i as the pressure solve sees it: `weight` clamped to [0, 1],
@@ -149,7 +155,7 @@ struct MacGrid {
     for (int a = Dim - 1; a >= 0; --a) {
       const int n = res[a] + (a == d ? 1 : 0);
       // Faces of axis d sit at integer positions along d, half-integer ones along the others.
-      T s = (x[a] - origin[a]) * inv_dx - (a == d ? T(0) : T(0.5));
+      T s = (x[a] - origin[a]) * inv_dx - (a == d ? T(0) : T(0.5)) - T(offset[a]);
       s = std::clamp(s, T(0), T(n - 1));
       int b = int(s);  // s >= 0: truncation is floor
       if (b >= n - 1) b = std::max(n - 2, 0);

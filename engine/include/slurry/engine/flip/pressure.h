@@ -306,6 +306,17 @@ class PressureSolver {
   /// measures |D_c - target_flux(c, i)| / dx.
   template <class Target = NoTarget>
   ProjectionReport project(Grid& g, T dt, const ProjectionOptions& opt, const Target& target_flux = {}) {
+    prepare(g, dt, opt, target_flux);
+    ProjectionReport rep = solve_in_place(opt);
+    finish(g, dt, opt, target_flux, rep);
+    return rep;
+  }
+
+  /// project()'s first half: assembles A and the right-hand side b over the unknowns and loads
+  /// the warm start from g.pressure, for solve_in_place() or for a solve elsewhere (the rows of
+  /// a run split over processes, read with diagonal(), rhs() and value()).
+  template <class Target = NoTarget>
+  void prepare(const Grid& g, T dt, const ProjectionOptions& opt, const Target& target_flux = {}) {
     opt.validate();
     prepare_for(opt.preconditioner, opt.mic_blocks);
     assemble(g, opt.ghost_fluid);
@@ -327,7 +338,16 @@ class PressureSolver {
         p[at] = unknown ? double(g.pressure[std::size_t(c)]) : 0.0;
       }
     });
-    ProjectionReport rep = solve_in_place(opt);
+  }
+
+  /// project()'s second half, from the solution held by the solver (value()): writes
+  /// g.pressure, updates the faces and sets rep.max_divergence, the largest over the unknowns c
+  /// with counted(c) (a split run counts its own cells only).
+  template <class Target = NoTarget, class Counted = NoTarget>
+  void finish(Grid& g, T dt, const ProjectionOptions& opt, const Target& target_flux, ProjectionReport& rep,
+              const Counted& counted = {}) {
+    constexpr bool count_all = std::is_same_v<Counted, NoTarget>;
+    const double* const p = x_.data();
     parallel::parallel_for(0, num_rows_, [&](std::int64_t row) {  // 0 outside the spans
       T* pr = g.pressure.data() + row * nz_;
       const std::int64_t at0 = row_base(row);
@@ -409,14 +429,25 @@ class PressureSolver {
         for (int k = span_lo_[std::size_t(row)]; k < span_hi_[std::size_t(row)]; ++k) {
           i[Dim - 1] = k;
           const std::int64_t c = row * nz_ + k;
-          if (diag_[std::size_t(at0 + k)] > 0)
+          bool count = diag_[std::size_t(at0 + k)] > 0;
+          if constexpr (!count_all) count = count && counted(c);
+          if (count)
             m = std::max(m, std::abs(double(open_flux_sum(g, c, i)) - double(target_flux(c, std::as_const(i)))) / double(g.dx));
         }
       }
       return m;
     });
-    return rep;
   }
+
+  /// After prepare(): row c of A (cell index c, an unknown) on its diagonal, and the right-hand
+  /// side there; A's off-diagonal between fluid neighbours across an open face is minus the face's
+  /// open weight. value(c) is the unknown's entry of the warm start, then of the solution.
+  double diagonal(std::int64_t c) const { return diag_[std::size_t(packed(c))]; }
+  double rhs(std::int64_t c) const { return r_[std::size_t(packed(c))]; }
+  double& value(std::int64_t c) { return x_[std::size_t(packed(c))]; }
+  /// Whether the unknown c has a face open to air (a Dirichlet condition: the rows of a liquid
+  /// without any make A singular).
+  bool touches_air(std::int64_t c) const { return dirichlet_[std::size_t(packed(c))] != 0; }
 
   /// sum_d U(c + 1/2 e_d) - U(c - 1/2 e_d) with U = w u + (1 - w) u_solid, w the open weight:
   /// dx times the discrete divergence of cell c.

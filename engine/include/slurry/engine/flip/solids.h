@@ -112,7 +112,7 @@ struct Solids {
         IVec i;
         std::int64_t r = k;
         for (int d = Dim - 1; d >= 0; --d) i[d] = int(r % nres[d]), r /= nres[d];
-        node_phi[k] = distance(Vec(g.origin + g.dx * i.template cast<T>()), t);
+        node_phi[k] = distance(Vec(g.origin + g.dx * (i + g.offset).template cast<T>()), t);
       });
     }
     auto node = [&](const IVec& i) {

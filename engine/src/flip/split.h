@@ -1,0 +1,203 @@
+#pragma once
+// The FLIP liquid split over processes (private to the engine).
+//
+// The grid's cells are cut into boxes, one per rank, by the same balanced cuts as the MPM split
+// (mpm/domain_split.h, with a cell in the place of a grid block), balanced by the particles per
+// cell. A rank owns the particles whose cell lies in its box and the faces whose upper cell does
+// (an axis-d face on the domain's upper wall belongs to the cell below it). It holds a grid over
+// its box widened by `band` cells on every side (its window, clipped to the domain), so that the
+// phases of a substep run unchanged on it:
+// - ghosts: before the particle-to-grid transfer every rank receives copies of the particles
+//   within `ghost` cells of its box, enough for exact face sums, labels and level set on its own
+//   cells and the ring of cells around them; the copies are dropped once the cells are labelled;
+// - the pressure rows of the rank's own fluid cells go to the distributed solve
+//   (Communicator::solve_spd, PETSc CG with BoomerAMG), numbered box after box; the ring's row
+//   numbers and solution come from their owners;
+// - after the projection the window's faces take their owners' values (velocity, validity, the
+//   velocity before the projection, the transfer weights), so the extrapolation, which reaches
+//   two faces per layer, is exact on the rank's own faces; after it the window's faces take
+//   their owners' values again, for the particles' gather and advection;
+// - particles that leave the box go to the owner of their new cell.
+// Every exchange is with the ranks whose boxes lie within `band` cells of this one's.
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "mpm/domain_split.h"
+#include "slurry/engine/communicator.h"
+#include "slurry/engine/errors.h"
+#include "slurry/engine/flip/flip_particles.h"
+#include "slurry/transfer/lattice.h"
+
+namespace slurry::flip::detail {
+
+template <class T, int Dim>
+struct FlipSplit {
+  using IVec = Eigen::Matrix<int, Dim, 1>;
+  using Vec = Eigen::Matrix<T, Dim, 1>;
+
+  Communicator* comm = nullptr;
+  slurry::detail::BoxSplit<Dim> boxes;  ///< over the grid's cells
+  IVec res = IVec::Zero();              ///< the domain's cells
+  Vec origin = Vec::Zero();             ///< the domain's lower corner
+  T dx = T(1);
+  IVec lo = IVec::Zero(), hi = IVec::Zero();    ///< this rank's box of cells, [lo, hi)
+  IVec wlo = IVec::Zero(), whi = IVec::Zero();  ///< its window: the box widened by band, clipped
+  int band = 0, ghost = 0;
+  int reach = 0;                      ///< faces a particle's gather and advection read, in cells from its cell
+  std::vector<int> peers;             ///< ranks whose boxes lie within band cells of this one's
+  std::vector<IVec> peer_lo, peer_hi; ///< their boxes
+  std::size_t own = 0;                ///< particles owned (stored before the ghosts of a substep)
+  std::uint64_t total = 0;            ///< particles over every rank
+  double fewest = 0, most = 0;        ///< particles on the least and most loaded rank
+  double bytes_per_substep = 0;
+  mutable FlipParticles<T, Dim> gathered;  ///< rank 0: every particle in id order, as of the last frame
+
+  FlipSplit(Communicator* c, const IVec& cells, const Vec& lower, T cell) : comm(c), res(cells), origin(lower), dx(cell) {}
+
+  /// The domain cell holding x (clamped to the domain).
+  IVec cell_of(const Vec& x) const {
+    IVec i;
+    for (int d = 0; d < Dim; ++d) i[d] = std::clamp(int(std::floor((x[d] - origin[d]) / dx)), 0, res[d] - 1);
+    return i;
+  }
+  int owner(const Vec& x) const { return boxes.owner(cell_of(x)); }
+  bool in_box(const IVec& i) const { return (i.array() >= lo.array()).all() && (i.array() < hi.array()).all(); }
+  /// Window-local cell index of domain cell i (inside the window).
+  std::int64_t local_cell(const IVec& i) const { return transfer::lattice_index<Dim>(IVec(i - wlo), IVec(whi - wlo)); }
+  /// Domain cell of window-local cell index k.
+  IVec domain_cell(std::int64_t k) const { return IVec(transfer::lattice_coord<Dim>(k, IVec(whi - wlo)) + wlo); }
+
+  /// Places the boxes by the particles per cell (`counts`, domain cell index, the same on every
+  /// rank), this rank's window and its peers.
+  void place(const std::vector<double>& counts, const std::vector<int>& per_axis) {
+    boxes = slurry::detail::BoxSplit<Dim>(res, per_axis);
+    const std::vector<double> per_rank = boxes.cut(counts);
+    fewest = *std::min_element(per_rank.begin(), per_rank.end());
+    most = *std::max_element(per_rank.begin(), per_rank.end());
+    const int me = comm->rank();
+    boxes.box(me, lo, hi);
+    wlo = (lo.array() - band).cwiseMax(0);
+    whi = (hi.array() + band).cwiseMin(res.array());
+    peers.clear(), peer_lo.clear(), peer_hi.clear();
+    for (int q = 0; q < comm->size(); ++q) {
+      if (q == me) continue;
+      IVec qlo, qhi;
+      boxes.box(q, qlo, qhi);
+      // Within band cells along every axis (a symmetric relation: the peer lists are mutual).
+      if (((qlo.array() < whi.array()) && (qhi.array() > wlo.array())).all())
+        peers.push_back(q), peer_lo.push_back(qlo), peer_hi.push_back(qhi);
+    }
+  }
+
+  /// The cells of box [alo, ahi) within `depth` cells of box [blo, bhi): [rlo, rhi), maybe empty.
+  static bool overlap(const IVec& alo, const IVec& ahi, const IVec& blo, const IVec& bhi, int depth, IVec& rlo, IVec& rhi) {
+    rlo = alo.cwiseMax(IVec(blo.array() - depth));
+    rhi = ahi.cwiseMin(IVec(bhi.array() + depth));
+    return (rlo.array() < rhi.array()).all();
+  }
+
+  /// Calls f(local index) for the window-local entries of region [rlo, rhi) of a field whose
+  /// entries are the cells (axis -1) or the axis-d faces: a region's faces are its cells' lower
+  /// faces, with the upper wall's faces added where it reaches the domain's upper end along d.
+  template <class F>
+  void for_region(int axis, IVec rlo, IVec rhi, F&& f) const {
+    IVec wres = whi - wlo;
+    if (axis >= 0) {
+      wres[axis] += 1;
+      if (rhi[axis] == res[axis]) rhi[axis] += 1;
+    }
+    const IVec n = rhi - rlo;
+    std::int64_t count = 1;
+    for (int d = 0; d < Dim; ++d) count *= n[d];
+    for (std::int64_t k = 0; k < count; ++k) {
+      const IVec i = transfer::lattice_coord<Dim>(k, n) + rlo - wlo;
+      f(transfer::lattice_index<Dim>(i, wres));
+    }
+  }
+
+  /// Every peer's values of `field` (cells: axis -1; axis-d faces: axis d) over the part of its
+  /// box within `depth` cells of this one's, written into this rank's window; this rank's own
+  /// values go the other way.
+  template <class V>
+  void exchange(std::vector<V>& field, int axis, int depth) {
+    std::vector<std::string> out(peers.size());
+    for (std::size_t k = 0; k < peers.size(); ++k) {
+      IVec rlo, rhi;
+      if (!overlap(lo, hi, peer_lo[k], peer_hi[k], depth, rlo, rhi)) continue;
+      std::string& m = out[k];
+      for_region(axis, rlo, rhi, [&](std::int64_t i) {
+        m.append(reinterpret_cast<const char*>(&field[std::size_t(i)]), sizeof(V));
+      });
+    }
+    const std::vector<std::string> in = comm->exchange(peers, out);
+    for (std::size_t k = 0; k < peers.size(); ++k) {
+      IVec rlo, rhi;
+      if (!overlap(peer_lo[k], peer_hi[k], lo, hi, depth, rlo, rhi)) continue;
+      const std::string& m = in[k];
+      std::size_t at = 0;
+      for_region(axis, rlo, rhi, [&](std::int64_t i) {
+        if (at + sizeof(V) > m.size()) throw SimulationError("split FLIP: a halo message from rank " + std::to_string(peers[k]) + " is short");
+        std::memcpy(static_cast<void*>(&field[std::size_t(i)]), m.data() + at, sizeof(V));
+        at += sizeof(V);
+      });
+    }
+  }
+
+  /// exchange() for each axis of a face field.
+  template <class V>
+  void exchange_faces(std::array<std::vector<V>, Dim>& faces, int depth) {
+    for (int d = 0; d < Dim; ++d) exchange(faces[std::size_t(d)], d, depth);
+  }
+};
+
+/// Appends particle p of P (every channel P stores) to `out`.
+template <class T, int Dim>
+void pack_particle(const FlipParticles<T, Dim>& P, std::size_t p, std::string& out) {
+  const auto put = [&out](const auto& v) { out.append(reinterpret_cast<const char*>(&v), sizeof v); };
+  put(P.x[p]);
+  put(P.v[p]);
+  put(P.id[p]);
+  if (P.affine)
+    for (int d = 0; d < Dim; ++d) put(P.c[std::size_t(d)][p]);
+  if (P.has_material) put(P.material[p]);
+}
+
+/// Appends the particles packed in `in` (by pack_particle with the same channels) to P.
+template <class T, int Dim>
+void unpack_particles(std::string_view in, FlipParticles<T, Dim>& P) {
+  using Vec = Eigen::Matrix<T, Dim, 1>;
+  std::size_t each = 2 * sizeof(Vec) + sizeof(std::uint32_t) + (P.affine ? Dim * sizeof(Vec) : 0) +
+                     (P.has_material ? sizeof(std::uint16_t) : 0);
+  if (in.size() % each != 0) throw SimulationError("split FLIP: a particle message has a partial particle");
+  std::size_t at = 0;
+  const auto get = [&](auto& v) {
+    std::memcpy(static_cast<void*>(&v), in.data() + at, sizeof v);
+    at += sizeof v;
+  };
+  while (at < in.size()) {
+    Vec x, v;
+    std::uint32_t id = 0;
+    get(x), get(v), get(id);
+    P.x.push_back(x), P.v.push_back(v), P.id.push_back(id);
+    if (P.affine)
+      for (int d = 0; d < Dim; ++d) {
+        Vec c;
+        get(c);
+        P.c[std::size_t(d)].push_back(c);
+      }
+    if (P.has_material) {
+      std::uint16_t m = 0;
+      get(m);
+      P.material.push_back(m);
+    }
+  }
+}
+
+}  // namespace slurry::flip::detail

@@ -1,0 +1,192 @@
+// FlipSolver's phases of a run split over processes (split.h); included by flip_solver_impl.h.
+#pragma once
+#include <algorithm>
+#include <cstring>
+#include <limits>
+#include <numeric>
+#include <string>
+#include <vector>
+
+#include "flip/split.h"
+#include "mpm/domain_split.h"
+#include "slurry/engine/flip/flip_solver.h"
+
+namespace slurry::flip {
+
+template <class T, int Dim>
+void FlipSolver<T, Dim>::split_particles() {
+  auto& S = *split_;
+  const int ranks = S.comm->size();
+  const auto per_axis = slurry::detail::process_grid<Dim>(ranks, S.res);
+  if (per_axis.empty()) {
+    std::string lattice;
+    for (int d = 0; d < Dim; ++d) lattice += (d ? " x " : "") + std::to_string(S.res[d]);
+    throw SceneError(scene_.source + ": domain: split over " + std::to_string(ranks) + " processes, but the grid's " +
+                     lattice + " cells give no box of at least one cell to each; expected a process count that factors "
+                     "into at most that many along each axis (mpirun -np)");
+  }
+  // The window's band: the extrapolation fills `layers` layers of faces and its linear rule
+  // reads two faces behind each, so a face's extrapolated value depends on faces up to
+  // 2 x layers cells away (fill_air_velocities()); 2 more for the kernel's reach. Ghost
+  // particles: the transfer's kernel (order_ cells), the labels' and level set's neighbours
+  // and the ring of cells around the box whose rows couple to its own.
+  const double reach = scene_.solver.advection == AdvectionScheme::Midpoint ? 0.5 : 1.0;
+  const int layers = std::max(int(std::ceil(reach * scene_.solver.cfl)) + order_ + 1, order_ + Dim - 1);
+  S.band = 2 * layers + 2;
+  S.reach = layers;
+  S.ghost = order_ + 3;
+  std::vector<double> counts(std::size_t(S.res.prod()), 0.0);
+  for (const auto& x : particles_.x) counts[std::size_t(transfer::lattice_index<Dim>(S.cell_of(x), S.res))] += 1;
+  S.place(counts, per_axis);
+  S.total = particles_.size();
+  const int me = S.comm->rank();
+  std::size_t n = 0;
+  for (std::size_t p = 0; p < particles_.size(); ++p)
+    if (S.owner(particles_.x[p]) == me) particles_.move(n++, p);
+  particles_.truncate(n);
+  S.own = n;
+  const IVec wres = S.whi - S.wlo;
+  grid_.resize(wres, S.dx, S.origin, !solids_.empty());
+  grid_.offset = S.wlo;
+}
+
+template <class T, int Dim>
+void FlipSolver<T, Dim>::exchange_ghosts() {
+  auto& S = *split_;
+  auto& P = particles_;
+  std::vector<std::string> out(S.peers.size());
+  const IVec inner_lo = S.lo.array() + S.ghost, inner_hi = S.hi.array() - S.ghost;
+  for (std::size_t p = 0; p < P.size(); ++p) {
+    const IVec c = S.cell_of(P.x[p]);
+    if ((c.array() >= inner_lo.array()).all() && (c.array() < inner_hi.array()).all()) continue;  // deep inside
+    for (std::size_t k = 0; k < S.peers.size(); ++k)
+      if (((c.array() >= S.peer_lo[k].array() - S.ghost) && (c.array() < S.peer_hi[k].array() + S.ghost)).all())
+        detail::pack_particle(P, p, out[k]);
+  }
+  const auto in = S.comm->exchange(S.peers, out);
+  S.own = P.size();
+  for (const auto& m : in) detail::unpack_particles(m, P);
+}
+
+template <class T, int Dim>
+void FlipSolver<T, Dim>::drop_ghosts() {
+  // Sorted, the particles from before the ghosts are those whose sorted slot came from below own.
+  auto& S = *split_;
+  std::size_t n = 0;
+  for (std::size_t i = 0; i < particles_.size(); ++i)
+    if (sort_.order[i] < S.own) particles_.move(n++, i);
+  particles_.truncate(n);
+  S.own = n;
+}
+
+template <class T, int Dim>
+void FlipSolver<T, Dim>::migrate() {
+  auto& S = *split_;
+  auto& P = particles_;
+  const int me = S.comm->rank();
+  std::vector<int> slot(std::size_t(S.comm->size()), -1);
+  for (std::size_t k = 0; k < S.peers.size(); ++k) slot[std::size_t(S.peers[k])] = int(k);
+  std::vector<std::string> out(S.peers.size());
+  std::size_t n = 0;
+  for (std::size_t p = 0; p < P.size(); ++p) {
+    const int q = S.owner(P.x[p]);
+    if (q == me) {
+      P.move(n++, p);
+      continue;
+    }
+    if (slot[std::size_t(q)] < 0)
+      throw SimulationError(scene_.source + ": a particle moved " + "beyond the ranks next to rank " + std::to_string(me) +
+                            " in one substep (more than " + std::to_string(S.band) + " cells); expected a smaller solver.cfl");
+    detail::pack_particle(P, p, out[std::size_t(slot[std::size_t(q)])]);
+  }
+  P.truncate(n);
+  const auto in = S.comm->exchange(S.peers, out);
+  for (const auto& m : in) detail::unpack_particles(m, P);
+  S.own = P.size();
+}
+
+template <class T, int Dim>
+template <class Target>
+ProjectionReport FlipSolver<T, Dim>::split_projection(T dt, const Target& target_flux) {
+  auto& S = *split_;
+  auto& g = grid_;
+  const auto& opt = projection_options_;
+  pressure_.prepare(g, dt, opt, target_flux);
+  // Rows: this rank's unknowns in its box's cell order, after every row of the ranks before it.
+  const std::int64_t cells = g.num_cells();
+  std::vector<std::int64_t> row(std::size_t(cells), -1);
+  std::vector<std::int64_t> mine;
+  S.for_region(-1, S.lo, S.hi, [&](std::int64_t c) {
+    if (pressure_.is_unknown(c)) row[std::size_t(c)] = std::int64_t(mine.size()), mine.push_back(c);
+  });
+  const std::int64_t count = std::int64_t(mine.size());
+  const auto counts = S.comm->all_gather(std::string(reinterpret_cast<const char*>(&count), sizeof count));
+  std::int64_t first = 0, rows = 0;
+  for (int r = 0; r < int(counts.size()); ++r) {
+    std::int64_t n = 0;
+    std::memcpy(&n, counts[std::size_t(r)].data(), sizeof n);
+    if (r < S.comm->rank()) first += n;
+    rows += n;
+  }
+  for (const auto c : mine) row[std::size_t(c)] += first;
+  S.exchange(row, -1, 1);  // the ring's row numbers
+  DistributedSystem A;
+  A.first = first;
+  std::vector<double> x;
+  double air = 0;
+  for (const auto c : mine) {
+    const IVec i = g.cell_coord(c);
+    A.columns.push_back(row[std::size_t(c)]);
+    A.values.push_back(pressure_.diagonal(c));
+    for (int d = 0; d < Dim; ++d)
+      for (int side = 0; side < 2; ++side) {
+        const int nd = i[d] + (side ? 1 : -1);
+        if (nd < 0 || nd >= g.res[d]) continue;
+        const std::int64_t nb = side ? c + g.cell_stride(d) : c - g.cell_stride(d);
+        if (row[std::size_t(nb)] < 0 || g.label[std::size_t(nb)] != Grid::Fluid) continue;
+        const std::int64_t f = g.face(d, i) + (side ? g.face_stride(d, d) : 0);
+        const T w = g.open_weight(d, i[d] + side, f, side ? nb : c);
+        if (w <= T(0)) continue;
+        A.columns.push_back(row[std::size_t(nb)]);
+        A.values.push_back(-double(w));
+      }
+    A.row_start.push_back(std::int64_t(A.columns.size()));
+    A.rhs.push_back(pressure_.rhs(c));
+    x.push_back(pressure_.value(c));
+    air += pressure_.touches_air(c) ? 1 : 0;
+  }
+  S.comm->sum(&air, 1);
+  // A liquid with no free surface anywhere (a closed tank) determines its pressure up to a constant.
+  A.constant_null_space = air == 0;
+  ProjectionReport rep;
+  rep.unknowns = rows;
+  rep.converged = true;
+  if (rows > 0) {
+    const DistributedSolve r = S.comm->solve_spd(A, x, opt.tolerance, opt.max_iterations);
+    rep.iterations = r.iterations;
+    rep.relative_residual = r.residual;
+    rep.converged = r.converged;
+  }
+  // The solution on this rank's unknowns, then the ring's from their owners; the other unknowns
+  // of the window (beyond the ring) take 0: their faces are replaced by their owners' afterwards.
+  std::vector<double> value(std::size_t(cells), 0.0);
+  for (std::size_t k = 0; k < mine.size(); ++k) value[std::size_t(mine[k])] = x[k];
+  S.exchange(value, -1, 1);
+  for (std::int64_t c = 0; c < cells; ++c)
+    if (pressure_.is_unknown(c)) pressure_.value(c) = value[std::size_t(c)];
+  pressure_.finish(g, dt, opt, target_flux, rep, [&S](std::int64_t c) { return S.in_box(S.domain_cell(c)); });
+  S.comm->max(&rep.max_divergence, 1);
+  return rep;
+}
+
+template <class T, int Dim>
+std::vector<double> FlipSolver<T, Dim>::own_cell_counts() const {
+  // Particles per window cell (this rank's own), then the ring's counts from their owners.
+  auto& S = *split_;
+  std::vector<std::uint32_t> count(std::size_t(grid_.num_cells()), 0);
+  for (const auto& x : particles_.x) ++count[std::size_t(S.local_cell(S.cell_of(x)))];
+  S.exchange(count, -1, 1);
+  return std::vector<double>(count.begin(), count.end());
+}
+
+}  // namespace slurry::flip

@@ -1,0 +1,141 @@
+// A FLIP liquid split over processes (flip/split.h: boxes of cells, ghost particles, the pressure
+// rows solved by PETSc's CG with hypre's BoomerAMG) against the same scene in one process (the
+// solver's own multigrid-preconditioned CG), under mpirun -np N (ctest label "mpi").
+//
+//   flip_split_check SCENE FRAMES EXACT_FRAMES MAX_CELLS MEAN_CELLS [TOLERANCE [REFERENCE_TOLERANCE]]
+//
+// REFERENCE_TOLERANCE, if given, is the one-process run's pressure tolerance: under mpirun -np 1
+// (no split) the check then measures how far two one-process runs drift apart that differ only
+// in their pressure solves' tolerance, the yardstick for the split's distance.
+//
+// Every rank runs the split simulation; rank 0 also runs the scene alone. Both solve the
+// pressure to the scene's relative residual (solver.pressure.tolerance, or TOLERANCE), so the
+// two runs differ by what the two solvers leave, and that difference is carried on by the flow.
+// After each frame rank 0 prints, per frame: the largest and the mean distance between a
+// particle's positions in the two runs (in cells, particles matched by id), the liquid volume
+// (RunStats::volume) and the largest |div u| of the last projection in each run. A splash
+// amplifies any difference (two one-process runs whose tolerances are 1e-6 and 1e-7 drift as far
+// apart as the split and one process do), so particle by particle the runs are compared over the
+// first EXACT_FRAMES frames, and after them on average. The check fails (exit 1) when one of the
+// first EXACT_FRAMES frames has a largest distance above MAX_CELLS, any frame a mean distance
+// above MEAN_CELLS, the particle counts differ, the volumes differ by more than 0.5%, a split
+// projection did not converge, or its divergence exceeds the one-process run's by more than a
+// factor 10 plus 1e-3 1/s.
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <memory>
+#include <string>
+#include <unordered_map>
+
+#include "slurry/engine/flip/flip_solver.h"
+#include "slurry/engine/run/run.h"
+#include "slurry/io/scene_file.h"
+#include "slurry/mpi/mpi.h"
+
+namespace {
+
+struct Row {
+  double max_cells = 0, mean_cells = 0;
+};
+
+template <class T, int Dim>
+Row distance(const slurry::Solver& split, const slurry::Solver& one, double dx) {
+  const auto a = split.particles_view<T, Dim>();
+  const auto b = one.particles_view<T, Dim>();
+  Row r;
+  if (a.size() != b.size()) {
+    r.max_cells = INFINITY;
+    return r;
+  }
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    if (a.id(i) != b.id(i)) {
+      r.max_cells = INFINITY;
+      return r;
+    }
+    const double d = double((a.position(i) - b.position(i)).norm()) / dx;
+    r.max_cells = std::max(r.max_cells, d);
+    r.mean_cells += d;
+  }
+  if (a.size() > 0) r.mean_cells /= double(a.size());
+  return r;
+}
+
+template <class T, int Dim>
+const slurry::flip::ProjectionReport& projection(const slurry::Solver& s) {
+  return dynamic_cast<const slurry::flip::FlipSolver<T, Dim>&>(s).last_projection();
+}
+
+template <class T, int Dim>
+int check(slurry::mpi::Session& mpi, const slurry::Scene& scene, const slurry::Scene& reference, int frames, int exact,
+          double max_cells, double mean_cells) {
+  auto split = slurry::make_simulation(scene, &mpi);
+  std::unique_ptr<slurry::Solver> one;
+  const bool root = mpi.rank() == 0;
+  if (root) one = slurry::make_simulation(reference, nullptr);
+  int failed = 0;
+  if (root) {
+    std::printf("%s on %d processes: largest and mean particle distance from the one-process run (cells), volume, max |div u|\n",
+                scene.source.c_str(), mpi.size());
+    std::printf("| frame | largest | mean | volume, 1 process (m^%d) | split | max div, 1 process (1/s) | split | split CG iterations |\n", Dim);
+    std::printf("| --- | --- | --- | --- | --- | --- | --- | --- |\n");
+  }
+  for (int f = 1; f <= frames; ++f) {
+    const double t = f * scene.frame_dt();
+    split->advance_to(t);
+    if (root) one->advance_to(t);
+    (void)split->frame({"position"});  // gathers every particle on rank 0 (particle_storage)
+    const slurry::RunStats s = split->take_stats();
+    const auto& ps = projection<T, Dim>(*split);
+    const std::string status = split->solver_status();
+    if (!root) continue;
+    if (f == 1) std::printf("split: %s\n", status.c_str());
+    const slurry::RunStats o = one->take_stats();
+    const auto& po = projection<T, Dim>(*one);
+    const Row r = distance<T, Dim>(*split, *one, scene.domain.dx);
+    std::printf("| %d | %.3g | %.3g | %.6g | %.6g | %.3g | %.3g | %d |\n", f, r.max_cells, r.mean_cells, o.volume, s.volume,
+                po.max_divergence, ps.max_divergence, ps.iterations);
+    if (f <= exact && !(r.max_cells <= max_cells)) std::printf("FAIL: frame %d: particles moved apart by %.3g cells (> %.3g)\n", f, r.max_cells, max_cells), ++failed;
+    if (!(r.mean_cells <= mean_cells))
+      std::printf("FAIL: frame %d: particles moved apart by %.3g cells on average (> %.3g)\n", f, r.mean_cells, mean_cells), ++failed;
+    if (s.particles != o.particles) std::printf("FAIL: frame %d: %zu particles, one process %zu\n", f, s.particles, o.particles), ++failed;
+    if (!(std::abs(s.volume - o.volume) <= 5e-3 * o.volume))
+      std::printf("FAIL: frame %d: volume %.6g, one process %.6g\n", f, s.volume, o.volume), ++failed;
+    if (!ps.converged) std::printf("FAIL: frame %d: the split pressure solve did not converge\n", f), ++failed;
+    if (!(ps.max_divergence <= 10 * po.max_divergence + 1e-3))
+      std::printf("FAIL: frame %d: max |div u| %.3g, one process %.3g\n", f, ps.max_divergence, po.max_divergence), ++failed;
+  }
+  if (root) std::printf("%s\n", failed ? "FAILED" : "passed");
+  double result = failed;
+  mpi.max(&result, 1);
+  return result > 0 ? 1 : 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  slurry::mpi::Session mpi(argc, argv);
+  if (argc < 6) {
+    if (mpi.rank() == 0)
+      std::fprintf(stderr, "usage: flip_split_check SCENE FRAMES EXACT_FRAMES MAX_CELLS MEAN_CELLS [TOLERANCE [REFERENCE_TOLERANCE]]\n");
+    return 2;
+  }
+  try {
+    slurry::Scene scene = slurry::load_scene(argv[1]);
+    scene.output.checkpoint_every = 0;
+    if (argc > 6) scene.solver.pressure.tolerance = std::atof(argv[6]);
+    slurry::Scene reference = scene;
+    if (argc > 7) reference.solver.pressure.tolerance = std::atof(argv[7]);
+    const int frames = std::atoi(argv[2]), exact = std::atoi(argv[3]);
+    const double max_cells = std::atof(argv[4]), mean_cells = std::atof(argv[5]);
+    const bool dbl = scene.solver.precision == slurry::Precision::Double;
+    if (scene.solver.dimension == 2)
+      return dbl ? check<double, 2>(mpi, scene, reference, frames, exact, max_cells, mean_cells)
+                 : check<float, 2>(mpi, scene, reference, frames, exact, max_cells, mean_cells);
+    return dbl ? check<double, 3>(mpi, scene, reference, frames, exact, max_cells, mean_cells)
+               : check<float, 3>(mpi, scene, reference, frames, exact, max_cells, mean_cells);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "rank %d: %s\n", mpi.rank(), e.what());
+    return 1;
+  }
+}
