@@ -3,6 +3,11 @@
 // solver's own multigrid-preconditioned CG), under mpirun -np N (ctest label "mpi").
 //
 //   flip_split_check SCENE FRAMES EXACT_FRAMES MAX_CELLS MEAN_CELLS [TOLERANCE [REFERENCE_TOLERANCE]]
+//                    [--resume-at=F]
+//
+// With --resume-at=F the split run saves its state after frame F (gathered on rank 0, the
+// checkpoint's layout) and goes on from it in a new split simulation; rank 0 also loads it into
+// a one-process simulation, and the check compares both with the uninterrupted one-process run.
 //
 // REFERENCE_TOLERANCE, if given, is the one-process run's pressure tolerance: under mpirun -np 1
 // (no split) the check then measures how far two one-process runs drift apart that differ only
@@ -68,11 +73,12 @@ const slurry::flip::ProjectionReport& projection(const slurry::Solver& s) {
 
 template <class T, int Dim>
 int check(slurry::mpi::Session& mpi, const slurry::Scene& scene, const slurry::Scene& reference, int frames, int exact,
-          double max_cells, double mean_cells) {
+          double max_cells, double mean_cells, int resume_at) {
   auto split = slurry::make_simulation(scene, &mpi);
   std::unique_ptr<slurry::Solver> one;
   const bool root = mpi.rank() == 0;
   if (root) one = slurry::make_simulation(reference, nullptr);
+  std::unique_ptr<slurry::Solver> solo;  // rank 0: the one-process run resumed from the split's state
   int failed = 0;
   if (root) {
     std::printf("%s on %d processes: largest and mean particle distance from the one-process run (cells), volume, max |div u|\n",
@@ -84,15 +90,39 @@ int check(slurry::mpi::Session& mpi, const slurry::Scene& scene, const slurry::S
     const double t = f * scene.frame_dt();
     split->advance_to(t);
     if (root) one->advance_to(t);
+    if (f == resume_at) {
+      std::string state;
+      split->save_state(state);
+      const std::string whole = mpi.all_gather(root ? state : std::string())[0];
+      if (whole.empty()) {
+        if (root) std::printf("FAIL: frame %d: the split run saved an empty state\n", f);
+        ++failed;
+      }
+      auto resumed = slurry::make_simulation(scene, &mpi);
+      resumed->load_state(whole, "the split run's state at frame " + std::to_string(f));
+      split = std::move(resumed);
+      if (root) {
+        solo = slurry::make_simulation(reference, nullptr);
+        solo->load_state(whole, "the split run's state at frame " + std::to_string(f));
+        std::printf("resumed at frame %d over %d processes and in one process (%zu bytes)\n", f, mpi.size(), whole.size());
+      }
+    }
     (void)split->frame({"position"});  // gathers every particle on rank 0 (particle_storage)
     const slurry::RunStats s = split->take_stats();
     const auto& ps = projection<T, Dim>(*split);
+    if (solo && f > resume_at) solo->advance_to(t);
     const std::string status = split->solver_status();
     if (!root) continue;
     if (f == 1) std::printf("split: %s\n", status.c_str());
     const slurry::RunStats o = one->take_stats();
     const auto& po = projection<T, Dim>(*one);
     const Row r = distance<T, Dim>(*split, *one, scene.domain.dx);
+    if (solo) {
+      const Row q = distance<T, Dim>(*solo, *one, scene.domain.dx);
+      std::printf("| %d, resumed in one process | %.3g | %.3g |  |  |  |  |  |\n", f, q.max_cells, q.mean_cells);
+      if (f <= exact && !(q.max_cells <= max_cells)) std::printf("FAIL: frame %d: resumed in one process, %.3g cells apart\n", f, q.max_cells), ++failed;
+      if (!(q.mean_cells <= mean_cells)) std::printf("FAIL: frame %d: resumed in one process, %.3g cells apart on average\n", f, q.mean_cells), ++failed;
+    }
     std::printf("| %d | %.3g | %.3g | %.6g | %.6g | %.3g | %.3g | %d |\n", f, r.max_cells, r.mean_cells, o.volume, s.volume,
                 po.max_divergence, ps.max_divergence, ps.iterations);
     if (f <= exact && !(r.max_cells <= max_cells)) std::printf("FAIL: frame %d: particles moved apart by %.3g cells (> %.3g)\n", f, r.max_cells, max_cells), ++failed;
@@ -121,6 +151,9 @@ int main(int argc, char** argv) {
     return 2;
   }
   try {
+    int resume_at = -1;
+    for (int a = 6; a < argc; ++a)
+      if (std::string(argv[a]).rfind("--resume-at=", 0) == 0) resume_at = std::atoi(argv[a] + 12), argc = a;
     slurry::Scene scene = slurry::load_scene(argv[1]);
     scene.output.checkpoint_every = 0;
     if (argc > 6) scene.solver.pressure.tolerance = std::atof(argv[6]);
@@ -130,10 +163,10 @@ int main(int argc, char** argv) {
     const double max_cells = std::atof(argv[4]), mean_cells = std::atof(argv[5]);
     const bool dbl = scene.solver.precision == slurry::Precision::Double;
     if (scene.solver.dimension == 2)
-      return dbl ? check<double, 2>(mpi, scene, reference, frames, exact, max_cells, mean_cells)
-                 : check<float, 2>(mpi, scene, reference, frames, exact, max_cells, mean_cells);
-    return dbl ? check<double, 3>(mpi, scene, reference, frames, exact, max_cells, mean_cells)
-               : check<float, 3>(mpi, scene, reference, frames, exact, max_cells, mean_cells);
+      return dbl ? check<double, 2>(mpi, scene, reference, frames, exact, max_cells, mean_cells, resume_at)
+                 : check<float, 2>(mpi, scene, reference, frames, exact, max_cells, mean_cells, resume_at);
+    return dbl ? check<double, 3>(mpi, scene, reference, frames, exact, max_cells, mean_cells, resume_at)
+               : check<float, 3>(mpi, scene, reference, frames, exact, max_cells, mean_cells, resume_at);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "rank %d: %s\n", mpi.rank(), e.what());
     return 1;

@@ -121,14 +121,14 @@ FlipSolver<T, Dim>::FlipSolver(const Scene& scene, Communicator* communicator) :
     else if (viscous_) refused = "materials[].viscosity";
     else if (sigma_ > T(0)) refused = "materials[].surface_tension";
     else if (whitewater_) refused = "solver.whitewater";
-    else if (scene_.output.checkpoint_every > 0) refused = "output.checkpoint_every";
+    else if (scene_.output.per_rank && scene_.output.checkpoint_every > 0) refused = "output.per_rank with output.checkpoint_every";
     else if (scene_.solver.on_instability == OnInstability::Retry) refused = "solver.on_instability \"retry\"";
     if (!refused.empty())
       throw SceneError(scene_.source + ": " + refused + ": a FLIP run split over " + std::to_string(ranks) +
                        " processes (mpirun -np " + std::to_string(ranks) +
                        ") does not support it yet; expected a liquid without emitters, colliders, reseeding, viscosity, "
-                       "surface tension or whitewater, with output.checkpoint_every 0 and solver.on_instability \"stop\", "
-                       "or mpirun -np 1");
+                       "surface tension or whitewater, with solver.on_instability \"stop\" and, for per-rank frames, "
+                       "output.checkpoint_every 0; or mpirun -np 1");
     split_ = std::make_unique<detail::FlipSplit<T, Dim>>(communicator, res, origin, dx);
     split_particles();
   }
@@ -760,10 +760,33 @@ void FlipSolver<T, Dim>::save_state(const StateSink& out) const {
   // projection), and the face velocities, validity, labels and level set of the last substep.
   // Face weights and solid velocities are rebuilt from the colliders at the next substep;
   // sorting, transfer weights and solver work vectors are scratch.
-  if (split_) throw SceneError(scene_.source + ": a FLIP run split over processes writes no state (checkpoints) yet");
+  if (split_) {
+    // The whole state, gathered on rank 0 (which writes it) in one process's layout: particles
+    // in ascending id, the grid fields of every box in their places. It resumes on any number
+    // of processes.
+    auto& S = *split_;
+    FlipParticles<T, Dim> all = gather_particles();
+    Grid whole;
+    whole.res = S.res;
+    whole.dx = S.dx;
+    whole.origin = S.origin;
+    for (int d = 0; d < Dim; ++d) {
+      whole.u[std::size_t(d)] = S.gather(grid_.u[std::size_t(d)], d);
+      whole.valid[std::size_t(d)] = S.gather(grid_.valid[std::size_t(d)], d);
+    }
+    whole.label = S.gather(grid_.label, -1);
+    whole.phi = S.gather(grid_.phi, -1);
+    whole.pressure = S.gather(grid_.pressure, -1);
+    if (S.comm->rank() == 0) write_state(out, all, whole);
+    return;
+  }
+  write_state(out, particles_, grid_);
+}
+
+template <class T, int Dim>
+void FlipSolver<T, Dim>::write_state(const StateSink& out, const FlipParticles<T, Dim>& P, const Grid& grid) const {
   slurry::detail::StateWriter w(out);
   slurry::detail::write_layout<T, Dim>(w, slurry::detail::kTagFlip);
-  const auto& P = particles_;
   w.pod(std::uint8_t(P.affine));
   w.pod(std::uint8_t(P.has_material));
   w.vec(P.x);
@@ -773,12 +796,12 @@ void FlipSolver<T, Dim>::save_state(const StateSink& out) const {
   w.vec(P.id);
   w.pod(P.next_id);
   for (int d = 0; d < Dim; ++d) {
-    w.vec(grid_.u[std::size_t(d)]);
-    w.vec(grid_.valid[std::size_t(d)]);
+    w.vec(grid.u[std::size_t(d)]);
+    w.vec(grid.valid[std::size_t(d)]);
   }
-  w.vec(grid_.label);
-  w.vec(grid_.phi);
-  w.vec(grid_.pressure);
+  w.vec(grid.label);
+  w.vec(grid.phi);
+  w.vec(grid.pressure);
   w.pod(std::uint64_t(emitters_.size()));
   for (const auto& e : emitters_) {
     w.pod(e.carry);
@@ -813,10 +836,43 @@ void FlipSolver<T, Dim>::save_state(const StateSink& out) const {
 
 template <class T, int Dim>
 void FlipSolver<T, Dim>::load_state(std::string_view in, const std::string& what) {
-  if (split_) throw IoError(what + ": a FLIP run split over processes cannot resume from a checkpoint yet");
+  if (!split_) {
+    read_state(in, what, particles_, grid_);
+    return;
+  }
+  // Every rank reads the whole state and keeps its own particles and its window of the fields.
+  auto& S = *split_;
+  FlipParticles<T, Dim> all;
+  all.affine = particles_.affine;
+  all.has_material = particles_.has_material;
+  Grid whole;
+  whole.res = S.res;
+  whole.dx = S.dx;
+  whole.origin = S.origin;
+  read_state(in, what, all, whole);
+  const int me = S.comm->rank();
+  std::size_t n = 0;
+  for (std::size_t p = 0; p < all.size(); ++p)
+    if (S.owner(all.x[p]) == me) all.move(n++, p);
+  all.truncate(n);
+  particles_ = std::move(all);
+  S.own = particles_.size();
+  double total = double(particles_.size());
+  S.comm->sum(&total, 1);
+  S.total = std::uint64_t(total);
+  for (int d = 0; d < Dim; ++d) {
+    S.crop(whole.u[std::size_t(d)], grid_.u[std::size_t(d)], d);
+    S.crop(whole.valid[std::size_t(d)], grid_.valid[std::size_t(d)], d);
+  }
+  S.crop(whole.label, grid_.label, -1);
+  S.crop(whole.phi, grid_.phi, -1);
+  S.crop(whole.pressure, grid_.pressure, -1);
+}
+
+template <class T, int Dim>
+void FlipSolver<T, Dim>::read_state(std::string_view in, const std::string& what, FlipParticles<T, Dim>& P, Grid& grid) {
   slurry::detail::StateReader r(in, what);
   slurry::detail::read_layout<T, Dim>(r, slurry::detail::kTagFlip, "FLIP");
-  auto& P = particles_;
   if (r.get<std::uint8_t>() != std::uint8_t(P.affine) || r.get<std::uint8_t>() != std::uint8_t(P.has_material))
     r.fail("its particles carry other channels (APIC vectors, material) than this scene's transfer and materials need");
   r.vec(P.x, -1, "x");
@@ -828,18 +884,18 @@ void FlipSolver<T, Dim>::load_state(std::string_view in, const std::string& what
   r.pod(P.next_id);
   for (const auto k : P.material)
     if (k >= scene_.materials.size()) r.fail("a particle's material " + std::to_string(k) + " is not one of this scene's");
-  slurry::detail::require_inside(r, P.x, grid_.origin, Vec(grid_.origin + grid_.res.template cast<T>() * grid_.dx));
+  slurry::detail::require_inside(r, P.x, grid.origin, Vec(grid.origin + grid.res.template cast<T>() * grid.dx));
   slurry::detail::require_finite(r, P.v, "the velocity");
   for (int d = 0; d < Dim; ++d) slurry::detail::require_finite(r, P.c[std::size_t(d)], "the affine vector");
   slurry::detail::require_unique_ids(r, P.id, P.next_id);
   for (int d = 0; d < Dim; ++d) {
-    r.vec(grid_.u[std::size_t(d)], std::int64_t(grid_.num_faces(d)), "u");
-    r.vec(grid_.valid[std::size_t(d)], std::int64_t(grid_.num_faces(d)), "valid");
+    r.vec(grid.u[std::size_t(d)], std::int64_t(grid.num_faces(d)), "u");
+    r.vec(grid.valid[std::size_t(d)], std::int64_t(grid.num_faces(d)), "valid");
   }
-  const auto cells = std::int64_t(grid_.num_cells());
-  r.vec(grid_.label, cells, "label");
-  r.vec(grid_.phi, cells, "phi");
-  r.vec(grid_.pressure, cells, "pressure");
+  const auto cells = std::int64_t(grid.num_cells());
+  r.vec(grid.label, cells, "label");
+  r.vec(grid.phi, cells, "phi");
+  r.vec(grid.pressure, cells, "pressure");
   if (r.get<std::uint64_t>() != emitters_.size()) r.fail("it has another number of emitters");
   for (auto& e : emitters_) {
     r.pod(e.carry);
@@ -927,17 +983,23 @@ Frame FlipSolver<T, Dim>::frame_view(const std::vector<std::string>& attributes)
   // Gathered on rank 0 in ascending id (whatever the process count), which writes the frame;
   // kept there for particle_storage().
   auto& S = *split_;
+  S.gathered = gather_particles();
+  if (S.comm->rank() != 0) return {};
+  return detail::particle_frame(S.gathered, time_, scene_.source, attributes);
+}
+
+template <class T, int Dim>
+FlipParticles<T, Dim> FlipSolver<T, Dim>::gather_particles() const {
   std::string mine;
   for (std::size_t p = 0; p < particles_.size(); ++p) detail::pack_particle(particles_, p, mine);
-  const auto parts = S.comm->gather(mine);
-  auto& G = S.gathered;
-  G = FlipParticles<T, Dim>();
+  const auto parts = split_->comm->gather(mine);
+  FlipParticles<T, Dim> G;
   G.affine = particles_.affine;
   G.has_material = particles_.has_material;
-  if (S.comm->rank() != 0) return {};
   for (const auto& part : parts) detail::unpack_particles(part, G);
   detail::sort_by_id(G);
-  return detail::particle_frame(G, time_, scene_.source, attributes);
+  G.next_id = particles_.next_id;  // the same on every rank: ids are only given at seeding
+  return G;
 }
 
 template <class T, int Dim>

@@ -150,6 +150,47 @@ struct FlipSplit {
     }
   }
 
+  /// The domain-wide field (cells: axis -1, axis-d faces: axis d) on rank 0, each rank's box
+  /// from that rank; empty on the other ranks.
+  template <class V>
+  std::vector<V> gather(const std::vector<V>& field, int axis) const {
+    std::string mine;
+    for_region(axis, lo, hi, [&](std::int64_t i) { mine.append(reinterpret_cast<const char*>(&field[std::size_t(i)]), sizeof(V)); });
+    const std::vector<std::string> parts = comm->gather(mine);
+    if (comm->rank() != 0) return {};
+    IVec full = res;
+    if (axis >= 0) full[axis] += 1;
+    std::vector<V> whole(std::size_t(full.prod()));
+    for (int r = 0; r < int(parts.size()); ++r) {
+      IVec rlo, rhi;
+      boxes.box(r, rlo, rhi);
+      IVec n = rhi - rlo;
+      if (axis >= 0 && rhi[axis] == res[axis]) n[axis] += 1;
+      std::int64_t count = 1;
+      for (int d = 0; d < Dim; ++d) count *= n[d];
+      if (parts[std::size_t(r)].size() != std::size_t(count) * sizeof(V))
+        throw SimulationError("split FLIP: rank " + std::to_string(r) + " sent a field of another size");
+      for (std::int64_t k = 0; k < count; ++k) {
+        const IVec i = transfer::lattice_coord<Dim>(k, n) + rlo;
+        std::memcpy(static_cast<void*>(&whole[std::size_t(transfer::lattice_index<Dim>(i, full))]),
+                    parts[std::size_t(r)].data() + std::size_t(k) * sizeof(V), sizeof(V));
+      }
+    }
+    return whole;
+  }
+
+  /// This rank's window of a domain-wide field.
+  template <class V>
+  void crop(const std::vector<V>& whole, std::vector<V>& window, int axis) const {
+    IVec full = res, wres = whi - wlo;
+    if (axis >= 0) full[axis] += 1, wres[axis] += 1;
+    std::int64_t count = 1;
+    for (int d = 0; d < Dim; ++d) count *= wres[d];
+    window.resize(std::size_t(count));
+    for (std::int64_t k = 0; k < count; ++k)
+      window[std::size_t(k)] = whole[std::size_t(transfer::lattice_index<Dim>(IVec(transfer::lattice_coord<Dim>(k, wres) + wlo), full))];
+  }
+
   /// exchange() for each axis of a face field.
   template <class V>
   void exchange_faces(std::array<std::vector<V>, Dim>& faces, int depth) {

@@ -206,6 +206,9 @@ class FlipSolver final : public Solver {
   template <class Target>
   ProjectionReport split_projection(T dt, const Target& target_flux);
   std::vector<double> own_cell_counts() const;
+  FlipParticles<T, Dim> gather_particles() const;
+  void write_state(const StateSink& out, const FlipParticles<T, Dim>& P, const Grid& grid) const;
+  void read_state(std::string_view in, const std::string& what, FlipParticles<T, Dim>& P, Grid& grid);
   Scene scene_;
   FlipSolver(const FlipSolver&) = delete;
   FaceScheme scheme_ = FaceScheme::APIC;
