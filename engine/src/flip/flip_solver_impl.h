@@ -116,7 +116,6 @@ FlipSolver<T, Dim>::FlipSolver(const Scene& scene, Communicator* communicator) :
     const int ranks = communicator->size();
     std::string refused;
     if (!scene_.emitters.empty()) refused = "emitters";
-    else if (!scene_.colliders.empty()) refused = "colliders";
     else if (scene_.solver.reseed.min_per_cell > 0 || scene_.solver.reseed.max_per_cell > 0) refused = "solver.reseed";
     else if (viscous_) refused = "materials[].viscosity";
     else if (sigma_ > T(0)) refused = "materials[].surface_tension";
@@ -211,6 +210,7 @@ T FlipSolver<T, Dim>::stable_dt() const {
 
 template <class T, int Dim>
 std::int64_t FlipSolver<T, Dim>::advance_to(double t_end) {
+  if (split_) rebalance();
   const std::uint64_t sent = split_ ? split_->comm->exchanged_bytes() : 0;
   const auto n = substep_to(time_, t_end, [&] { return dt_scale_ * double(stable_dt()); }, [&](double dt) { step(T(dt)); }, scene_);
   if (split_ && n > 0) split_->bytes_per_substep = double(split_->comm->exchanged_bytes() - sent) / double(n);

@@ -1,9 +1,9 @@
 #pragma once
 // The FLIP liquid split over processes (private to the engine).
 //
-// The grid's cells are cut into boxes, one per rank, by the same balanced cuts as the MPM split
-// (mpm/domain_split.h, with a cell in the place of a grid block), balanced by the particles per
-// cell. A rank owns the particles whose cell lies in its box and the faces whose upper cell does
+// The grid's cells, in blocks of kBlock^Dim, are cut into boxes, one per rank, by the same
+// balanced cuts as the MPM split (mpm/domain_split.h), balanced by the particles per block and cut
+// again at every frame. A rank owns the particles whose cell lies in its box and the faces whose upper cell does
 // (an axis-d face on the domain's upper wall belongs to the cell below it). It holds a grid over
 // its box widened by `band` cells on every side (its window, clipped to the domain), so that the
 // phases of a substep run unchanged on it:
@@ -42,8 +42,10 @@ struct FlipSplit {
   using IVec = Eigen::Matrix<int, Dim, 1>;
   using Vec = Eigen::Matrix<T, Dim, 1>;
 
+  static constexpr int kBlock = 4;       ///< cells per block along each axis: the unit of the cuts
   Communicator* comm = nullptr;
-  slurry::detail::BoxSplit<Dim> boxes;  ///< over the grid's cells
+  slurry::detail::BoxSplit<Dim> boxes;  ///< over the blocks
+  std::vector<int> per_axis;            ///< processes along each axis
   IVec res = IVec::Zero();              ///< the domain's cells
   Vec origin = Vec::Zero();             ///< the domain's lower corner
   T dx = T(1);
@@ -67,29 +69,41 @@ struct FlipSplit {
     for (int d = 0; d < Dim; ++d) i[d] = std::clamp(int(std::floor((x[d] - origin[d]) / dx)), 0, res[d] - 1);
     return i;
   }
-  int owner(const Vec& x) const { return boxes.owner(cell_of(x)); }
+  int owner(const Vec& x) const { return boxes.owner(IVec(cell_of(x) / kBlock)); }
+  /// Blocks along each axis.
+  IVec blocks() const { return (res.array() + kBlock - 1) / kBlock; }
+  /// The block of domain cell i, as a lattice index.
+  std::int64_t block_index(const IVec& i) const { return transfer::lattice_index<Dim>(IVec(i / kBlock), blocks()); }
+  /// Rank r's box of cells, [rlo, rhi).
+  void cell_box(int r, IVec& rlo, IVec& rhi) const {
+    boxes.box(r, rlo, rhi);
+    rlo *= kBlock;
+    rhi = (rhi * kBlock).cwiseMin(res);
+  }
   bool in_box(const IVec& i) const { return (i.array() >= lo.array()).all() && (i.array() < hi.array()).all(); }
   /// Window-local cell index of domain cell i (inside the window).
   std::int64_t local_cell(const IVec& i) const { return transfer::lattice_index<Dim>(IVec(i - wlo), IVec(whi - wlo)); }
   /// Domain cell of window-local cell index k.
   IVec domain_cell(std::int64_t k) const { return IVec(transfer::lattice_coord<Dim>(k, IVec(whi - wlo)) + wlo); }
 
-  /// Places the boxes by the particles per cell (`counts`, domain cell index, the same on every
-  /// rank), this rank's window and its peers.
-  void place(const std::vector<double>& counts, const std::vector<int>& per_axis) {
-    boxes = slurry::detail::BoxSplit<Dim>(res, per_axis);
-    const std::vector<double> per_rank = boxes.cut(counts);
+  /// Places the boxes by the particles per block (`counts`, block_index()), this rank's window and
+  /// its peers. `summed`: the counts are this rank's particles only, summed over the ranks level by
+  /// level (every rank calls alike); else every rank passes the same counts of every particle.
+  void place(const std::vector<double>& counts, bool summed) {
+    boxes = slurry::detail::BoxSplit<Dim>(blocks(), per_axis);
+    const std::vector<double> per_rank =
+        summed ? boxes.cut(counts, [this](std::vector<double>& v) { comm->sum(v.data(), int(v.size())); }) : boxes.cut(counts);
     fewest = *std::min_element(per_rank.begin(), per_rank.end());
     most = *std::max_element(per_rank.begin(), per_rank.end());
     const int me = comm->rank();
-    boxes.box(me, lo, hi);
+    cell_box(me, lo, hi);
     wlo = (lo.array() - band).cwiseMax(0);
     whi = (hi.array() + band).cwiseMin(res.array());
     peers.clear(), peer_lo.clear(), peer_hi.clear();
     for (int q = 0; q < comm->size(); ++q) {
       if (q == me) continue;
       IVec qlo, qhi;
-      boxes.box(q, qlo, qhi);
+      cell_box(q, qlo, qhi);
       // Within band cells along every axis (a symmetric relation: the peer lists are mutual).
       if (((qlo.array() < whi.array()) && (qhi.array() > wlo.array())).all())
         peers.push_back(q), peer_lo.push_back(qlo), peer_hi.push_back(qhi);
@@ -163,7 +177,7 @@ struct FlipSplit {
     std::vector<V> whole(std::size_t(full.prod()));
     for (int r = 0; r < int(parts.size()); ++r) {
       IVec rlo, rhi;
-      boxes.box(r, rlo, rhi);
+      cell_box(r, rlo, rhi);
       IVec n = rhi - rlo;
       if (axis >= 0 && rhi[axis] == res[axis]) n[axis] += 1;
       std::int64_t count = 1;

@@ -17,13 +17,14 @@ template <class T, int Dim>
 void FlipSolver<T, Dim>::split_particles() {
   auto& S = *split_;
   const int ranks = S.comm->size();
-  const auto per_axis = slurry::detail::process_grid<Dim>(ranks, S.res);
-  if (per_axis.empty()) {
+  S.per_axis = slurry::detail::process_grid<Dim>(ranks, S.blocks());
+  if (S.per_axis.empty()) {
     std::string lattice;
-    for (int d = 0; d < Dim; ++d) lattice += (d ? " x " : "") + std::to_string(S.res[d]);
+    for (int d = 0; d < Dim; ++d) lattice += (d ? " x " : "") + std::to_string(S.blocks()[d]);
     throw SceneError(scene_.source + ": domain: split over " + std::to_string(ranks) + " processes, but the grid's " +
-                     lattice + " cells give no box of at least one cell to each; expected a process count that factors "
-                     "into at most that many along each axis (mpirun -np)");
+                     lattice + " blocks of " + std::to_string(S.kBlock) + " cells along each axis give no box of at "
+                     "least one block to each; expected a process count that factors into at most that many along each "
+                     "axis (mpirun -np)");
   }
   // The window's band: the extrapolation fills `layers` layers of faces and its linear rule
   // reads two faces behind each, so a face's extrapolated value depends on faces up to
@@ -35,9 +36,9 @@ void FlipSolver<T, Dim>::split_particles() {
   S.band = 2 * layers + 2;
   S.reach = layers;
   S.ghost = order_ + 3;
-  std::vector<double> counts(std::size_t(S.res.prod()), 0.0);
-  for (const auto& x : particles_.x) counts[std::size_t(transfer::lattice_index<Dim>(S.cell_of(x), S.res))] += 1;
-  S.place(counts, per_axis);
+  std::vector<double> counts(std::size_t(S.blocks().prod()), 0.0);
+  for (const auto& x : particles_.x) counts[std::size_t(S.block_index(S.cell_of(x)))] += 1;
+  S.place(counts, false);  // every rank holds every particle here
   S.total = particles_.size();
   const int me = S.comm->rank();
   std::size_t n = 0;
@@ -48,6 +49,49 @@ void FlipSolver<T, Dim>::split_particles() {
   const IVec wres = S.whi - S.wlo;
   grid_.resize(wres, S.dx, S.origin, !solids_.empty());
   grid_.offset = S.wlo;
+}
+
+template <class T, int Dim>
+void FlipSolver<T, Dim>::rebalance() {
+  // New boxes from this frame's particles; the grid follows its window (the pressure, the next
+  // solve's start, kept where the windows overlap); particles go to their new owners, which
+  // need not be peers: every rank exchanges with every other.
+  auto& S = *split_;
+  std::vector<double> counts(std::size_t(S.blocks().prod()), 0.0);
+  for (const auto& x : particles_.x) counts[std::size_t(S.block_index(S.cell_of(x)))] += 1;
+  const IVec old_lo = S.wlo, old_hi = S.whi;
+  S.place(counts, true);
+  if (S.wlo != old_lo || S.whi != old_hi) {
+    const IVec old_res = old_hi - old_lo, wres = S.whi - S.wlo;
+    std::vector<T> old_pressure;
+    old_pressure.swap(grid_.pressure);
+    grid_.resize(wres, S.dx, S.origin, !solids_.empty());
+    grid_.offset = S.wlo;
+    for (std::int64_t k = 0; k < grid_.num_cells(); ++k) {
+      const IVec i = S.domain_cell(k);
+      if ((i.array() >= old_lo.array()).all() && (i.array() < old_hi.array()).all())
+        grid_.pressure[std::size_t(k)] = old_pressure[std::size_t(transfer::lattice_index<Dim>(IVec(i - old_lo), old_res))];
+    }
+    faces_ready_ = false;
+  }
+  const int me = S.comm->rank(), ranks = S.comm->size();
+  std::vector<int> everyone;
+  for (int q = 0; q < ranks; ++q)
+    if (q != me) everyone.push_back(q);
+  std::vector<std::string> out(everyone.size());
+  auto& P = particles_;
+  std::size_t n = 0;
+  for (std::size_t p = 0; p < P.size(); ++p) {
+    const int q = S.owner(P.x[p]);
+    if (q == me)
+      P.move(n++, p);
+    else
+      detail::pack_particle(P, p, out[std::size_t(q < me ? q : q - 1)]);
+  }
+  P.truncate(n);
+  const auto in = S.comm->exchange(everyone, out);
+  for (const auto& m : in) detail::unpack_particles(m, P);
+  S.own = P.size();
 }
 
 template <class T, int Dim>

@@ -200,6 +200,7 @@ class FlipSolver final : public Solver {
 
   // A run split over processes (flip/split.h).
   void split_particles();
+  void rebalance();
   void exchange_ghosts();
   void drop_ghosts();
   void migrate();
