@@ -115,8 +115,7 @@ FlipSolver<T, Dim>::FlipSolver(const Scene& scene, Communicator* communicator) :
     // What the split does not carry yet is refused, by its scene key.
     const int ranks = communicator->size();
     std::string refused;
-    if (!scene_.emitters.empty()) refused = "emitters";
-    else if (scene_.solver.reseed.min_per_cell > 0 || scene_.solver.reseed.max_per_cell > 0) refused = "solver.reseed";
+    if (scene_.solver.reseed.min_per_cell > 0 || scene_.solver.reseed.max_per_cell > 0) refused = "solver.reseed";
     else if (viscous_) refused = "materials[].viscosity";
     else if (sigma_ > T(0)) refused = "materials[].surface_tension";
     else if (whitewater_) refused = "solver.whitewater";
@@ -125,7 +124,7 @@ FlipSolver<T, Dim>::FlipSolver(const Scene& scene, Communicator* communicator) :
     if (!refused.empty())
       throw SceneError(scene_.source + ": " + refused + ": a FLIP run split over " + std::to_string(ranks) +
                        " processes (mpirun -np " + std::to_string(ranks) +
-                       ") does not support it yet; expected a liquid without emitters, colliders, reseeding, viscosity, "
+                       ") does not support it yet; expected a liquid without reseeding, viscosity, "
                        "surface tension or whitewater, with solver.on_instability \"stop\" and, for per-rank frames, "
                        "output.checkpoint_every 0; or mpirun -np 1");
     split_ = std::make_unique<detail::FlipSplit<T, Dim>>(communicator, res, origin, dx);
@@ -280,10 +279,34 @@ void FlipSolver<T, Dim>::step(T dt) {
 template <class T, int Dim>
 void FlipSolver<T, Dim>::emit(T dt) {
   const std::size_t n0 = particles_.size();
-  for (auto& e : emitters_) e.emit(particles_, grid_, time_, double(dt));
+  if (!split_) {
+    for (auto& e : emitters_) e.emit(particles_, grid_, time_, double(dt));
+  } else {
+    // Every rank counts its own particles in the emitter's cells, the counts are summed, and
+    // every rank draws the same new particles (the same ids); each keeps those it owns.
+    auto& S = *split_;
+    Grid domain;
+    domain.res = S.res, domain.dx = S.dx, domain.origin = S.origin;
+    const auto sum = [&S](std::vector<std::int32_t>& counts) {
+      std::vector<double> c(counts.begin(), counts.end());
+      S.comm->sum(c.data(), int(c.size()));
+      for (std::size_t k = 0; k < c.size(); ++k) counts[k] = std::int32_t(c[k]);
+    };
+    for (auto& e : emitters_) e.emit(particles_, domain, time_, double(dt), sum);
+  }
   const T margin = T(1e-3) * grid_.dx;
   for (std::size_t p = n0; p < particles_.size(); ++p)
     particles_.x[p] = solids_.push_out(particles_.x[p], T(time_), x_lo_, x_hi_, margin);
+  if (split_ && particles_.size() > n0) {
+    auto& S = *split_;
+    const int me = S.comm->rank();
+    std::size_t n = n0;
+    for (std::size_t p = n0; p < particles_.size(); ++p)
+      if (S.owner(particles_.x[p]) == me) particles_.move(n++, p);
+    S.total += particles_.size() - n0;  // every rank added the same particles
+    particles_.truncate(n);
+    S.own = n;
+  }
 }
 
 template <class T, int Dim>

@@ -14,6 +14,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <functional>
 #include <random>
 #include <string>
 #include <vector>
@@ -123,8 +124,12 @@ struct Emitter {
     return (y.array() >= params.min.head<Dim>().array()).all() && (y.array() <= params.max.head<Dim>().array()).all();
   }
 
-  /// Tops up the emitter's cells for the substep [t, t + dt]; returns the particles added.
-  std::int64_t emit(FlipParticles<T, Dim>& P, const MacGrid<T, Dim>& g, double t, double dt) {
+  /// Tops up the emitter's cells for the substep [t, t + dt]; returns the particles added. `g`
+  /// gives the domain's cells (only its res, dx and origin are read). `sum`, if given, adds the
+  /// counts of particles per emitter cell over the processes of a split run (every process then
+  /// draws and adds the same particles, and keeps those it owns).
+  std::int64_t emit(FlipParticles<T, Dim>& P, const MacGrid<T, Dim>& g, double t, double dt,
+                    const std::function<void(std::vector<std::int32_t>&)>& sum = {}) {
     std::int64_t budget = allowance(t, dt, double(g.dx));
     const bool active = t + dt > params.start && t < params.end;
     if (!active) return 0;
@@ -161,6 +166,7 @@ struct Emitter {
       if (local(P.x[p], k)) ++counts[std::size_t(k)];
       if (inside(P.x[p])) P.v[p] = v;
     }
+    if (sum) sum(counts);
     const int target = int(std::lround(params.particles_per_cell));
     std::int64_t added = 0;
     for (std::int64_t k = 0; k < cells && budget > 0; ++k) {
