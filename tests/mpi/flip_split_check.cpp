@@ -135,7 +135,15 @@ int check(slurry::mpi::Session& mpi, const slurry::Scene& scene, const slurry::S
     if (!(ps.max_divergence <= 10 * po.max_divergence + 1e-3))
       std::printf("FAIL: frame %d: max |div u| %.3g, one process %.3g\n", f, ps.max_divergence, po.max_divergence), ++failed;
   }
-  if (root) std::printf("%s\n", failed ? "FAILED" : "passed");
+  if (root) {  // where the time went: rank 0 of the split run against the one-process run
+    const auto& a = dynamic_cast<const slurry::flip::FlipSolver<T, Dim>&>(*split).phase_seconds();
+    const auto& b = dynamic_cast<const slurry::flip::FlipSolver<T, Dim>&>(*one).phase_seconds();
+    std::printf("phase seconds, rank 0 of the split run / one process:");
+    for (int p = 0; p < slurry::flip::kPhaseCount; ++p)
+      if (a[std::size_t(p)] + b[std::size_t(p)] > 0)
+        std::printf(" %s %.3g / %.3g;", slurry::flip::phase_name(p), a[std::size_t(p)], b[std::size_t(p)]);
+    std::printf("\n%s\n", failed ? "FAILED" : "passed");
+  }
   double result = failed;
   mpi.max(&result, 1);
   return result > 0 ? 1 : 0;

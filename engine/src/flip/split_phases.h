@@ -154,7 +154,9 @@ template <class Target>
 ProjectionReport FlipSolver<T, Dim>::split_projection(T dt, const Target& target_flux) {
   auto& S = *split_;
   auto& g = grid_;
-  const auto& opt = projection_options_;
+  // The solve is PETSc's: the one-process preconditioner (a multigrid hierarchy) is not built.
+  ProjectionOptions opt = projection_options_;
+  opt.preconditioner = Preconditioner::None;
   pressure_.prepare(g, dt, opt, target_flux);
   // Rows: this rank's unknowns in its box's cell order, after every row of the ranks before it.
   const std::int64_t cells = g.num_cells();
