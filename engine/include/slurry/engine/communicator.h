@@ -10,9 +10,11 @@
 /// check and the run statistics, gathers the frames and checkpoints. Every call is collective:
 /// all ranks make the same calls in the same order.
 ///
-/// A linear system too large for one process (a liquid's pressure) is solved through the same
-/// layer: slurry::mpi hands it to PETSc's conjugate gradients preconditioned by hypre's
-/// BoomerAMG (solve_spd), so that no distributed Krylov solver is written here.
+/// The split FLIP solver (flip/flip_solver.h) cuts the grid's cells into boxes the same way and
+/// exchanges ghost particles and face values with the ranks near its box. A linear system too
+/// large for one process (a liquid's pressure) is solved through the same layer: slurry::mpi
+/// hands it to PETSc's conjugate gradients preconditioned by hypre's BoomerAMG (solve_spd), so
+/// that no distributed Krylov solver is written here.
 #include <cstdint>
 #include <stdexcept>
 #include <string>

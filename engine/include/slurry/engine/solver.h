@@ -179,8 +179,8 @@ class Solver {
 /// and checks its resources. A scene that names mesh files must have them read into
 /// Scene::files (io::read_scene_files; make_simulation in run/run.h does it), else SceneError.
 /// With a communicator of more than one rank (every rank calls this with the same scene), the
-/// explicit MPM solver splits the domain over the ranks (mpm/mpm_solver.h); the other solvers
-/// run in one process only and are refused with SceneError.
+/// explicit MPM solver and the FLIP solver split the domain over the ranks (mpm/mpm_solver.h,
+/// flip/flip_solver.h); FEM runs in one process only and is refused with SceneError.
 std::unique_ptr<Solver> make_solver(const Scene& scene, Communicator* communicator = nullptr);
 
 }  // namespace slurry

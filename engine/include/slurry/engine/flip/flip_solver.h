@@ -40,6 +40,12 @@
 /// tension at most Brackbill's capillary limit (surface_tension.h), clipped so frames land on
 /// multiples of 1 / fps. Every phase is parallel over independent items with a fixed
 /// summation order: frames are bitwise identical for any thread count.
+///
+/// Split over MPI ranks (a Communicator of more than one rank), each rank steps the same phases
+/// on a window of the grid around its box of cells, with ghost particles before the transfer, the
+/// pressure rows of its own cells solved by Communicator::solve_spd, and face values from their
+/// owners after the projection and the extrapolation (engine/src/flip/split.h); frames agree with
+/// one process's to the pressure solve's tolerance.
 #include <Eigen/Core>
 #include <array>
 #include <cmath>
