@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Weak-scaling model of the MPM solver split over MPI processes.
+"""Weak-scaling model of the MPM and FLIP solvers split over MPI processes.
 
     python3 benchmarks/mpi/model.py [--plot FILE.png]
 
@@ -260,6 +260,63 @@ def geometries(p):
     return out
 
 
+# ---- FLIP split over processes (engine/src/flip/split.h) ------------------------------------------
+
+FLIP_PARTICLE = 64      # bytes of a 3D float APIC particle sent: x, v (12 B each), id (4), c (3 x 12)
+FLIP_FACE_E3 = 13       # bytes per face after the projection: u, pre-projection u, transfer weight (4 B each), valid (1)
+FLIP_FACE_E4 = 4        # bytes per face after the extrapolation: u (APIC; FLIP adds its old u)
+FLIP_RING = 16          # bytes per ring cell of the pressure: its row number (8) and its solution (8)
+
+
+def flip_bytes_per_rank(cell_counts, cells, procs, band, ghost, reach):
+    """Bytes each rank sends per substep in the split FLIP step, by the engine's rules: the split of
+    4^3-cell blocks by particle counts (box_split), then to each peer (a rank whose box lies within
+    `band` cells) the particles of its cells within `ghost` cells of the peer's box, the faces of its
+    cells within `band` (after the projection) and `reach` (after the extrapolation) cells of it,
+    and the ring of cells within 1 (row numbers, solution). A region's faces are its cells' lower
+    faces, plus the domain's upper wall where the region reaches it. `cell_counts`: a function of a
+    cell giving its particles."""
+    dim = len(cells)
+    blocks = [-(-c // BLOCK) for c in cells]
+    counts = {}
+    for c in itertools.product(*[range(n) for n in cells]):
+        k = cell_counts(c)
+        if k:
+            b = tuple(x // BLOCK for x in c)
+            counts[b] = counts.get(b, 0) + k
+    boxes = [([l * BLOCK for l in lo], [min(h * BLOCK, cells[d]) for d, h in enumerate(hi)])
+             for lo, hi in box_split(counts, blocks, procs)]
+
+    def region(lo, hi, plo, phi, depth):
+        rlo = [max(lo[d], plo[d] - depth) for d in range(dim)]
+        rhi = [min(hi[d], phi[d] + depth) for d in range(dim)]
+        return (rlo, rhi) if all(rlo[d] < rhi[d] for d in range(dim)) else None
+
+    def faces(r):
+        rlo, rhi = r
+        n = [rhi[d] - rlo[d] for d in range(dim)]
+        return sum(math.prod(n[b] + (1 if b == a and rhi[a] == cells[a] else 0) for b in range(dim)) for a in range(dim))
+
+    sent = []
+    for me, (lo, hi) in enumerate(boxes):
+        total = 0
+        for q, (plo, phi) in enumerate(boxes):
+            if q == me or region(lo, hi, plo, phi, band) is None:
+                continue
+            g = region(lo, hi, plo, phi, ghost)
+            if g:
+                total += FLIP_PARTICLE * sum(cell_counts(c) for c in itertools.product(*[range(g[0][d], g[1][d]) for d in range(dim)]))
+            total += FLIP_FACE_E3 * faces(region(lo, hi, plo, phi, band))
+            e4 = region(lo, hi, plo, phi, reach)
+            if e4:
+                total += FLIP_FACE_E4 * faces(e4)
+            ring = region(lo, hi, plo, phi, 1)
+            if ring:
+                total += FLIP_RING * math.prod(ring[1][d] - ring[0][d] for d in range(dim))
+        sent.append(total)
+    return sent
+
+
 def main():
     print("Grid-halo bytes predicted for bench_mpi (kB per substep per rank, mean / largest over the ranks):")
     print()
@@ -273,6 +330,17 @@ def main():
             sent = halo_bytes_per_rank(counts, blocks, procs)
             cells.append("%s: %.1f / %.1f" % (" x ".join(map(str, procs)), sum(sent) / np_ / 1e3, max(sent) / 1e3))
         print("| %s | %s | %s |" % (name, cells[0], cells[1]))
+    print()
+    print("Split FLIP bytes predicted for a 3D pool at rest (40^3 cells, liquid below y = 20 cells, 8 per cell,")
+    print("APIC, linear kernel, cfl 5 midpoint: band 12, ghosts 2, reach 5), kB per substep, rank 0 / largest:")
+    print()
+    print("| processes | split | rank 0 | largest |")
+    print("| --- | --- | --- | --- |")
+    for np_ in (2, 4):
+        cells = [40, 40, 40]
+        procs = process_grid(np_, [10, 10, 10])
+        sent = flip_bytes_per_rank(lambda c: 8 if c[1] < 20 else 0, cells, procs, 12, 2, 5)
+        print("| %d | %s | %.0f | %.0f |" % (np_, " x ".join(map(str, procs)), sent[0] / 1e3, max(sent) / 1e3))
     print()
     print("node: %d cores x %.1f M particle-steps/s x %.2f = %.0f M particle-steps/s; %.3g particles per node"
           % (CORES, R_CORE / 1e6, THREAD_EFF, R_NODE / 1e6, N_TOTAL / NODES))

@@ -121,18 +121,27 @@ struct FlipSplit {
   /// entries are the cells (axis -1) or the axis-d faces: a region's faces are its cells' lower
   /// faces, with the upper wall's faces added where it reaches the domain's upper end along d.
   template <class F>
-  void for_region(int axis, IVec rlo, IVec rhi, F&& f) const {
+  void for_region(int axis, const IVec& rlo, const IVec& rhi, F&& f) const {
+    for_runs(axis, rlo, rhi, [&f](std::int64_t first, int n) {
+      for (int j = 0; j < n; ++j) f(first + j);
+    });
+  }
+  /// The same region as runs of consecutive entries along the last axis: f(first, length).
+  template <class F>
+  void for_runs(int axis, const IVec& rlo, IVec rhi, F&& f) const {
     IVec wres = whi - wlo;
     if (axis >= 0) {
       wres[axis] += 1;
       if (rhi[axis] == res[axis]) rhi[axis] += 1;
     }
-    const IVec n = rhi - rlo;
-    std::int64_t count = 1;
-    for (int d = 0; d < Dim; ++d) count *= n[d];
-    for (std::int64_t k = 0; k < count; ++k) {
+    IVec n = rhi - rlo;
+    const int run = n[Dim - 1];
+    n[Dim - 1] = 1;
+    std::int64_t rows = 1;
+    for (int d = 0; d < Dim; ++d) rows *= n[d];
+    for (std::int64_t k = 0; k < rows; ++k) {
       const IVec i = transfer::lattice_coord<Dim>(k, n) + rlo - wlo;
-      f(transfer::lattice_index<Dim>(i, wres));
+      f(transfer::lattice_index<Dim>(i, wres), run);
     }
   }
 
@@ -146,8 +155,8 @@ struct FlipSplit {
       IVec rlo, rhi;
       if (!overlap(lo, hi, peer_lo[k], peer_hi[k], depth, rlo, rhi)) continue;
       std::string& m = out[k];
-      for_region(axis, rlo, rhi, [&](std::int64_t i) {
-        m.append(reinterpret_cast<const char*>(&field[std::size_t(i)]), sizeof(V));
+      for_runs(axis, rlo, rhi, [&](std::int64_t i, int n) {
+        m.append(reinterpret_cast<const char*>(&field[std::size_t(i)]), sizeof(V) * std::size_t(n));
       });
     }
     const std::vector<std::string> in = comm->exchange(peers, out);
@@ -156,10 +165,11 @@ struct FlipSplit {
       if (!overlap(peer_lo[k], peer_hi[k], lo, hi, depth, rlo, rhi)) continue;
       const std::string& m = in[k];
       std::size_t at = 0;
-      for_region(axis, rlo, rhi, [&](std::int64_t i) {
-        if (at + sizeof(V) > m.size()) throw SimulationError("split FLIP: a halo message from rank " + std::to_string(peers[k]) + " is short");
-        std::memcpy(static_cast<void*>(&field[std::size_t(i)]), m.data() + at, sizeof(V));
-        at += sizeof(V);
+      for_runs(axis, rlo, rhi, [&](std::int64_t i, int n) {
+        const std::size_t bytes = sizeof(V) * std::size_t(n);
+        if (at + bytes > m.size()) throw SimulationError("split FLIP: a halo message from rank " + std::to_string(peers[k]) + " is short");
+        std::memcpy(static_cast<void*>(&field[std::size_t(i)]), m.data() + at, bytes);
+        at += bytes;
       });
     }
   }
@@ -169,7 +179,9 @@ struct FlipSplit {
   template <class V>
   std::vector<V> gather(const std::vector<V>& field, int axis) const {
     std::string mine;
-    for_region(axis, lo, hi, [&](std::int64_t i) { mine.append(reinterpret_cast<const char*>(&field[std::size_t(i)]), sizeof(V)); });
+    for_runs(axis, lo, hi, [&](std::int64_t i, int n) {
+      mine.append(reinterpret_cast<const char*>(&field[std::size_t(i)]), sizeof(V) * std::size_t(n));
+    });
     const std::vector<std::string> parts = comm->gather(mine);
     if (comm->rank() != 0) return {};
     IVec full = res;

@@ -29,13 +29,16 @@ void FlipSolver<T, Dim>::split_particles() {
   // The window's band: the extrapolation fills `layers` layers of faces and its linear rule
   // reads two faces behind each, so a face's extrapolated value depends on faces up to
   // 2 x layers cells away (fill_air_velocities()); 2 more for the kernel's reach. Ghost
-  // particles: the transfer's kernel (order_ cells), the labels' and level set's neighbours
-  // and the ring of cells around the box whose rows couple to its own.
+  // particles: the level set of an air cell next to the box's ring reads the particles of its
+  // 3^Dim neighbours (level_set.h), 2 cells from the box, which also covers the transfer's
+  // reach (a particle's kernel touches faces up to order_ cells away); one more with the
+  // quadratic kernel. With 1 the dam break tests of tests/mpi fail; with 2, 3 and 4 their frames
+  // are the same.
   const double reach = scene_.solver.advection == AdvectionScheme::Midpoint ? 0.5 : 1.0;
   const int layers = std::max(int(std::ceil(reach * scene_.solver.cfl)) + order_ + 1, order_ + Dim - 1);
   S.band = 2 * layers + 2;
   S.reach = layers;
-  S.ghost = order_ + 3;
+  S.ghost = order_ + 1;
   std::vector<double> counts(std::size_t(S.blocks().prod()), 0.0);
   for (const auto& x : particles_.x) counts[std::size_t(S.block_index(S.cell_of(x)))] += 1;
   S.place(counts, false);  // every rank holds every particle here
