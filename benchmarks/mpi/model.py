@@ -317,6 +317,43 @@ def flip_bytes_per_rank(cell_counts, cells, procs, band, ghost, reach):
     return sent
 
 
+# The FLIP step on a cluster, per node (one process of CORES threads), a cube of liquid filling the
+# domain, boxes of BOX cells across: compute = the one-process substep's phases, each scaled by
+# what the split adds (the ghost particles' share of the particle phases, the window's share of the
+# grid phases, the distributed pressure solve's cost per row), plus the modelled bytes on the network
+# and the solve's latency.
+R_FLIP = 1.92e6         # MEASURED: particle-steps/s of one core, 3D dam break (bench_flip --phases ... 20 1)
+FLIP_SHARES = {"particles": 0.25, "grid": 0.15, "gather": 0.27, "project": 0.33}  # MEASURED: the same run's phases
+# (sort + transfer_to_grid + boundaries; extrapolate + gravity + enforce_solids; transfer_to_particles; project)
+PROJECT_FACTOR = 4.0    # MEASURED: the split's projection per pressure row over one process's (rank 0 of the dam
+                        # break on 2 processes, 1 thread each: 1.82 s for half the rows against 0.904 s for all)
+AMG_ITERATIONS = 15     # MEASURED: 13-16 to 1e-10 in poisson_check on 1-4 processes; taken as constant in the
+                        # process count, the weak scalability reported for BoomerAMG (Baker, Falgout, Kolev & Yang,
+                        # "Scaling hypre's multigrid solvers to 100,000 cores", 2012)
+AMG_LEVELS = 8          # ASSUMED: levels of the hierarchy for 1e8 rows with aggressive coarsening
+FLIP_BAND, FLIP_GHOST, FLIP_REACH = 12, 2, 5   # the engine's at cfl 5, midpoint, linear kernel
+
+
+def flip_step(p, bandwidth, alpha):
+    """(substep s, MB sent per node, weak efficiency) of the FLIP cube on p nodes, 1e9 particles in all."""
+    n = N_TOTAL / NODES
+    box = (n / PPC) ** (1 / 3)                       # cells across a node's box
+    t1 = n / (CORES * R_FLIP * THREAD_EFF)
+    if p == 1:
+        return t1, 0.0, 1.0
+    shell = lambda depth: ((box + 2 * depth) ** 3 - box ** 3)
+    ghosts = shell(FLIP_GHOST) * PPC
+    factor = (FLIP_SHARES["particles"] * (1 + ghosts / n) + FLIP_SHARES["grid"] * (box + 2 * FLIP_BAND) ** 3 / box ** 3
+              + FLIP_SHARES["gather"] + FLIP_SHARES["project"] * PROJECT_FACTOR)
+    sent = ghosts * FLIP_PARTICLE + 3 * shell(FLIP_BAND) * FLIP_FACE_E3 + 3 * shell(FLIP_REACH) * FLIP_FACE_E4
+    peers = 26
+    # The solve: every iteration a V-cycle (a halo exchange per level, down and up) and two reductions;
+    # the setup about as many exchanges again.
+    solve_latency = 2 * AMG_ITERATIONS * (2 * AMG_LEVELS * (alpha + peers * OVERHEAD) + 2 * math.log2(p) * alpha)
+    total = t1 * factor + sent / bandwidth + 2 * sent / COPY + 4 * peers * OVERHEAD + solve_latency
+    return total, sent, t1 / total
+
+
 def main():
     print("Grid-halo bytes predicted for bench_mpi (kB per substep per rank, mean / largest over the ranks):")
     print()
@@ -354,6 +391,16 @@ def main():
                 t, sent, eff = step(n, halo, ghosts, ranks, peers, bw, alpha)
                 print("| %d | %s | %s (%d) | %.1f | %s | %.0f | %.1f | %.2f |"
                       % (p, name, " x ".join(map(str, procs)), peers, sent / 1e6, net, 1e3 * t, 1e3 * sent / bw, eff))
+    print()
+    print("FLIP: one node %.0f ms per substep (%.2f M particle-steps/s a core)" % (1e3 * flip_step(1, 1, 1)[0], R_FLIP / 1e6))
+    print()
+    print("| nodes | FLIP geometry | MB sent per substep per node | network | substep ms | of which transfer ms | weak efficiency |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    for p in (8, 64):
+        for net, (bw, alpha) in NETWORKS.items():
+            t, sent, eff = flip_step(p, bw, alpha)
+            print("| %d | cube of liquid, boxes, a process per node | %.1f | %s | %.0f | %.1f | %.2f |"
+                  % (p, sent / 1e6, net, 1e3 * t, 1e3 * sent / bw, eff))
 
 
 main()
@@ -376,6 +423,9 @@ if "--plot" in sys.argv:
                 eff.append(step(row[1], row[2], row[3], row[4], row[5], bw, alpha)[2])
             ax.plot(nodes, eff, color=colour, linestyle="-" if bw > 5e9 else "--", marker="o", markersize=3,
                     label="%s, %s" % (name, net.split(" (")[0]))
+    for net, (bw, alpha) in NETWORKS.items():
+        ax.plot(nodes, [flip_step(p, bw, alpha)[2] for p in nodes], color="C4", linestyle="-" if bw > 5e9 else "--",
+                marker="s", markersize=3, label="FLIP cube, boxes, a process per node, %s" % net.split(" (")[0])
     ax.axhline(0.85, color="0.6", linewidth=0.8)
     ax.set_xscale("log", base=2)
     ax.set_xticks(nodes)
@@ -383,7 +433,7 @@ if "--plot" in sys.argv:
     ax.set_ylim(0, 1.02)
     ax.set_xlabel("nodes (32 cores each), 1.56e7 particles per node")
     ax.set_ylabel("weak efficiency (model)")
-    ax.set_title("MPM split over processes: benchmarks/mpi/model.py", fontsize=10)
+    ax.set_title("MPM and FLIP split over processes: benchmarks/mpi/model.py", fontsize=10)
     ax.legend(fontsize=5.5, loc="lower left", ncol=2)
     fig.tight_layout()
     fig.savefig(sys.argv[sys.argv.index("--plot") + 1])
