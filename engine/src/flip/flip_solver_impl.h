@@ -119,12 +119,14 @@ FlipSolver<T, Dim>::FlipSolver(const Scene& scene, Communicator* communicator) :
     else if (viscous_) refused = "materials[].viscosity";
     else if (sigma_ > T(0)) refused = "materials[].surface_tension";
     else if (whitewater_) refused = "solver.whitewater";
+    else if (scene_.output.per_rank && scene_.output.checkpoint_every > 0) refused = "output.per_rank with output.checkpoint_every";
     else if (scene_.solver.on_instability == OnInstability::Retry) refused = "solver.on_instability \"retry\"";
     if (!refused.empty())
       throw SceneError(scene_.source + ": " + refused + ": a FLIP run split over " + std::to_string(ranks) +
                        " processes (mpirun -np " + std::to_string(ranks) +
                        ") does not support it yet; expected a liquid without reseeding, viscosity, "
-                       "surface tension or whitewater, with solver.on_instability \"stop\"; or mpirun -np 1");
+                       "surface tension or whitewater, with solver.on_instability \"stop\" and, for per-rank frames, "
+                       "output.checkpoint_every 0; or mpirun -np 1");
     split_ = std::make_unique<detail::FlipSplit<T, Dim>>(communicator, res, origin, dx);
     split_particles();
   }
@@ -805,23 +807,9 @@ void FlipSolver<T, Dim>::save_state(const StateSink& out) const {
 }
 
 template <class T, int Dim>
-void FlipSolver<T, Dim>::write_state(const StateSink& out, const FlipParticles<T, Dim>& P, const Grid& grid,
-                                     const StatePart* part) const {
+void FlipSolver<T, Dim>::write_state(const StateSink& out, const FlipParticles<T, Dim>& P, const Grid& grid) const {
   slurry::detail::StateWriter w(out);
   slurry::detail::write_layout<T, Dim>(w, slurry::detail::kTagFlip);
-  if (part) {
-    w.tag(slurry::detail::kTagPart);
-    w.pod(std::int32_t(part->rank));
-    w.pod(std::int32_t(part->ranks));
-    for (int d = 0; d < Dim; ++d) w.pod(std::int32_t(part->lo[d])), w.pod(std::int32_t(part->hi[d]));
-  }
-  // A part holds the fields over its box only (the window's entries there, in the box's order).
-  const auto field = [&](const auto& v, int axis) {
-    if (!part) return w.vec(v);
-    std::remove_cv_t<std::remove_reference_t<decltype(v)>> box;
-    split_->for_runs(axis, part->lo, part->hi, [&](std::int64_t i, int n) { box.insert(box.end(), v.begin() + i, v.begin() + i + n); });
-    w.vec(box);
-  };
   w.pod(std::uint8_t(P.affine));
   w.pod(std::uint8_t(P.has_material));
   w.vec(P.x);
@@ -831,12 +819,12 @@ void FlipSolver<T, Dim>::write_state(const StateSink& out, const FlipParticles<T
   w.vec(P.id);
   w.pod(P.next_id);
   for (int d = 0; d < Dim; ++d) {
-    field(grid.u[std::size_t(d)], d);
-    field(grid.valid[std::size_t(d)], d);
+    w.vec(grid.u[std::size_t(d)]);
+    w.vec(grid.valid[std::size_t(d)]);
   }
-  field(grid.label, -1);
-  field(grid.phi, -1);
-  field(grid.pressure, -1);
+  w.vec(grid.label);
+  w.vec(grid.phi);
+  w.vec(grid.pressure);
   w.pod(std::uint64_t(emitters_.size()));
   for (const auto& e : emitters_) {
     w.pod(e.carry);
@@ -905,30 +893,9 @@ void FlipSolver<T, Dim>::load_state(std::string_view in, const std::string& what
 }
 
 template <class T, int Dim>
-void FlipSolver<T, Dim>::read_state(std::string_view in, const std::string& what, FlipParticles<T, Dim>& P, Grid& grid,
-                                    StatePart* part) {
+void FlipSolver<T, Dim>::read_state(std::string_view in, const std::string& what, FlipParticles<T, Dim>& P, Grid& grid) {
   slurry::detail::StateReader r(in, what);
   slurry::detail::read_layout<T, Dim>(r, slurry::detail::kTagFlip, "FLIP");
-  // The fields' sizes: the grid's, or a part's box's (grid.res is the domain's).
-  IVec cells = grid.res;
-  if (part) {
-    r.tag(slurry::detail::kTagPart, "part");
-    part->rank = r.get<std::int32_t>();
-    part->ranks = r.get<std::int32_t>();
-    for (int d = 0; d < Dim; ++d) {
-      part->lo[d] = r.get<std::int32_t>(), part->hi[d] = r.get<std::int32_t>();
-      if (!(0 <= part->lo[d] && part->lo[d] < part->hi[d] && part->hi[d] <= grid.res[d]))
-        r.fail("its box of cells is not inside this scene's grid");
-    }
-    cells = part->hi - part->lo;
-  }
-  const auto faces = [&](int d) {
-    IVec n = cells;
-    if (!part || part->hi[d] == grid.res[d]) n[d] += 1;
-    std::int64_t k = 1;
-    for (int a = 0; a < Dim; ++a) k *= n[a];
-    return k;
-  };
   if (r.get<std::uint8_t>() != std::uint8_t(P.affine) || r.get<std::uint8_t>() != std::uint8_t(P.has_material))
     r.fail("its particles carry other channels (APIC vectors, material) than this scene's transfer and materials need");
   r.vec(P.x, -1, "x");
@@ -945,14 +912,13 @@ void FlipSolver<T, Dim>::read_state(std::string_view in, const std::string& what
   for (int d = 0; d < Dim; ++d) slurry::detail::require_finite(r, P.c[std::size_t(d)], "the affine vector");
   slurry::detail::require_unique_ids(r, P.id, P.next_id);
   for (int d = 0; d < Dim; ++d) {
-    r.vec(grid.u[std::size_t(d)], faces(d), "u");
-    r.vec(grid.valid[std::size_t(d)], faces(d), "valid");
+    r.vec(grid.u[std::size_t(d)], std::int64_t(grid.num_faces(d)), "u");
+    r.vec(grid.valid[std::size_t(d)], std::int64_t(grid.num_faces(d)), "valid");
   }
-  std::int64_t count = 1;
-  for (int d = 0; d < Dim; ++d) count *= cells[d];
-  r.vec(grid.label, count, "label");
-  r.vec(grid.phi, count, "phi");
-  r.vec(grid.pressure, count, "pressure");
+  const auto cells = std::int64_t(grid.num_cells());
+  r.vec(grid.label, cells, "label");
+  r.vec(grid.phi, cells, "phi");
+  r.vec(grid.pressure, cells, "pressure");
   if (r.get<std::uint64_t>() != emitters_.size()) r.fail("it has another number of emitters");
   for (auto& e : emitters_) {
     r.pod(e.carry);
@@ -1043,69 +1009,6 @@ Frame FlipSolver<T, Dim>::frame_view(const std::vector<std::string>& attributes)
   S.gathered = gather_particles();
   if (S.comm->rank() != 0) return {};
   return detail::particle_frame(S.gathered, time_, scene_.source, attributes);
-}
-
-template <class T, int Dim>
-void FlipSolver<T, Dim>::save_own_state(const StateSink& out) const {
-  if (!split_) return save_state(out);
-  const auto& S = *split_;
-  StatePart part;
-  part.rank = S.comm->rank(), part.ranks = S.comm->size(), part.lo = S.lo, part.hi = S.hi;
-  write_state(out, particles_, grid_, &part);
-}
-
-template <class T, int Dim>
-void FlipSolver<T, Dim>::load_state_parts(int parts, const std::function<std::string(int)>& part, const std::string& what) {
-  // Each part is read whole, one at a time; this process keeps the particles it owns (all of
-  // them in one process) and the parts' fields where they meet its window (the whole grid).
-  if (parts < 1) throw IoError(what + ": a checkpoint of no parts");
-  const IVec res = split_ ? split_->res : grid_.res;
-  const IVec wlo = split_ ? split_->wlo : IVec::Zero(), wres = split_ ? IVec(split_->whi - split_->wlo) : grid_.res;
-  const int me = split_ ? split_->comm->rank() : 0;
-  std::string mine;  // the kept particles, packed
-  std::uint64_t total = 0;
-  std::uint32_t next_id = 0;
-  for (int i = 0; i < parts; ++i) {
-    const std::string name = what + " (part " + std::to_string(i) + ")";
-    FlipParticles<T, Dim> Q;
-    Q.affine = particles_.affine, Q.has_material = particles_.has_material;
-    Grid box;
-    box.res = res, box.dx = grid_.dx, box.origin = grid_.origin;
-    StatePart info;
-    read_state(part(i), name, Q, box, &info);
-    if (info.rank != i || info.ranks != parts)
-      throw IoError(name + ": it says part " + std::to_string(info.rank) + " of " + std::to_string(info.ranks) +
-                    "; expected part " + std::to_string(i) + " of " + std::to_string(parts) +
-                    " (the files checkpoint_NNNN.rank0.slc to rank" + std::to_string(parts - 1) + ")");
-    total += Q.size();
-    next_id = std::max(next_id, Q.next_id);
-    for (std::size_t p = 0; p < Q.size(); ++p)
-      if (!split_ || split_->owner(Q.x[p]) == me) detail::pack_particle(Q, p, mine);
-    const auto paste = [&](const auto& from, auto& to, int axis) {
-      IVec n = info.hi - info.lo, window = wres;
-      if (axis >= 0) window[axis] += 1, n[axis] += info.hi[axis] == res[axis] ? 1 : 0;
-      std::int64_t count = 1;
-      for (int d = 0; d < Dim; ++d) count *= n[d];
-      for (std::int64_t k = 0; k < count; ++k) {
-        const IVec at = IVec(transfer::lattice_coord<Dim>(k, n) + info.lo - wlo);
-        if ((at.array() >= 0).all() && (at.array() < window.array()).all())
-          to[std::size_t(transfer::lattice_index<Dim>(at, window))] = from[std::size_t(k)];
-      }
-    };
-    for (int d = 0; d < Dim; ++d) {
-      paste(box.u[std::size_t(d)], grid_.u[std::size_t(d)], d);
-      paste(box.valid[std::size_t(d)], grid_.valid[std::size_t(d)], d);
-    }
-    paste(box.label, grid_.label, -1);
-    paste(box.phi, grid_.phi, -1);
-    paste(box.pressure, grid_.pressure, -1);
-  }
-  FlipParticles<T, Dim> P;
-  P.affine = particles_.affine, P.has_material = particles_.has_material;
-  detail::unpack_particles(mine, P);
-  P.next_id = next_id;
-  particles_ = std::move(P);
-  if (split_) split_->own = particles_.size(), split_->total = total;
 }
 
 template <class T, int Dim>
