@@ -74,6 +74,12 @@ struct FlipSplit {
   IVec blocks() const { return (res.array() + kBlock - 1) / kBlock; }
   /// The block of domain cell i, as a lattice index.
   std::int64_t block_index(const IVec& i) const { return transfer::lattice_index<Dim>(IVec(i / kBlock), blocks()); }
+  /// Particles per block (block_index()) of the positions x.
+  std::vector<double> block_counts(const std::vector<Vec>& x) const {
+    std::vector<double> counts(std::size_t(blocks().prod()), 0.0);
+    for (const auto& y : x) counts[std::size_t(block_index(cell_of(y)))] += 1;
+    return counts;
+  }
   /// Rank r's box of cells, [rlo, rhi).
   void cell_box(int r, IVec& rlo, IVec& rhi) const {
     boxes.box(r, rlo, rhi);

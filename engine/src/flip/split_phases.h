@@ -39,9 +39,7 @@ void FlipSolver<T, Dim>::split_particles() {
   S.band = 2 * layers + 2;
   S.reach = layers;
   S.ghost = order_ + 1;
-  std::vector<double> counts(std::size_t(S.blocks().prod()), 0.0);
-  for (const auto& x : particles_.x) counts[std::size_t(S.block_index(S.cell_of(x)))] += 1;
-  S.place(counts, false);  // every rank holds every particle here
+  S.place(S.block_counts(particles_.x), false);  // every rank holds every particle here
   S.total = particles_.size();
   const int me = S.comm->rank();
   std::size_t n = 0;
@@ -49,8 +47,13 @@ void FlipSolver<T, Dim>::split_particles() {
     if (S.owner(particles_.x[p]) == me) particles_.move(n++, p);
   particles_.truncate(n);
   S.own = n;
-  const IVec wres = S.whi - S.wlo;
-  grid_.resize(wres, S.dx, S.origin, !solids_.empty());
+  fit_window();
+}
+
+template <class T, int Dim>
+void FlipSolver<T, Dim>::fit_window() {
+  const auto& S = *split_;
+  grid_.resize(IVec(S.whi - S.wlo), S.dx, S.origin, !solids_.empty());
   grid_.offset = S.wlo;
 }
 
@@ -60,16 +63,13 @@ void FlipSolver<T, Dim>::rebalance() {
   // solve's start, kept where the windows overlap); particles go to their new owners, which
   // need not be peers: every rank exchanges with every other.
   auto& S = *split_;
-  std::vector<double> counts(std::size_t(S.blocks().prod()), 0.0);
-  for (const auto& x : particles_.x) counts[std::size_t(S.block_index(S.cell_of(x)))] += 1;
   const IVec old_lo = S.wlo, old_hi = S.whi;
-  S.place(counts, true);
+  S.place(S.block_counts(particles_.x), true);
   if (S.wlo != old_lo || S.whi != old_hi) {
-    const IVec old_res = old_hi - old_lo, wres = S.whi - S.wlo;
+    const IVec old_res = old_hi - old_lo;
     std::vector<T> old_pressure;
     old_pressure.swap(grid_.pressure);
-    grid_.resize(wres, S.dx, S.origin, !solids_.empty());
-    grid_.offset = S.wlo;
+    fit_window();
     for (std::int64_t k = 0; k < grid_.num_cells(); ++k) {
       const IVec i = S.domain_cell(k);
       if ((i.array() >= old_lo.array()).all() && (i.array() < old_hi.array()).all())
@@ -77,24 +77,10 @@ void FlipSolver<T, Dim>::rebalance() {
     }
     faces_ready_ = false;
   }
-  const int me = S.comm->rank(), ranks = S.comm->size();
   std::vector<int> everyone;
-  for (int q = 0; q < ranks; ++q)
-    if (q != me) everyone.push_back(q);
-  std::vector<std::string> out(everyone.size());
-  auto& P = particles_;
-  std::size_t n = 0;
-  for (std::size_t p = 0; p < P.size(); ++p) {
-    const int q = S.owner(P.x[p]);
-    if (q == me)
-      P.move(n++, p);
-    else
-      detail::pack_particle(P, p, out[std::size_t(q < me ? q : q - 1)]);
-  }
-  P.truncate(n);
-  const auto in = S.comm->exchange(everyone, out);
-  for (const auto& m : in) detail::unpack_particles(m, P);
-  S.own = P.size();
+  for (int q = 0; q < S.comm->size(); ++q)
+    if (q != S.comm->rank()) everyone.push_back(q);
+  send_to_owners(everyone);
 }
 
 template <class T, int Dim>
@@ -128,12 +114,19 @@ void FlipSolver<T, Dim>::drop_ghosts() {
 
 template <class T, int Dim>
 void FlipSolver<T, Dim>::migrate() {
+  send_to_owners(split_->peers);  // a particle moves less than a band per substep
+}
+
+template <class T, int Dim>
+void FlipSolver<T, Dim>::send_to_owners(const std::vector<int>& ranks) {
+  // Keeps the particles this rank owns and sends each other one to its owner, which must be one
+  // of `ranks` (distinct, mutual between the ranks, as Communicator::exchange needs).
   auto& S = *split_;
   auto& P = particles_;
   const int me = S.comm->rank();
   std::vector<int> slot(std::size_t(S.comm->size()), -1);
-  for (std::size_t k = 0; k < S.peers.size(); ++k) slot[std::size_t(S.peers[k])] = int(k);
-  std::vector<std::string> out(S.peers.size());
+  for (std::size_t k = 0; k < ranks.size(); ++k) slot[std::size_t(ranks[k])] = int(k);
+  std::vector<std::string> out(ranks.size());
   std::size_t n = 0;
   for (std::size_t p = 0; p < P.size(); ++p) {
     const int q = S.owner(P.x[p]);
@@ -147,7 +140,7 @@ void FlipSolver<T, Dim>::migrate() {
     detail::pack_particle(P, p, out[std::size_t(slot[std::size_t(q)])]);
   }
   P.truncate(n);
-  const auto in = S.comm->exchange(S.peers, out);
+  const auto in = S.comm->exchange(ranks, out);
   for (const auto& m : in) detail::unpack_particles(m, P);
   S.own = P.size();
 }

@@ -206,7 +206,9 @@ class FlipSolver final : public Solver {
 
   // A run split over processes (flip/split.h).
   void split_particles();
+  void fit_window();
   void rebalance();
+  void send_to_owners(const std::vector<int>& ranks);
   void exchange_ghosts();
   void drop_ghosts();
   void migrate();
