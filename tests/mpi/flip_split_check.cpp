@@ -3,11 +3,13 @@
 // solver's own multigrid-preconditioned CG), under mpirun -np N (ctest label "mpi").
 //
 //   flip_split_check SCENE FRAMES EXACT_FRAMES MAX_CELLS MEAN_CELLS [TOLERANCE [REFERENCE_TOLERANCE]]
-//                    [--resume-at=F]
+//                    [--resume-at=F [--per-rank]]
 //
 // With --resume-at=F the split run saves its state after frame F (gathered on rank 0, the
 // checkpoint's layout) and goes on from it in a new split simulation; rank 0 also loads it into
 // a one-process simulation, and the check compares both with the uninterrupted one-process run.
+// With --per-rank every process saves its own part instead (save_own_state, the parts of
+// output.per_rank checkpoints), and both load the parts (load_state_parts).
 //
 // REFERENCE_TOLERANCE, if given, is the one-process run's pressure tolerance: under mpirun -np 1
 // (no split) the check then measures how far two one-process runs drift apart that differ only
@@ -73,7 +75,7 @@ const slurry::flip::ProjectionReport& projection(const slurry::Solver& s) {
 
 template <class T, int Dim>
 int check(slurry::mpi::Session& mpi, const slurry::Scene& scene, const slurry::Scene& reference, int frames, int exact,
-          double max_cells, double mean_cells, int resume_at) {
+          double max_cells, double mean_cells, int resume_at, bool per_rank) {
   auto split = slurry::make_simulation(scene, &mpi);
   std::unique_ptr<slurry::Solver> one;
   const bool root = mpi.rank() == 0;
@@ -91,20 +93,31 @@ int check(slurry::mpi::Session& mpi, const slurry::Scene& scene, const slurry::S
     split->advance_to(t);
     if (root) one->advance_to(t);
     if (f == resume_at) {
+      const std::string what = "the split run's state at frame " + std::to_string(f);
       std::string state;
-      split->save_state(state);
-      const std::string whole = mpi.all_gather(root ? state : std::string())[0];
-      if (whole.empty()) {
+      if (per_rank)
+        split->save_own_state([&state](const char* data, std::size_t size) { state.append(data, size); });
+      else
+        split->save_state(state);
+      const std::vector<std::string> saved = mpi.all_gather(per_rank || root ? state : std::string());
+      const auto load = [&](slurry::Solver& s) {
+        if (per_rank)
+          s.load_state_parts(int(saved.size()), [&saved](int i) { return saved[std::size_t(i)]; }, what);
+        else
+          s.load_state(saved[0], what);
+      };
+      if (saved[0].empty()) {
         if (root) std::printf("FAIL: frame %d: the split run saved an empty state\n", f);
         ++failed;
       }
       auto resumed = slurry::make_simulation(scene, &mpi);
-      resumed->load_state(whole, "the split run's state at frame " + std::to_string(f));
+      load(*resumed);
       split = std::move(resumed);
       if (root) {
         solo = slurry::make_simulation(reference, nullptr);
-        solo->load_state(whole, "the split run's state at frame " + std::to_string(f));
-        std::printf("resumed at frame %d over %d processes and in one process (%zu bytes)\n", f, mpi.size(), whole.size());
+        load(*solo);
+        std::printf("resumed at frame %d over %d processes and in one process (%s, %zu bytes on rank 0)\n", f, mpi.size(),
+                    per_rank ? "per-process parts" : "gathered", saved[0].size());
       }
     }
     (void)split->frame({"position"});  // gathers every particle on rank 0 (particle_storage)
@@ -160,8 +173,19 @@ int main(int argc, char** argv) {
   }
   try {
     int resume_at = -1;
-    for (int a = 6; a < argc; ++a)
-      if (std::string(argv[a]).rfind("--resume-at=", 0) == 0) resume_at = std::atoi(argv[a] + 12), argc = a;
+    bool per_rank = false;
+    for (int a = 6; a < argc; ++a) {
+      const std::string arg = argv[a];
+      if (arg.rfind("--resume-at=", 0) == 0 || arg == "--per-rank") {
+        for (int b = a; b < argc; ++b) {
+          const std::string flag = argv[b];
+          if (flag.rfind("--resume-at=", 0) == 0) resume_at = std::atoi(argv[b] + 12);
+          if (flag == "--per-rank") per_rank = true;
+        }
+        argc = a;
+        break;
+      }
+    }
     slurry::Scene scene = slurry::load_scene(argv[1]);
     scene.output.checkpoint_every = 0;
     if (argc > 6) scene.solver.pressure.tolerance = std::atof(argv[6]);
@@ -171,10 +195,10 @@ int main(int argc, char** argv) {
     const double max_cells = std::atof(argv[4]), mean_cells = std::atof(argv[5]);
     const bool dbl = scene.solver.precision == slurry::Precision::Double;
     if (scene.solver.dimension == 2)
-      return dbl ? check<double, 2>(mpi, scene, reference, frames, exact, max_cells, mean_cells, resume_at)
-                 : check<float, 2>(mpi, scene, reference, frames, exact, max_cells, mean_cells, resume_at);
-    return dbl ? check<double, 3>(mpi, scene, reference, frames, exact, max_cells, mean_cells, resume_at)
-               : check<float, 3>(mpi, scene, reference, frames, exact, max_cells, mean_cells, resume_at);
+      return dbl ? check<double, 2>(mpi, scene, reference, frames, exact, max_cells, mean_cells, resume_at, per_rank)
+                 : check<float, 2>(mpi, scene, reference, frames, exact, max_cells, mean_cells, resume_at, per_rank);
+    return dbl ? check<double, 3>(mpi, scene, reference, frames, exact, max_cells, mean_cells, resume_at, per_rank)
+               : check<float, 3>(mpi, scene, reference, frames, exact, max_cells, mean_cells, resume_at, per_rank);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "rank %d: %s\n", mpi.rank(), e.what());
     return 1;

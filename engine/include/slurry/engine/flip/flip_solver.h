@@ -134,6 +134,11 @@ class FlipSolver final : public Solver {
   using Solver::save_state;
   void save_state(const StateSink& sink) const override;
   void load_state(std::string_view in, const std::string& what) override;
+  /// A split run's part: this process's particles and its box's grid fields (output.per_rank).
+  void save_own_state(const StateSink& sink) const override;
+  /// The parts of a split run's per-process checkpoint, on any number of processes (one included):
+  /// each process keeps the particles it owns and its window of the parts' fields.
+  void load_state_parts(int parts, const std::function<std::string(int)>& part, const std::string& what) override;
   /// Largest particle speed after the last substep (m/s).
   T max_speed() const { return max_speed_; }
   /// Particle volume dx^Dim / particles_per_cell (the nominal seeding density).
@@ -216,8 +221,16 @@ class FlipSolver final : public Solver {
   ProjectionReport split_projection(T dt, const Target& target_flux);
   std::vector<double> own_cell_counts() const;
   FlipParticles<T, Dim> gather_particles() const;
-  void write_state(const StateSink& out, const FlipParticles<T, Dim>& P, const Grid& grid) const;
-  void read_state(std::string_view in, const std::string& what, FlipParticles<T, Dim>& P, Grid& grid);
+  // One process's part of a split run's state (output.per_rank checkpoints): which of how many,
+  // and its box of cells, [lo, hi), over which the part holds the grid fields.
+  struct StatePart {
+    int rank = 0, ranks = 1;
+    IVec lo = IVec::Zero(), hi = IVec::Zero();
+  };
+  void write_state(const StateSink& out, const FlipParticles<T, Dim>& P, const Grid& grid,
+                   const StatePart* part = nullptr) const;
+  void read_state(std::string_view in, const std::string& what, FlipParticles<T, Dim>& P, Grid& grid,
+                  StatePart* part = nullptr);
   Scene scene_;
   FlipSolver(const FlipSolver&) = delete;
   FaceScheme scheme_ = FaceScheme::APIC;
