@@ -13,6 +13,11 @@
 #                                                  FRAMES/2: each process wrote its own checkpoint part (no
 #                                                  whole checkpoint); resumed over NP2 (1 included) from the
 #                                                  parts; the frames, merged, equal one process's
+#   NEAR=CELLS mpi_check.sh ...                    (a FLIP liquid, whose split solves the pressure
+#                                                  otherwise) instead of byte-identical frames: each
+#                                                  particle, matched by id, within CELLS of its place
+#                                                  in the one-process frame (tests/mpi/ply_distance.py,
+#                                                  run by $PYTHON, else python3)
 # Every frame must be byte-identical to the one-process run's (cmp); stats.csv's mass and momentum,
 # summed in another order over the ranks, must agree to 1e-9 (mass: relative; momentum: of
 # sqrt(2 M K), which bounds sum m |v|). The split is checked to have happened (the per-frame log
@@ -52,6 +57,19 @@ fi
 
 compare() {  # DIR LABEL
   local dir=$1 label=$2 n=0
+  if [ -n "${NEAR:-}" ]; then
+    local dx worst=0 far
+    dx=$(grep -o '"dx": *[0-9.e+-]*' "$scene" | head -1 | sed 's/.*: *//')
+    for f in "$work"/one/frame_*.ply; do
+      far=$("${PYTHON:-python3}" "$(dirname "$0")/ply_distance.py" "$f" "$dir/$(basename "$f")" "$dx" "$NEAR") ||
+        fail "$label: $(basename "$f"): a particle more than $NEAR cells from the one-process run's (largest, mean: ${far:-none})"
+      worst=$(awk -v a="$worst" -v b="${far%% *}" 'BEGIN { print (b > a ? b : a) }')
+      n=$((n + 1))
+    done
+    [ "$n" -eq $((frames + 1)) ] || fail "$label: $n frames, expected $((frames + 1))"
+    echo "$name: $label: $n frames, every particle within $worst cells of one process's (at most $NEAR)"
+    return
+  fi
   for f in "$work"/one/frame_*.ply; do
     cmp -s "$f" "$dir/$(basename "$f")" || fail "$label: $(basename "$f") differs from the one-process run's (or is missing)"
     n=$((n + 1))
@@ -76,7 +94,8 @@ if [ "${1:-}" = resume ] || [ "${1:-}" = per_rank_resume ]; then
   # per_rank_resume.
   keys='"checkpoint_every": 1,'
   [ "$mode" = resume ] || keys='"per_rank": true, "checkpoint_every": 1,'
-  sed "s/\"output\": {/\"output\": { $keys/" "$scene" > "$work/$name.json"
+  # Compared by id when NEAR is set: the frames list the id.
+  sed -e "s/\"output\": {/\"output\": { $keys/" -e "${NEAR:+s/\"attributes\": \[/\"attributes\": [\"id\", /}" "$scene" > "$work/$name.json"
   scene="$work/$name.json"
   mkdir -p "$work/resumed"
   split_run "$np1" "$work/resumed" --frames "$half" --quiet || fail "mpirun -np $np1 (first half) failed"
