@@ -27,13 +27,16 @@
 // first EXACT_FRAMES frames has a largest distance above MAX_CELLS, any frame a mean distance
 // above MEAN_CELLS, the particle counts differ, the volumes differ by more than 0.5%, a split
 // projection did not converge, or its divergence exceeds the one-process run's by more than a
-// factor 10 plus 1e-3 1/s.
+// factor 10 plus 1e-3 1/s. With whitewater (solver.whitewater) the secondary particles of the
+// first EXACT_FRAMES frames must also be the same (ids) and within MAX_CELLS of one process's.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <memory>
 #include <string>
 #include <unordered_map>
+#include <vector>
 
 #include "slurry/engine/flip/flip_solver.h"
 #include "slurry/engine/run/run.h"
@@ -65,6 +68,37 @@ Row distance(const slurry::Solver& split, const slurry::Solver& one, double dx) 
     r.mean_cells += d;
   }
   if (a.size() > 0) r.mean_cells /= double(a.size());
+  return r;
+}
+
+/// Secondary particles (solver.whitewater) of the two runs' frames (whitewater_frame_view: the
+/// split run's gathered on rank 0): their counts and, when they hold the same ids, the largest
+/// distance between a particle's positions, in cells.
+struct Secondary {
+  std::size_t split = 0, one = 0;
+  bool same_ids = false;
+  double max_cells = 0;
+};
+
+Secondary whitewater_distance(const slurry::Frame& a, const slurry::Frame& b, double dx, int dim) {
+  Secondary r;
+  const auto columns = [dim](const slurry::Frame& f) {
+    std::vector<std::vector<double>> c;
+    if (f.tables.empty()) return c;
+    for (const char* name : {"id", "x", "y", "z"})
+      if (name[0] == 'i' || (name[0] - 'x') < dim) c.push_back(f.tables[0].column_as_double(name));
+    return c;
+  };
+  const auto ca = columns(a), cb = columns(b);
+  r.split = ca.empty() ? 0 : ca[0].size();
+  r.one = cb.empty() ? 0 : cb[0].size();
+  r.same_ids = r.split == r.one && (ca.empty() || ca[0] == cb[0]);  // both in ascending id
+  if (!r.same_ids) return r;
+  for (std::size_t i = 0; i < r.split; ++i) {
+    double d2 = 0;
+    for (std::size_t k = 1; k < ca.size(); ++k) d2 += (ca[k][i] - cb[k][i]) * (ca[k][i] - cb[k][i]);
+    r.max_cells = std::max(r.max_cells, std::sqrt(d2) / dx);
+  }
   return r;
 }
 
@@ -125,6 +159,7 @@ int check(slurry::mpi::Session& mpi, const slurry::Scene& scene, const slurry::S
     const auto& ps = projection<T, Dim>(*split);
     if (solo && f > resume_at) solo->advance_to(t);
     const std::string status = split->solver_status();
+    const slurry::Frame split_whitewater = split->whitewater_frame_view();  // every rank: a gather
     if (!root) continue;
     if (f == 1) std::printf("split: %s\n", status.c_str());
     const slurry::RunStats o = one->take_stats();
@@ -147,6 +182,15 @@ int check(slurry::mpi::Session& mpi, const slurry::Scene& scene, const slurry::S
     if (!ps.converged) std::printf("FAIL: frame %d: the split pressure solve did not converge\n", f), ++failed;
     if (!(ps.max_divergence <= 10 * po.max_divergence + 1e-3))
       std::printf("FAIL: frame %d: max |div u| %.3g, one process %.3g\n", f, ps.max_divergence, po.max_divergence), ++failed;
+    if (scene.solver.whitewater.enabled) {
+      const Secondary w = whitewater_distance(split_whitewater, one->whitewater_frame_view(), scene.domain.dx, Dim);
+      std::printf("|   whitewater | %zu particles, one process %zu | %s |\n", w.split, w.one,
+                  w.same_ids ? ("the same ids, largest distance " + std::to_string(w.max_cells) + " cells").c_str()
+                             : "other ids");
+      if (f <= exact && !(w.same_ids && w.max_cells <= max_cells))
+        std::printf("FAIL: frame %d: whitewater %zu particles, one process %zu (%s, %.3g cells apart)\n", f, w.split, w.one,
+                    w.same_ids ? "the same ids" : "other ids", w.max_cells), ++failed;
+    }
   }
   if (root) {  // where the time went: rank 0 of the split run against the one-process run
     const auto& a = dynamic_cast<const slurry::flip::FlipSolver<T, Dim>&>(*split).phase_seconds();

@@ -118,13 +118,14 @@ FlipSolver<T, Dim>::FlipSolver(const Scene& scene, Communicator* communicator) :
     if (scene_.solver.reseed.min_per_cell > 0 || scene_.solver.reseed.max_per_cell > 0) refused = "solver.reseed";
     else if (viscous_) refused = "materials[].viscosity";
     else if (sigma_ > T(0)) refused = "materials[].surface_tension";
-    else if (whitewater_) refused = "solver.whitewater";
+    else if (whitewater_ && scene_.output.per_rank) refused = "output.per_rank with solver.whitewater";
     else if (scene_.solver.on_instability == OnInstability::Retry) refused = "solver.on_instability \"retry\"";
     if (!refused.empty())
       throw SceneError(scene_.source + ": " + refused + ": a FLIP run split over " + std::to_string(ranks) +
                        " processes (mpirun -np " + std::to_string(ranks) +
-                       ") does not support it yet; expected a liquid without reseeding, viscosity, "
-                       "surface tension or whitewater, with solver.on_instability \"stop\"; or mpirun -np 1");
+                       ") does not support it yet; expected a liquid without reseeding, viscosity or "
+                       "surface tension, with solver.on_instability \"stop\" and whitewater in gathered frames; "
+                       "or mpirun -np 1");
     split_ = std::make_unique<detail::FlipSplit<T, Dim>>(communicator, res, origin, dx);
     split_particles();
   }
@@ -164,7 +165,7 @@ std::string FlipSolver<T, Dim>::solver_status() const {
     status += buf;
   }
   if (whitewater_) {
-    const WhitewaterCounts c = whitewater_->counts();
+    const WhitewaterCounts c = whitewater_counts();
     std::snprintf(buf, sizeof buf, "; whitewater %zu spray, %zu foam, %zu bubbles", c.spray, c.foam, c.bubble);
     status += buf;
   }
@@ -211,6 +212,7 @@ std::int64_t FlipSolver<T, Dim>::advance_to(double t_end) {
   const std::uint64_t sent = split_ ? split_->comm->exchanged_bytes() : 0;
   const auto n = substep_to(time_, t_end, [&] { return dt_scale_ * double(stable_dt()); }, [&](double dt) { step(T(dt)); }, scene_);
   if (split_ && n > 0) split_->bytes_per_substep = double(split_->comm->exchanged_bytes() - sent) / double(n);
+  if (split_ && whitewater_) count_split_whitewater();
   return n;
 }
 
@@ -268,7 +270,8 @@ void FlipSolver<T, Dim>::step(T dt) {
   cfl_reached_ = std::max(cfl_reached_, max_speed_ * dt / grid_.dx);
   reseed();
   lap(kReseed);
-  if (whitewater_) whitewater_->step(grid_, solids_, time_, dt, steps_, x_lo_, x_hi_);
+  if (whitewater_ && split_) split_whitewater(dt);
+  else if (whitewater_) whitewater_->step(grid_, solids_, time_, dt, steps_, x_lo_, x_hi_);
   lap(kWhitewater);
   time_ += double(dt);
   ++steps_;
@@ -859,7 +862,11 @@ Frame FlipSolver<T, Dim>::own_frame(const std::vector<std::string>& attributes) 
 template <class T, int Dim>
 Frame FlipSolver<T, Dim>::whitewater_frame_view() const {
   if (!whitewater_) return {};
-  const auto& W = whitewater_->particles();
+  if (split_) {  // every rank's, gathered on rank 0 in id order (which writes it)
+    split_->whitewater_gathered = gather_whitewater();
+    if (split_->comm->rank() != 0) return {};
+  }
+  const auto& W = split_ ? split_->whitewater_gathered : whitewater_->particles();
   slurry::detail::VertexFrame out("flip whitewater ", time_, scene_.source, W.size());
   out.borrow_positions<Dim>(W.x);
   out.borrow_velocities<Dim>(W.v);

@@ -33,6 +33,7 @@
 #include "slurry/engine/communicator.h"
 #include "slurry/engine/errors.h"
 #include "slurry/engine/flip/flip_particles.h"
+#include "slurry/engine/flip/whitewater.h"
 #include "slurry/transfer/lattice.h"
 
 namespace slurry::flip::detail {
@@ -60,6 +61,8 @@ struct FlipSplit {
   double fewest = 0, most = 0;        ///< particles on the least and most loaded rank
   double bytes_per_substep = 0;
   mutable FlipParticles<T, Dim> gathered;  ///< rank 0: every particle in id order, as of the last frame
+  mutable WhitewaterParticles<T, Dim> whitewater_gathered;  ///< rank 0: every whitewater particle, id order
+  WhitewaterCounts whitewater;  ///< over every rank, as of the last advance_to()
 
   FlipSplit(Communicator* c, const IVec& cells, const Vec& lower, T cell) : comm(c), res(cells), origin(lower), dx(cell) {}
 
@@ -271,6 +274,54 @@ void unpack_particles(std::string_view in, FlipParticles<T, Dim>& P) {
       P.material.push_back(m);
     }
   }
+}
+
+/// Cells of the ring around a box whose labels and level set the split whitewater phase takes
+/// from their owners: the depth field of a cell reads labels up to ceil(bubble_depth) + 2 layers
+/// away, an own cell's potentials read its neighbours' normals (2 cells more), and new particles
+/// start up to 2 cells beyond their cell (whitewater.h), read trilinearly (1 more).
+inline int whitewater_ring(double bubble_depth) { return int(std::ceil(bubble_depth)) + 2 + 5; }
+
+/// Appends whitewater particle i of W to `out` (position, velocity, life, id, type).
+template <class T, int Dim>
+void pack_whitewater(const WhitewaterParticles<T, Dim>& W, std::size_t i, std::string& out) {
+  const auto put = [&out](const auto& v) { out.append(reinterpret_cast<const char*>(&v), sizeof v); };
+  put(W.x[i]), put(W.v[i]), put(W.life[i]), put(W.id[i]), put(W.type[i]);
+}
+
+/// Appends the whitewater particles packed in `in` (pack_whitewater) to W.
+template <class T, int Dim>
+void unpack_whitewater(std::string_view in, WhitewaterParticles<T, Dim>& W) {
+  using Vec = Eigen::Matrix<T, Dim, 1>;
+  constexpr std::size_t each = 2 * sizeof(Vec) + sizeof(T) + sizeof(std::uint32_t) + 1;
+  if (in.size() % each != 0) throw SimulationError("split FLIP: a whitewater message has a partial particle");
+  std::size_t at = 0;
+  const auto get = [&](auto& v) {
+    std::memcpy(static_cast<void*>(&v), in.data() + at, sizeof v);
+    at += sizeof v;
+  };
+  while (at < in.size()) {
+    const std::size_t i = W.size();
+    W.resize(i + 1);
+    get(W.x[i]), get(W.v[i]), get(W.life[i]), get(W.id[i]), get(W.type[i]);
+  }
+}
+
+/// Whitewater particles back in ascending id (the order one process keeps: the oldest first).
+template <class T, int Dim>
+void sort_whitewater(WhitewaterParticles<T, Dim>& W) {
+  if (std::is_sorted(W.id.begin(), W.id.end())) return;
+  std::vector<std::size_t> order(W.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::sort(order.begin(), order.end(), [&W](std::size_t a, std::size_t b) { return W.id[a] < W.id[b]; });
+  WhitewaterParticles<T, Dim> sorted;
+  sorted.resize(W.size());
+  for (std::size_t k = 0; k < order.size(); ++k) {
+    const std::size_t i = order[k];
+    sorted.x[k] = W.x[i], sorted.v[k] = W.v[i], sorted.life[k] = W.life[i], sorted.id[k] = W.id[i], sorted.type[k] = W.type[i];
+  }
+  sorted.next_id = W.next_id;
+  W = std::move(sorted);
 }
 
 }  // namespace slurry::flip::detail

@@ -37,6 +37,7 @@ void FlipSolver<T, Dim>::split_particles() {
   const double reach = scene_.solver.advection == AdvectionScheme::Midpoint ? 0.5 : 1.0;
   const int layers = std::max(int(std::ceil(reach * scene_.solver.cfl)) + order_ + 1, order_ + Dim - 1);
   S.band = 2 * layers + 2;
+  if (whitewater_) S.band = std::max(S.band, detail::whitewater_ring(scene_.solver.whitewater.bubble_depth));
   S.reach = layers;
   S.ghost = order_ + 1;
   S.place(S.block_counts(particles_.x), false);  // every rank holds every particle here
@@ -81,6 +82,7 @@ void FlipSolver<T, Dim>::rebalance() {
   for (int q = 0; q < S.comm->size(); ++q)
     if (q != S.comm->rank()) everyone.push_back(q);
   send_to_owners(everyone);
+  if (whitewater_) send_whitewater_to_owners(true);
 }
 
 template <class T, int Dim>

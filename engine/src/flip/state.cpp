@@ -40,7 +40,15 @@ void FlipSolver<T, Dim>::save_state(const StateSink& out) const {
     whole.label = S.gather(grid_.label, -1);
     whole.phi = S.gather(grid_.phi, -1);
     whole.pressure = S.gather(grid_.pressure, -1);
-    if (S.comm->rank() == 0) write_state(out, all, whole);
+    WhitewaterParticles<T, Dim> ww;
+    double counters[2] = {0, 0};
+    if (whitewater_) {
+      ww = gather_whitewater();
+      counters[0] = double(whitewater_->generated()), counters[1] = double(whitewater_->removed());
+      S.comm->sum(counters, 2);
+    }
+    if (S.comm->rank() == 0)
+      write_state(out, all, whole, nullptr, whitewater_ ? &ww : nullptr, std::int64_t(counters[0]), std::int64_t(counters[1]));
     return;
   }
   write_state(out, particles_, grid_);
@@ -48,7 +56,8 @@ void FlipSolver<T, Dim>::save_state(const StateSink& out) const {
 
 template <class T, int Dim>
 void FlipSolver<T, Dim>::write_state(const StateSink& out, const FlipParticles<T, Dim>& P, const Grid& grid,
-                                     const StatePart* part) const {
+                                     const StatePart* part, const WhitewaterParticles<T, Dim>* whitewater,
+                                     std::int64_t generated, std::int64_t removed) const {
   slurry::detail::StateWriter w(out);
   slurry::detail::write_layout<T, Dim>(w, slurry::detail::kTagFlip);
   if (part) {
@@ -98,15 +107,15 @@ void FlipSolver<T, Dim>::write_state(const StateSink& out, const FlipParticles<T
   w.pod(lp.max_divergence);
   w.pod(lp.unknowns);
   if (whitewater_) {  // only in the state of a scene with whitewater: others keep their layout
-    const auto& W = whitewater_->particles();
+    const auto& W = whitewater ? *whitewater : whitewater_->particles();
     w.vec(W.x);
     w.vec(W.v);
     w.vec(W.life);
     w.vec(W.id);
     w.vec(W.type);
     w.pod(W.next_id);
-    w.pod(whitewater_->generated());
-    w.pod(whitewater_->removed());
+    w.pod(whitewater ? generated : whitewater_->generated());
+    w.pod(whitewater ? removed : whitewater_->removed());
   }
   w.tag(slurry::detail::kTagEnd);
 }
@@ -144,6 +153,14 @@ void FlipSolver<T, Dim>::load_state(std::string_view in, const std::string& what
   S.crop(whole.label, grid_.label, -1);
   S.crop(whole.phi, grid_.phi, -1);
   S.crop(whole.pressure, grid_.pressure, -1);
+  if (whitewater_) {  // the secondary particles in this rank's box; rank 0 keeps the counters
+    auto& W = whitewater_->particles();
+    std::size_t k = 0;
+    for (std::size_t i = 0; i < W.size(); ++i)
+      if (S.owner(W.x[i]) == me) W.move(k++, i);
+    W.resize(k);
+    if (me != 0) whitewater_->generated() = 0, whitewater_->removed() = 0;
+  }
 }
 
 template <class T, int Dim>
@@ -251,9 +268,10 @@ void FlipSolver<T, Dim>::load_state_parts(int parts, const std::function<std::st
   const IVec res = split_ ? split_->res : grid_.res;
   const IVec wlo = split_ ? split_->wlo : IVec::Zero(), wres = split_ ? IVec(split_->whi - split_->wlo) : grid_.res;
   const int me = split_ ? split_->comm->rank() : 0;
-  std::string mine;  // the kept particles, packed
+  std::string mine, mine_whitewater;  // the kept particles, packed
   std::uint64_t total = 0;
-  std::uint32_t next_id = 0;
+  std::uint32_t next_id = 0, next_whitewater_id = 0;
+  std::int64_t generated = 0, removed = 0;
   for (int i = 0; i < parts; ++i) {
     const std::string name = what + " (part " + std::to_string(i) + ")";
     FlipParticles<T, Dim> Q;
@@ -270,6 +288,13 @@ void FlipSolver<T, Dim>::load_state_parts(int parts, const std::function<std::st
     next_id = std::max(next_id, Q.next_id);
     for (std::size_t p = 0; p < Q.size(); ++p)
       if (!split_ || split_->owner(Q.x[p]) == me) detail::pack_particle(Q, p, mine);
+    if (whitewater_) {  // read into whitewater_ by read_state: this part's secondary particles and counters
+      const auto& W = whitewater_->particles();
+      for (std::size_t p = 0; p < W.size(); ++p)
+        if (!split_ || split_->owner(W.x[p]) == me) detail::pack_whitewater(W, p, mine_whitewater);
+      next_whitewater_id = std::max(next_whitewater_id, W.next_id);
+      generated += whitewater_->generated(), removed += whitewater_->removed();
+    }
     const auto paste = [&](const auto& from, auto& to, int axis) {
       IVec n = info.hi - info.lo, window = wres;
       if (axis >= 0) window[axis] += 1, n[axis] += info.hi[axis] == res[axis] ? 1 : 0;
@@ -295,6 +320,15 @@ void FlipSolver<T, Dim>::load_state_parts(int parts, const std::function<std::st
   P.next_id = next_id;
   particles_ = std::move(P);
   if (split_) split_->own = particles_.size(), split_->total = total;
+  if (whitewater_) {
+    WhitewaterParticles<T, Dim> W;
+    detail::unpack_whitewater(mine_whitewater, W);
+    detail::sort_whitewater(W);
+    W.next_id = next_whitewater_id;
+    whitewater_->particles() = std::move(W);
+    whitewater_->generated() = me == 0 ? generated : 0;
+    whitewater_->removed() = me == 0 ? removed : 0;
+  }
 }
 
 #define SLURRY_FLIP_STATE(T, Dim)                                                                      \
@@ -304,7 +338,9 @@ void FlipSolver<T, Dim>::load_state_parts(int parts, const std::function<std::st
   template void FlipSolver<T, Dim>::load_state_parts(int, const std::function<std::string(int)>&,     \
                                                      const std::string&);              \
   template void FlipSolver<T, Dim>::write_state(const StateSink&, const FlipParticles<T, Dim>&,      \
-                                                const Grid&, const StatePart*) const;                \
+                                                const Grid&, const StatePart*,                       \
+                                                const WhitewaterParticles<T, Dim>*, std::int64_t,    \
+                                                std::int64_t) const;                                 \
   template void FlipSolver<T, Dim>::read_state(std::string_view, const std::string&,                 \
                                                FlipParticles<T, Dim>&, Grid&, StatePart*);
 SLURRY_FLIP_STATE(float, 2)

@@ -156,6 +156,9 @@ class FlipSolver final : public Solver {
   std::int64_t reseeded_removed() const { return reseed_removed_; }
   /// The secondary particles (solver.whitewater), or null when the scene has none.
   const Whitewater<T, Dim>* whitewater() const { return whitewater_.get(); }
+  /// The secondary particles by type, over every process of a split run (as of the last
+  /// advance_to()); zero without whitewater.
+  WhitewaterCounts whitewater_counts() const;
   Whitewater<T, Dim>* whitewater() { return whitewater_.get(); }
   /// The secondary particles as a frame: x, y(, z), vx, vy(, vz), type (uchar), id (uint),
   /// borrowed; no tables without whitewater.
@@ -221,14 +224,25 @@ class FlipSolver final : public Solver {
   ProjectionReport split_projection(T dt, const Target& target_flux);
   std::vector<double> own_cell_counts() const;
   FlipParticles<T, Dim> gather_particles() const;
+  // Whitewater split over processes (split_whitewater.cpp): the substep's phase, the particles
+  // handed to the owners of their cells (peers, or every rank), the limit over every rank, the
+  // counts summed over the ranks, every rank's particles on rank 0 in id order.
+  void split_whitewater(T dt);
+  void send_whitewater_to_owners(bool everyone);
+  void limit_split_whitewater();
+  void count_split_whitewater();
+  WhitewaterParticles<T, Dim> gather_whitewater() const;
   // One process's part of a split run's state (output.per_rank checkpoints): which of how many,
   // and its box of cells, [lo, hi), over which the part holds the grid fields.
   struct StatePart {
     int rank = 0, ranks = 1;
     IVec lo = IVec::Zero(), hi = IVec::Zero();
   };
+  // `whitewater`, `generated`, `removed`: the secondary particles and their counters to write
+  // instead of this process's (a split run's, gathered).
   void write_state(const StateSink& out, const FlipParticles<T, Dim>& P, const Grid& grid,
-                   const StatePart* part = nullptr) const;
+                   const StatePart* part = nullptr, const WhitewaterParticles<T, Dim>* whitewater = nullptr,
+                   std::int64_t generated = 0, std::int64_t removed = 0) const;
   void read_state(std::string_view in, const std::string& what, FlipParticles<T, Dim>& P, Grid& grid,
                   StatePart* part = nullptr);
   Scene scene_;

@@ -59,6 +59,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <functional>
+#include <utility>
 #include <vector>
 
 #include "slurry/engine/flip/face_transfer.h"
@@ -154,6 +156,20 @@ class Whitewater {
   Whitewater() = default;
   Whitewater(const WhitewaterParams& params, const Vec& gravity) : p_(params), gravity_(gravity) {}
 
+  /// Where the grid lies in the domain's when a run is split over processes (the grid is one
+  /// process's window): the domain cell of its first cell, the domain's cells per axis, and the
+  /// cells this process owns, [lo, hi) in the grid's own coordinates. New particles come only
+  /// from owned cells, and the hash counts the domain's cell, so that the processes together
+  /// draw what one process would. `number` takes this process's new particles per generating
+  /// cell (domain cell index, count; in ascending cell order), replaces each count by the cell's
+  /// first id over all the processes' cells in the domain's order, and returns the next id after
+  /// them all: the ids one process gives. Every process calls generate() alike (`number` may
+  /// talk to the others).
+  struct Window {
+    IVec offset = IVec::Zero(), domain_res = IVec::Zero(), lo = IVec::Zero(), hi = IVec::Zero();
+    std::function<std::uint32_t(std::vector<std::pair<std::uint64_t, std::uint32_t>>&)> number;
+  };
+
   /// One substep from t to t + dt, on the grid of this substep (labels and phi of the liquid at
   /// t, face velocities after the projection): classifies the particles by the depth at t, moves
   /// them over dt as that type, ages the foam, classifies them again where they ended (so a
@@ -173,6 +189,23 @@ class Whitewater {
     limit();
   }
 
+  /// step()'s phases one by one, for a run split over processes, which hands the particles to
+  /// the processes that own their cells after move() and after generate(), and applies the
+  /// limit over every process: depth and classification at t, the motion over dt, then
+  /// classify() and remove() where they ended, then generate().
+  void begin(const Grid& g, const Vec& x_lo, const Vec& x_hi) {
+    x_lo_ = x_lo;
+    x_hi_ = x_hi;
+    depth_field(g);
+    classify(g);
+  }
+  void move_particles(const Grid& g, T dt) { move(g, dt); }
+  void classify_and_remove(const Grid& g, const Solids<T, Dim>& solids, double t_end) {
+    classify(g);
+    remove(solids, T(t_end), T(1e-3) * g.dx);
+  }
+  void generate_in(const Grid& g, T dt, std::int64_t substep, const Window& w) { generate(g, dt, substep, &w); }
+
   WhitewaterParticles<T, Dim>& particles() { return P_; }
   const WhitewaterParticles<T, Dim>& particles() const { return P_; }
   const WhitewaterParams& params() const { return p_; }
@@ -191,7 +224,7 @@ class Whitewater {
   }
   std::size_t bytes() const {
     return P_.bytes() + phi_.capacity() * sizeof(T) + layer_.capacity() + vel_.capacity() * sizeof(Vec) +
-           count_.capacity() * sizeof(std::uint32_t) + prev_.capacity();
+           (count_.capacity() + first_id_.capacity()) * sizeof(std::uint32_t) + prev_.capacity();
   }
 
   /// phi_w interpolated (bi/trilinearly) at x, from the last depth_field().
@@ -199,7 +232,7 @@ class Whitewater {
     std::int64_t base = 0, step[Dim];
     T frac[Dim];
     for (int a = 0; a < Dim; ++a) {
-      T s = (x[a] - g.origin[a]) / g.dx - T(0.5);
+      T s = (x[a] - g.origin[a]) / g.dx - T(0.5) - T(g.offset[a]);  // a window's cells (MacGrid::offset)
       s = std::clamp(s, T(0), T(g.res[a] - 1));
       int b = std::min(int(s), std::max(g.res[a] - 2, 0));
       frac[a] = g.res[a] > 1 ? s - T(b) : T(0);
@@ -354,8 +387,14 @@ class Whitewater {
   }
 
   /// The potentials' expected count per cell over dt, rounded by the hash; then the particles.
-  void generate(const Grid& g, T dt, std::int64_t substep) {
+  /// `w`: the grid is a window of a split run's domain (Window).
+  void generate(const Grid& g, T dt, std::int64_t substep, const Window* w = nullptr) {
     const std::int64_t cells = g.num_cells();
+    // The hash's cell counter: the domain's cell index (the grid's own in one process).
+    const auto key = [&](std::int64_t c) {
+      if (!w) return std::uint64_t(c);
+      return std::uint64_t(transfer::lattice_index<Dim>(IVec(g.cell_coord(c) + w->offset), w->domain_res));
+    };
     const T dx = g.dx, h = T(2) * dx;
     const std::uint8_t* label = g.label.data();
     // Cell-centre velocities of the liquid cells.
@@ -391,6 +430,10 @@ class Whitewater {
     count_.assign(std::size_t(cells) + 1, 0);
     parallel::parallel_for(0, cells, [&](std::int64_t c) {
       if (label[c] != Grid::Fluid) return;
+      if (w) {
+        const IVec i = g.cell_coord(c);
+        if (!((i.array() >= w->lo.array()).all() && (i.array() < w->hi.array()).all())) return;
+      }
       const Vec vi = vel_[std::size_t(c)];
       const T ek = whitewater_detail::clamp_potential(T(0.5) * vi.squaredNorm(), ek_lo, ek_hi);
       if (ek <= T(0)) return;
@@ -420,7 +463,7 @@ class Whitewater {
                            k_wc * whitewater_detail::clamp_potential(wc, wc_lo, wc_hi));
       const double expected = double(rate) * double(dt);
       const double whole = std::floor(expected);
-      const double u = whitewater_detail::uniform(seed, std::uint64_t(c), s, 0);
+      const double u = whitewater_detail::uniform(seed, key(c), s, 0);
       count_[std::size_t(c)] = std::uint32_t(whole) + (u < expected - whole ? 1u : 0u);
     });
     // Exclusive prefix sum: each cell's first new particle.
@@ -430,7 +473,21 @@ class Whitewater {
       count_[std::size_t(c)] = std::uint32_t(total);
       total += k;
     }
-    if (total == 0) return;
+    std::uint32_t next_id = P_.next_id + std::uint32_t(total);
+    if (w) {  // the ids over every process's cells; first_id_ holds each generating cell's first
+      std::vector<std::pair<std::uint64_t, std::uint32_t>> mine;
+      std::vector<std::int64_t> at;
+      for (std::int64_t c = 0; c < cells; ++c)
+        if (count_[std::size_t(c) + 1] > count_[std::size_t(c)])
+          mine.emplace_back(key(c), count_[std::size_t(c) + 1] - count_[std::size_t(c)]), at.push_back(c);
+      next_id = w->number(mine);
+      first_id_.resize(std::size_t(cells));
+      for (std::size_t k = 0; k < at.size(); ++k) first_id_[std::size_t(at[k])] = mine[k].second;
+    }
+    if (total == 0) {
+      P_.next_id = next_id;
+      return;
+    }
     auto& P = P_;
     const std::size_t n0 = P.size();
     P.resize(n0 + std::size_t(total));
@@ -443,23 +500,24 @@ class Whitewater {
       const Vec vi = vel_[std::size_t(c)];
       const T speed = vi.norm();
       const Vec dir = speed > T(0) ? Vec(vi / speed) : Vec(Vec::Zero());
-      const Vec corner = g.origin + dx * i.template cast<T>();
+      const Vec corner = g.origin + dx * IVec(i + g.offset).template cast<T>();
+      const std::uint64_t kc = key(c);
       for (std::uint32_t k = first; k < last; ++k) {
         const std::size_t q = n0 + k;
         const std::uint64_t draw = std::uint64_t(k - first);
         Vec x = corner;
         for (int d = 0; d < Dim; ++d)
-          x[d] += dx * T(whitewater_detail::uniform(seed, std::uint64_t(c), s, 1 + draw * 8 + std::uint64_t(d)));
-        x += dir * (h * T(whitewater_detail::uniform(seed, std::uint64_t(c), s, 1 + draw * 8 + 4)));
+          x[d] += dx * T(whitewater_detail::uniform(seed, kc, s, 1 + draw * 8 + std::uint64_t(d)));
+        x += dir * (h * T(whitewater_detail::uniform(seed, kc, s, 1 + draw * 8 + 4)));
         x = x.cwiseMax(x_lo_).cwiseMin(x_hi_);
         P.x[q] = x;
         P.v[q] = liquid_velocity(g, x);
-        P.life[q] = life_lo + life_span * T(whitewater_detail::uniform(seed, std::uint64_t(c), s, 1 + draw * 8 + 5));
-        P.id[q] = id0 + k;
+        P.life[q] = life_lo + life_span * T(whitewater_detail::uniform(seed, kc, s, 1 + draw * 8 + 5));
+        P.id[q] = w ? first_id_[std::size_t(c)] + (k - first) : id0 + k;
         P.type[q] = std::uint8_t(WhitewaterType::Foam);
       }
     });
-    P.next_id = id0 + std::uint32_t(total);
+    P.next_id = next_id;
     generated_ += std::int64_t(total);
     classify(g, n0);  // from the depth where they start (the frame shows it before their first move)
   }
@@ -481,7 +539,7 @@ class Whitewater {
   std::vector<T> phi_;
   std::vector<std::uint8_t> layer_, prev_;
   std::vector<Vec> vel_;
-  std::vector<std::uint32_t> count_;
+  std::vector<std::uint32_t> count_, first_id_;
   std::int64_t generated_ = 0, removed_ = 0;
 };
 
