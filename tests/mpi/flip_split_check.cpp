@@ -26,9 +26,10 @@
 // first EXACT_FRAMES frames, and after them on average. The check fails (exit 1) when one of the
 // first EXACT_FRAMES frames has a largest distance above MAX_CELLS, any frame a mean distance
 // above MEAN_CELLS, the particle counts differ, the volumes differ by more than 0.5%, a split
-// projection did not converge, or its divergence exceeds the one-process run's by more than a
-// factor 10 plus 1e-3 1/s. With whitewater (solver.whitewater) the secondary particles of the
-// first EXACT_FRAMES frames must also be the same (ids) and within MAX_CELLS of one process's.
+// projection did not converge, its divergence exceeds the one-process run's by more than a
+// factor 10 plus 1e-3 1/s, or the surface energy (surface tension) differs by more than 0.1%.
+// With whitewater (solver.whitewater) the secondary particles of the first EXACT_FRAMES frames
+// must also be the same (ids) and within MAX_CELLS of one process's.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -180,6 +181,8 @@ int check(slurry::mpi::Session& mpi, const slurry::Scene& scene, const slurry::S
     if (!(std::abs(s.volume - o.volume) <= 5e-3 * o.volume))
       std::printf("FAIL: frame %d: volume %.6g, one process %.6g\n", f, s.volume, o.volume), ++failed;
     if (!ps.converged) std::printf("FAIL: frame %d: the split pressure solve did not converge\n", f), ++failed;
+    if (!(std::abs(s.surface - o.surface) <= 1e-3 * std::abs(o.surface)))
+      std::printf("FAIL: frame %d: surface energy %.6g J, one process %.6g J\n", f, s.surface, o.surface), ++failed;
     if (!(ps.max_divergence <= 10 * po.max_divergence + 1e-3))
       std::printf("FAIL: frame %d: max |div u| %.3g, one process %.3g\n", f, ps.max_divergence, po.max_divergence), ++failed;
     if (scene.solver.whitewater.enabled) {

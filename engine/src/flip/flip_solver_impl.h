@@ -117,14 +117,13 @@ FlipSolver<T, Dim>::FlipSolver(const Scene& scene, Communicator* communicator) :
     std::string refused;
     if (scene_.solver.reseed.min_per_cell > 0 || scene_.solver.reseed.max_per_cell > 0) refused = "solver.reseed";
     else if (viscous_) refused = "materials[].viscosity";
-    else if (sigma_ > T(0)) refused = "materials[].surface_tension";
     else if (whitewater_ && scene_.output.per_rank) refused = "output.per_rank with solver.whitewater";
     else if (scene_.solver.on_instability == OnInstability::Retry) refused = "solver.on_instability \"retry\"";
     if (!refused.empty())
       throw SceneError(scene_.source + ": " + refused + ": a FLIP run split over " + std::to_string(ranks) +
                        " processes (mpirun -np " + std::to_string(ranks) +
-                       ") does not support it yet; expected a liquid without reseeding, viscosity or "
-                       "surface tension, with solver.on_instability \"stop\" and whitewater in gathered frames; "
+                       ") does not support it yet; expected a liquid without reseeding or viscosity, "
+                       "with solver.on_instability \"stop\" and whitewater in gathered frames; "
                        "or mpirun -np 1");
     split_ = std::make_unique<detail::FlipSplit<T, Dim>>(communicator, res, origin, dx);
     split_particles();
@@ -685,6 +684,21 @@ T FlipSolver<T, Dim>::kinetic_energy() const {
 
 template <class T, int Dim>
 RunStats FlipSolver<T, Dim>::take_stats() {
+  // The area of the liquid's surface (surface tension's energy) over the cells `counted` accepts
+  // (all if empty). Before the first substep no cell is labelled yet: the colliders' cells are
+  // marked Solid for the area's mirrors (else the liquid's contact with them counts as surface),
+  // then the labels are put back.
+  const auto surface_area = [this](const std::function<bool(std::int64_t)>& counted) {
+    std::vector<std::uint8_t> labels;
+    if (steps_ == 0 && !solids_.empty()) {
+      labels = grid_.label;
+      for (std::int64_t k = 0; k < grid_.num_cells(); ++k)
+        grid_.label[std::size_t(k)] = solids_.distance(grid_.cell_center(grid_.cell_coord(k)), T(time_)) < T(0) ? Grid::Solid : Grid::Air;
+    }
+    const double area = surface_tension_.area(grid_, particles_, particles_per_cell(), counted);
+    if (!labels.empty()) grid_.label.swap(labels);
+    return area;
+  };
   RunStats s;
   s.time = time_;
   s.particles = particles_.size();
@@ -708,8 +722,16 @@ RunStats FlipSolver<T, Dim>::take_stats() {
       }
       if (inside) interior += 1, held += count[std::size_t(k)];
     });
+    double area = 0;
+    if (sigma_ > T(0)) {
+      // The colour function of the box's cells reads the particles around them: the ghosts for
+      // the count, then dropped again (exchange_ghosts() appends them after the own particles).
+      exchange_ghosts();
+      area = surface_area([&S](std::int64_t k) { return S.in_box(S.domain_cell(k)); });
+      particles_.truncate(S.own);
+    }
     double sums[] = {s.mass, s.momentum[0], s.momentum[1], s.momentum[2], s.angular_momentum[0], s.angular_momentum[1],
-                     s.angular_momentum[2], s.kinetic, s.potential, double(s.particles), interior, held};
+                     s.angular_momentum[2], s.kinetic, s.potential, double(s.particles), interior, held, area};
     S.comm->sum(sums, int(std::size(sums)));
     s.mass = sums[0];
     s.momentum = {sums[1], sums[2], sums[3]};
@@ -718,6 +740,7 @@ RunStats FlipSolver<T, Dim>::take_stats() {
     s.particles = std::size_t(sums[9]);
     const double cell = std::pow(double(grid_.dx), Dim);
     s.volume = double(s.particles) * (sums[10] > 0 ? cell * sums[10] / sums[11] : double(particle_volume_));
+    s.surface = double(sigma_) * sums[12];
     s.cfl = double(cfl_reached_);  // global already (max_speed_ is)
     cfl_reached_ = 0;
     return s;
@@ -752,19 +775,7 @@ RunStats FlipSolver<T, Dim>::take_stats() {
   }
   const double cell = std::pow(double(grid_.dx), Dim);
   s.volume = double(particles_.size()) * (interior > 0 ? cell * double(interior) / double(held) : double(particle_volume_));
-  if (sigma_ > T(0)) {
-    // Before the first substep no cell is labelled yet: the colliders' cells are marked Solid for
-    // the area's mirrors (else the liquid's contact with them counts as surface), then the
-    // labels are put back.
-    std::vector<std::uint8_t> labels;
-    if (steps_ == 0 && !solids_.empty()) {
-      labels = grid_.label;
-      for (std::int64_t k = 0; k < grid_.num_cells(); ++k)
-        grid_.label[std::size_t(k)] = solids_.distance(grid_.cell_center(grid_.cell_coord(k)), T(time_)) < T(0) ? Grid::Solid : Grid::Air;
-    }
-    s.surface = double(sigma_) * surface_tension_.area(grid_, particles_, particles_per_cell());
-    if (!labels.empty()) grid_.label.swap(labels);
-  }
+  if (sigma_ > T(0)) s.surface = double(sigma_) * surface_area({});
   s.cfl = double(cfl_reached_);
   cfl_reached_ = 0;
   return s;

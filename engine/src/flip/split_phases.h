@@ -40,6 +40,10 @@ void FlipSolver<T, Dim>::split_particles() {
   if (whitewater_) S.band = std::max(S.band, detail::whitewater_ring(scene_.solver.whitewater.bubble_depth));
   S.reach = layers;
   S.ghost = order_ + 1;
+  // Surface tension: the curvature of a cell next to the box reads the colour function up to 6
+  // cells away, which is kept only within 5 cells of the labelled surface (surface_tension.h),
+  // so the labels must be exact up to 11 cells out: every particle of the window comes as a ghost.
+  if (sigma_ > T(0)) S.ghost = S.band;
   S.place(S.block_counts(particles_.x), false);  // every rank holds every particle here
   S.total = particles_.size();
   const int me = S.comm->rank();

@@ -72,6 +72,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <vector>
 
@@ -209,14 +210,19 @@ class SurfaceTension {
   /// the radius (2D), -2.5% against 4 pi R^2 at 8 (3D), +0.03% against pi R / 2 for a quarter disk
   /// of 32 cells in the domain's corner (flip_surface_tension_tests). Only the cells within
   /// kSumReach of the surface count, so the interior's particle noise adds no area. Overwrites
-  /// compute()'s buffers (the next compute() sets them again).
-  double area(const Grid& g, const FlipParticles<T, Dim>& P, T bulk) {
+  /// compute()'s buffers (the next compute() sets them again). `counted`: if given, only the
+  /// cells it accepts are summed (a split run's own box, its window's other cells being its
+  /// neighbours').
+  double area(const Grid& g, const FlipParticles<T, Dim>& P, T bulk,
+              const std::function<bool(std::int64_t)>& counted = {}) {
     const std::int64_t n = g.num_cells();
     colour_.assign(std::size_t(n), T(0));
     // Each particle's linear B-spline weights on the 2^Dim cell centres around it (the
     // transfers' stencil on the lattice of cell centres); weights beyond the domain's side fold
     // back onto the edge cell (the mirror image).
-    const Vec first_centre = g.origin + Vec::Constant(T(0.5) * g.dx);
+    Vec first_centre = g.origin + Vec::Constant(T(0.5) * g.dx);
+    for (int a = 0; a < Dim; ++a)  // a window's first cell (MacGrid::offset)
+      if (g.offset[a] != 0) first_centre[a] += T(g.offset[a]) * g.dx;
     for (const Vec& x : P.x) {
       const transfer::Stencil<T, Dim, 1> st(x - first_centre, T(1) / g.dx, g.dx);
       for (int corner = 0; corner < (1 << Dim); ++corner) {
@@ -253,6 +259,7 @@ class SurfaceTension {
       double sum = 0;
       for (std::int64_t k = lo; k < hi; ++k) {
         if (!normal_band_[std::size_t(k)] || g.label[std::size_t(k)] == Grid::Solid) continue;
+        if (counted && !counted(k)) continue;
         const IVec i = g.cell_coord(k);
         double grad2 = 0;
         for (int a = 0; a < Dim; ++a) {
