@@ -115,14 +115,13 @@ FlipSolver<T, Dim>::FlipSolver(const Scene& scene, Communicator* communicator) :
     // What the split does not carry yet is refused, by its scene key.
     const int ranks = communicator->size();
     std::string refused;
-    if (scene_.solver.reseed.min_per_cell > 0 || scene_.solver.reseed.max_per_cell > 0) refused = "solver.reseed";
-    else if (viscous_) refused = "materials[].viscosity";
+    if (viscous_) refused = "materials[].viscosity";
     else if (whitewater_ && scene_.output.per_rank) refused = "output.per_rank with solver.whitewater";
     else if (scene_.solver.on_instability == OnInstability::Retry) refused = "solver.on_instability \"retry\"";
     if (!refused.empty())
       throw SceneError(scene_.source + ": " + refused + ": a FLIP run split over " + std::to_string(ranks) +
                        " processes (mpirun -np " + std::to_string(ranks) +
-                       ") does not support it yet; expected a liquid without reseeding or viscosity, "
+                       ") does not support it yet; expected a liquid without viscosity, "
                        "with solver.on_instability \"stop\" and whitewater in gathered frames; "
                        "or mpirun -np 1");
     split_ = std::make_unique<detail::FlipSplit<T, Dim>>(communicator, res, origin, dx);
@@ -670,7 +669,18 @@ void FlipSolver<T, Dim>::reseed() {
     else
       gather_faces<2>(g, x, nullptr, v, nullptr, c);
   };
-  const auto counts = reseeder_.run(particles_, grid_, r.min_per_cell, r.max_per_cell, detail::kReseedSeed, steps_, init);
+  typename Reseeder<T, Dim>::Window window;
+  std::vector<double> window_counts;
+  if (split_) {  // new particles only in the own cells, numbered over every rank (seeding.h)
+    auto& S = *split_;
+    window_counts = own_cell_counts(2);
+    window.domain_res = S.res, window.lo = S.lo - S.wlo, window.hi = S.hi - S.wlo, window.counts = &window_counts;
+    window.number = [&S, this](std::vector<std::pair<std::uint64_t, std::uint32_t>>& mine) {
+      return S.number_new(mine, particles_.next_id);
+    };
+  }
+  const auto counts = reseeder_.run(particles_, grid_, r.min_per_cell, r.max_per_cell, detail::kReseedSeed, steps_, init,
+                                    split_ ? &window : nullptr);
   reseed_added_ += counts.added;
   reseed_removed_ += counts.removed;
 }

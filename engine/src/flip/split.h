@@ -25,6 +25,7 @@
 #include <cstring>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -94,6 +95,36 @@ struct FlipSplit {
   std::int64_t local_cell(const IVec& i) const { return transfer::lattice_index<Dim>(IVec(i - wlo), IVec(whi - wlo)); }
   /// Domain cell of window-local cell index k.
   IVec domain_cell(std::int64_t k) const { return IVec(transfer::lattice_coord<Dim>(k, IVec(whi - wlo)) + wlo); }
+
+  /// Numbers new particles over every rank as one process numbers them: `mine` lists this rank's
+  /// new particles per cell (domain cell index, count) in ascending cell order; each count is
+  /// replaced by the cell's first id, `next` plus the counts of every rank's cells before it in
+  /// the domain's order. Returns the next id after them all. Every rank calls it alike.
+  std::uint32_t number_new(std::vector<std::pair<std::uint64_t, std::uint32_t>>& mine, std::uint32_t next) const {
+    std::string out;
+    for (const auto& [cell, count] : mine) {
+      out.append(reinterpret_cast<const char*>(&cell), sizeof cell);
+      out.append(reinterpret_cast<const char*>(&count), sizeof count);
+    }
+    std::vector<std::pair<std::uint64_t, std::uint32_t>> every;
+    for (const auto& m : comm->all_gather(out)) {
+      constexpr std::size_t each = sizeof(std::uint64_t) + sizeof(std::uint32_t);
+      if (m.size() % each != 0) throw SimulationError("split FLIP: a new particles' count message has a partial entry");
+      for (std::size_t at = 0; at < m.size(); at += each) {
+        std::pair<std::uint64_t, std::uint32_t> e;
+        std::memcpy(&e.first, m.data() + at, sizeof e.first);
+        std::memcpy(&e.second, m.data() + at + sizeof e.first, sizeof e.second);
+        every.push_back(e);
+      }
+    }
+    std::sort(every.begin(), every.end());
+    std::size_t k = 0;
+    for (const auto& [cell, count] : every) {
+      if (k < mine.size() && mine[k].first == cell) mine[k++].second = next;
+      next += count;
+    }
+    return next;
+  }
 
   /// Places the boxes by the particles per block (`counts`, block_index()), this rank's window and
   /// its peers. `summed`: the counts are this rank's particles only, summed over the ranks level by

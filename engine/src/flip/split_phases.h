@@ -228,12 +228,13 @@ ProjectionReport FlipSolver<T, Dim>::split_projection(T dt, const Target& target
 }
 
 template <class T, int Dim>
-std::vector<double> FlipSolver<T, Dim>::own_cell_counts() const {
-  // Particles per window cell (this rank's own), then the ring's counts from their owners.
+std::vector<double> FlipSolver<T, Dim>::own_cell_counts(int depth) const {
+  // Particles per window cell (this rank's own), then the counts of `depth` cells around the box
+  // from their owners.
   auto& S = *split_;
   std::vector<std::uint32_t> count(std::size_t(grid_.num_cells()), 0);
   for (const auto& x : particles_.x) ++count[std::size_t(S.local_cell(S.cell_of(x)))];
-  S.exchange(count, -1, 1);
+  S.exchange(count, -1, depth);
   return std::vector<double>(count.begin(), count.end());
 }
 

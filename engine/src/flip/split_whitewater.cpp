@@ -42,32 +42,7 @@ void FlipSolver<T, Dim>::split_whitewater(T dt) {
   window.lo = S.lo - S.wlo;
   window.hi = S.hi - S.wlo;
   window.number = [&S, &W](std::vector<std::pair<std::uint64_t, std::uint32_t>>& mine) {
-    // Every rank's generating cells (domain cell, count), in the domain's cell order: each cell's
-    // first id is the next id plus the counts of the cells before it.
-    std::string out;
-    for (const auto& [cell, count] : mine) {
-      out.append(reinterpret_cast<const char*>(&cell), sizeof cell);
-      out.append(reinterpret_cast<const char*>(&count), sizeof count);
-    }
-    std::vector<std::pair<std::uint64_t, std::uint32_t>> every;
-    for (const auto& m : S.comm->all_gather(out)) {
-      constexpr std::size_t each = sizeof(std::uint64_t) + sizeof(std::uint32_t);
-      if (m.size() % each != 0) throw SimulationError("split FLIP: a whitewater count message has a partial entry");
-      for (std::size_t at = 0; at < m.size(); at += each) {
-        std::pair<std::uint64_t, std::uint32_t> e;
-        std::memcpy(&e.first, m.data() + at, sizeof e.first);
-        std::memcpy(&e.second, m.data() + at + sizeof e.first, sizeof e.second);
-        every.push_back(e);
-      }
-    }
-    std::sort(every.begin(), every.end());
-    std::uint32_t next = W.particles().next_id;
-    std::size_t k = 0;
-    for (const auto& [cell, count] : every) {
-      if (k < mine.size() && mine[k].first == cell) mine[k++].second = next;
-      next += count;
-    }
-    return next;
+    return S.number_new(mine, W.particles().next_id);
   };
   W.generate_in(grid_, dt, steps_, window);
   send_whitewater_to_owners(false);

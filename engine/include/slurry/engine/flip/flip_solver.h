@@ -222,7 +222,7 @@ class FlipSolver final : public Solver {
   void migrate();
   template <class Target>
   ProjectionReport split_projection(T dt, const Target& target_flux);
-  std::vector<double> own_cell_counts() const;
+  std::vector<double> own_cell_counts(int depth = 1) const;
   FlipParticles<T, Dim> gather_particles() const;
   // Whitewater split over processes (split_whitewater.cpp): the substep's phase, the particles
   // handed to the owners of their cells (peers, or every rank), the limit over every rank, the

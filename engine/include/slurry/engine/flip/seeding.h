@@ -211,16 +211,39 @@ struct Reseeder {
   std::vector<std::int64_t> need;  // particles to add per cell, then their prefix sums
   std::vector<std::uint16_t> cell_material;
   std::vector<std::uint8_t> hole;
+  std::vector<std::uint32_t> first_id;  // a split run's: each reseeded cell's first new id
+
+  /// Where the grid lies in the domain's when a run is split over processes (the grid is one
+  /// process's window, its particles those of its own cells): the domain's cells per axis, the
+  /// cells it owns, [lo, hi) in the
+  /// grid's coordinates, the particles per cell of the window (its own cells' and, from their
+  /// owners, those of the 2 cells around its box), and `number`, which takes this process's new
+  /// particles per cell (domain cell index, count; in ascending cell order), replaces each count
+  /// by the cell's first id over every process's cells in the domain's order and returns the
+  /// next id after them all (the ids one process gives). The hash counts the domain's cell.
+  struct Window {
+    IVec domain_res = IVec::Zero(), lo = IVec::Zero(), hi = IVec::Zero();
+    const std::vector<double>* counts = nullptr;
+    std::function<std::uint32_t(std::vector<std::pair<std::uint64_t, std::uint32_t>>&)> number;
+  };
 
   /// `init(x, v, c)` sets the velocity (and APIC affine vectors, c may be null) of a new particle
-  /// at x from the grid. Cells labelled Solid in `g` count as full neighbours.
+  /// at x from the grid. Cells labelled Solid in `g` count as full neighbours. `w`: a split
+  /// run's window (Window); every process calls run() alike.
   template <class InitFn>
   ReseedCounts run(FlipParticles<T, Dim>& P, const MacGrid<T, Dim>& g, int min_per_cell, int max_per_cell,
-                   std::uint64_t seed, std::int64_t step, InitFn&& init) {
+                   std::uint64_t seed, std::int64_t step, InitFn&& init, const Window* w = nullptr) {
     ReseedCounts out;
-    sort.build(P.x, g.origin, g.dx, g.res, false);
+    sort.build(P.x, g.origin, g.dx, g.res, false, g.offset);
     const std::int64_t cells = g.num_cells();
     const auto& start = sort.start;
+    // The domain's cell index (the hash's counter) and whether a cell's particles are empty (the
+    // window's counts in a split run: its ring's come from their owners).
+    const auto key = [&](std::int64_t k) {
+      if (!w) return std::uint64_t(k);
+      return std::uint64_t(transfer::lattice_index<Dim>(IVec(g.cell_coord(k) + g.offset), w->domain_res));
+    };
+    const auto empty = [&](std::int64_t k) { return w ? (*w->counts)[std::size_t(k)] == 0 : start[k + 1] == start[k]; };
     // Remove the surplus of over-full cells (serial and stable: the highest indices go).
     bool crowded = false;
     for (std::int64_t k = 0; k < cells && !crowded && max_per_cell > 0; ++k) crowded = sort.count(k) > max_per_cell;
@@ -248,24 +271,39 @@ struct Reseeder {
           j[d] += s;
           if (j[d] < 0 || j[d] >= g.res[d]) continue;
           const std::int64_t kj = g.cell(j);
-          if (start[kj + 1] == start[kj] && g.label[kj] != MacGrid<T, Dim>::Solid &&
-              !(holes_count_as_full && hole[kj]))
+          if (empty(kj) && g.label[kj] != MacGrid<T, Dim>::Solid && !(holes_count_as_full && hole[kj]))
             return false;
         }
       return true;
     };
     hole.resize(std::size_t(cells));
     parallel::parallel_for(0, cells, [&](std::int64_t k) {
-      hole[k] = start[k + 1] == start[k] && g.label[k] != MacGrid<T, Dim>::Solid && enclosed(k, false);
+      hole[k] = empty(k) && g.label[k] != MacGrid<T, Dim>::Solid && enclosed(k, false);
     });
     need.assign(std::size_t(cells + 1), 0);
     parallel::parallel_for(0, cells, [&](std::int64_t k) {
+      if (w) {
+        const IVec i = g.cell_coord(k);
+        if (!((i.array() >= w->lo.array()).all() && (i.array() < w->hi.array()).all())) return;
+      }
       const std::int64_t n = sort.count(k);
       if (n >= min_per_cell || g.label[k] == MacGrid<T, Dim>::Solid) return;
       if (hole[k] || enclosed(k, true)) need[k + 1] = min_per_cell - n;
     });
+    std::uint32_t next_id = 0;
+    if (w) {  // the ids over every process's cells (first_id: each cell's first)
+      std::vector<std::pair<std::uint64_t, std::uint32_t>> mine;
+      for (std::int64_t k = 0; k < cells; ++k)
+        if (need[k + 1] > 0) mine.emplace_back(key(k), std::uint32_t(need[k + 1]));
+      next_id = w->number(mine);
+      first_id.resize(std::size_t(cells));
+      std::size_t m = 0;
+      for (std::int64_t k = 0; k < cells; ++k)
+        if (need[k + 1] > 0) first_id[std::size_t(k)] = mine[m++].second;
+    }
     for (std::int64_t k = 0; k < cells; ++k) need[k + 1] += need[k];
     const std::int64_t added = need[cells];
+    if (w) P.next_id = next_id - std::uint32_t(added);  // push_back below counts up to next_id
     if (added == 0) return out;
     if (P.has_material) {  // the material of a new particle: that of the last one found in its cell
       cell_material.assign(std::size_t(cells), 0);
@@ -276,15 +314,16 @@ struct Reseeder {
     parallel::parallel_for(0, cells, [&](std::int64_t k) {
       if (need[k + 1] == need[k]) return;
       const IVec i = g.cell_coord(k);
-      std::uint64_t state = seed ^ (std::uint64_t(step) * 0xD1B54A32D192ED03ull) ^ (std::uint64_t(k) * 0x8CB92BA72F3D8DD7ull);
+      std::uint64_t state = seed ^ (std::uint64_t(step) * 0xD1B54A32D192ED03ull) ^ (key(k) * 0x8CB92BA72F3D8DD7ull);
       const std::uint16_t mat = P.has_material ? cell_material[k] : 0;
       for (std::int64_t q = need[k]; q < need[k + 1]; ++q) {
         Vec x;
         // Kept off the cell's faces, so rounding never puts the particle in a neighbour.
         for (int d = 0; d < Dim; ++d)
-          x[d] = g.origin[d] + (T(i[d]) + T(0.001 + 0.998 * to_unit(splitmix64(state)))) * g.dx;
+          x[d] = g.origin[d] + (T(i[d] + g.offset[d]) + T(0.001 + 0.998 * to_unit(splitmix64(state)))) * g.dx;
         const std::size_t p = n0 + std::size_t(q);
         P.x[p] = x;
+        if (w) P.id[p] = first_id[std::size_t(k)] + std::uint32_t(q - need[k]);
         if (P.has_material) P.material[p] = mat;
         Vec c[Dim];
         init(x, P.v[p], P.affine ? c : nullptr);
