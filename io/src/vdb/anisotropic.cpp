@@ -63,13 +63,23 @@ struct CellGrid {
   CellGrid(const std::vector<std::array<float, 3>>& pos, double side_, std::int64_t pad,
            const char* what)
       : side(side_) {
+    // The cells' bounds, per chunk of points in parallel, then over the chunks.
+    constexpr std::size_t kChunk = std::size_t(1) << 16;
+    const std::size_t chunks = (pos.size() + kChunk - 1) / kChunk;
+    std::vector<std::array<std::int64_t, 6>> bounds(chunks);
+    parallel::parallel_tasks(0, std::int64_t(chunks), [&](std::int64_t ci) {
+      std::array<std::int64_t, 6> b{INT64_MAX, INT64_MAX, INT64_MAX, INT64_MIN, INT64_MIN, INT64_MIN};
+      for (std::size_t i = std::size_t(ci) * kChunk; i < std::min(pos.size(), std::size_t(ci + 1) * kChunk); ++i)
+        for (int d = 0; d < 3; ++d) {
+          const std::int64_t c = std::int64_t(std::floor(double(pos[i][d]) / side));
+          b[d] = std::min(b[d], c);
+          b[3 + d] = std::max(b[3 + d], c);
+        }
+      bounds[std::size_t(ci)] = b;
+    });
     std::array<std::int64_t, 3> mn{INT64_MAX, INT64_MAX, INT64_MAX}, mx{INT64_MIN, INT64_MIN, INT64_MIN};
-    for (const auto& p : pos)
-      for (int d = 0; d < 3; ++d) {
-        const std::int64_t c = std::int64_t(std::floor(double(p[d]) / side));
-        mn[d] = std::min(mn[d], c);
-        mx[d] = std::max(mx[d], c);
-      }
+    for (const auto& b : bounds)
+      for (int d = 0; d < 3; ++d) mn[d] = std::min(mn[d], b[d]), mx[d] = std::max(mx[d], b[3 + d]);
     for (int d = 0; d < 3; ++d) {
       lo[d] = mn[d] - pad;
       n[d] = mx[d] + pad - lo[d] + 1;
@@ -109,7 +119,8 @@ void sort_by_cell(const std::vector<std::array<float, 3>>& pos, const CellGrid& 
 }
 
 /// Starts of the runs of equal keys in `keys`, with keys.size() appended.
-std::vector<std::uint32_t> runs(const std::vector<std::uint64_t>& keys) {
+template <class Keys>
+std::vector<std::uint32_t> runs(const Keys& keys) {
   std::vector<std::uint32_t> start;
   for (std::size_t i = 0; i < keys.size(); ++i)
     if (i == 0 || keys[i] != keys[i - 1]) start.push_back(std::uint32_t(i));
@@ -173,7 +184,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
 
   // 1. Kernels, from each particle's neighbourhood (cells of side R: neighbours lie in the 3 x 3
   //    rows of 3 cells around a particle's cell). One task per cell of particles.
-  std::vector<Kernel> kernel(n);
+  UninitVector<Kernel> kernel(n);  // every particle's kernel is written below
   out.neighbours.assign(n, 0);
   {
     const CellGrid grid(points.position, R, 1, "neighbourhoods");
@@ -344,20 +355,19 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   //    index); each kernel listed under every block its voxel range reaches, in that order, so a
   //    block sums its kernels in ascending order of their centres' blocks.
   constexpr int B = FieldBlocks::kSize;
-  float reach_max = 0;
-  for (const auto& ker : kernel) reach_max = std::max(reach_max, ker.reach);
-  const std::int64_t rb = std::int64_t(std::ceil(double(reach_max) / h / B + 1e-9));
+  // The kernels' centres, and their longest reach, in one pass.
   std::vector<std::array<float, 3>> centres(n);
-  for (std::size_t i = 0; i < n; ++i) centres[i] = kernel[i].centre;
+  const float reach_max = parallel::parallel_max(0, std::int64_t(n), 0.0f, [&](std::int64_t b, std::int64_t e) {
+    float m = 0;
+    for (std::size_t i = std::size_t(b); i < std::size_t(e); ++i)
+      centres[i] = kernel[i].centre, m = std::max(m, kernel[i].reach);
+    return m;
+  });
+  const std::int64_t rb = std::int64_t(std::ceil(double(reach_max) / h / B + 1e-9));
   const CellGrid blocks(centres, B * h, rb + 1, "blocks of 8 voxels");
   std::vector<std::uint64_t> keys;
   std::vector<std::uint32_t> order;
   sort_by_cell(centres, blocks, keys, order);
-  // The kernels in that order, so that a block reads its own kernels from one stretch of memory.
-  std::vector<Kernel> by_block(n);
-  parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t q) {
-    by_block[std::size_t(q)] = kernel[order[std::size_t(q)]];
-  });
   const float inv_h = float(1.0 / h);
   /// Kernel i's voxels: [lo, hi] per axis (empty when lo > hi on an axis).
   const auto voxel_range = [&](const Kernel& ker, std::int64_t lo[3], std::int64_t hi[3]) {
@@ -369,23 +379,57 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
     }
   };
   const auto block_of = [](std::int64_t v) { return v >= 0 ? v / B : -((-v + B - 1) / B); };
-  std::vector<std::uint64_t> target;   // block key of each (block, kernel) pair
-  std::vector<std::uint32_t> listed;   // the kernel, by its place in by_block
-  target.reserve(n + n / 2), listed.reserve(n + n / 2);
-  for (std::size_t q = 0; q < n; ++q) {
-    std::int64_t lo[3], hi[3], b0[3], b1[3];
-    voxel_range(by_block[q], lo, hi);
-    if (lo[0] > hi[0] || lo[1] > hi[1] || lo[2] > hi[2]) continue;
-    for (int d = 0; d < 3; ++d) b0[d] = block_of(lo[d]) - blocks.lo[d], b1[d] = block_of(hi[d]) - blocks.lo[d];
-    for (std::int64_t z = b0[2]; z <= b1[2]; ++z)
-      for (std::int64_t y = b0[1]; y <= b1[1]; ++y)
-        for (std::int64_t x = b0[0]; x <= b1[0]; ++x)
-          target.push_back(blocks.key(x, y, z)), listed.push_back(std::uint32_t(q));
-  }
+  // The kernels in that order, so that a block reads its own kernels from one stretch of memory;
+  // with each kernel's blocks, its first block and the blocks it spans per axis (none when its
+  // voxel range is empty).
+  struct Span {
+    std::int32_t first[3];
+    std::uint16_t count[3];
+  };
+  UninitVector<Kernel> by_block(n);
+  UninitVector<Span> span(n);
+  parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t q) {
+    const Kernel& ker = kernel[order[std::size_t(q)]];
+    by_block[std::size_t(q)] = ker;
+    Span& sp = span[std::size_t(q)];
+    std::int64_t lo[3], hi[3];
+    voxel_range(ker, lo, hi);
+    const bool empty = lo[0] > hi[0] || lo[1] > hi[1] || lo[2] > hi[2];
+    for (int d = 0; d < 3; ++d) {
+      const std::int64_t b0 = block_of(lo[d]) - blocks.lo[d];
+      sp.first[d] = std::int32_t(b0);
+      sp.count[d] = empty ? 0 : std::uint16_t(block_of(hi[d]) - blocks.lo[d] - b0 + 1);
+    }
+  });
+  // The (block, kernel) pairs in kernel order: counted per chunk of kernels, then each chunk
+  // writes its own stretch of the list (the list of one loop over the kernels).
+  constexpr std::size_t kChunk = std::size_t(1) << 14;
+  const std::size_t chunks = (n + kChunk - 1) / kChunk;
+  const auto chunk_end = [&](std::size_t ci) { return std::min(n, (ci + 1) * kChunk); };
+  std::vector<std::size_t> chunk_start(chunks + 1, 0);
+  parallel::parallel_tasks(0, std::int64_t(chunks), [&](std::int64_t ci) {
+    std::size_t pairs = 0;
+    for (std::size_t q = std::size_t(ci) * kChunk; q < chunk_end(std::size_t(ci)); ++q)
+      pairs += std::size_t(span[q].count[0]) * span[q].count[1] * span[q].count[2];
+    chunk_start[std::size_t(ci) + 1] = pairs;
+  });
+  for (std::size_t ci = 0; ci < chunks; ++ci) chunk_start[ci + 1] += chunk_start[ci];
+  UninitVector<std::uint64_t> target(chunk_start[chunks]);  // block key of each (block, kernel) pair
+  UninitVector<std::uint32_t> listed(chunk_start[chunks]);  // the kernel, by its place in by_block
+  parallel::parallel_tasks(0, std::int64_t(chunks), [&](std::int64_t ci) {
+    std::size_t at = chunk_start[std::size_t(ci)];
+    for (std::size_t q = std::size_t(ci) * kChunk; q < chunk_end(std::size_t(ci)); ++q) {
+      const Span& sp = span[q];
+      for (std::int64_t z = sp.first[2]; z < sp.first[2] + sp.count[2]; ++z)
+        for (std::int64_t y = sp.first[1]; y < sp.first[1] + sp.count[1]; ++y)
+          for (std::int64_t x = sp.first[0]; x < sp.first[0] + sp.count[0]; ++x)
+            target[at] = blocks.key(x, y, z), listed[at++] = std::uint32_t(q);
+    }
+  });
   radix_sort_pairs(target, listed);  // stable: within a block, the kernels' order above
   const std::vector<std::uint32_t> lists = runs(target);
   const std::size_t nb = lists.size() - 1;
-  out.value.assign(nb * B * B * B, 0.0f);
+  out.value.resize(nb * B * B * B);  // each block's task zeroes its own values
   out.origin.resize(nb);
   parallel::parallel_tasks(0, std::int64_t(nb), [&](std::int64_t bi) {
     const auto bc = blocks.unpack(target[lists[std::size_t(bi)]]);
@@ -394,6 +438,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
                                (bc[2] + blocks.lo[2]) * B};
     out.origin[std::size_t(bi)] = {std::int32_t(o[0]), std::int32_t(o[1]), std::int32_t(o[2])};
     float* v = out.value.data() + std::size_t(bi) * B * B * B;
+    std::fill(v, v + B * B * B, 0.0f);
     for (std::uint32_t at = lists[std::size_t(bi)]; at < lists[std::size_t(bi) + 1]; ++at) {
       const Kernel& ker = by_block[listed[at]];
       const float P[3] = {ker.centre[0] * inv_h, ker.centre[1] * inv_h, ker.centre[2] * inv_h};

@@ -452,16 +452,24 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
   for (const auto& p : points.position) flat = flat && p[2] == points.position.front()[2];
   std::vector<std::pair<float, float>> samples;  // (phi, 1 / (h |grad phi|))
   if (!flat) {
-    samples.reserve(std::size_t(field->tree().activeVoxelCount()));
-    auto acc = field->getConstAccessor();
-    for (auto it = field->tree().cbeginLeaf(); it; ++it)
-      for (auto v = it->cbeginValueOn(); v; ++v) {
+    // In the order of the tree's leaves and their active voxels, each leaf's stretch filled by
+    // one task.
+    std::vector<const openvdb::FloatTree::LeafNodeType*> leaves;
+    for (auto it = field->tree().cbeginLeaf(); it; ++it) leaves.push_back(it.getLeaf());
+    std::vector<std::size_t> start(leaves.size() + 1, 0);
+    for (std::size_t b = 0; b < leaves.size(); ++b) start[b + 1] = start[b] + std::size_t(leaves[b]->onVoxelCount());
+    samples.resize(start.back());
+    slurry::parallel::parallel_tasks(0, std::int64_t(leaves.size()), [&](std::int64_t b) {
+      auto acc = field->getConstAccessor();
+      std::size_t at = start[std::size_t(b)];
+      for (auto v = leaves[std::size_t(b)]->cbeginValueOn(); v; ++v) {
         const openvdb::Coord c = v.getCoord();
         const float gx = 0.5f * (acc.getValue(c.offsetBy(1, 0, 0)) - acc.getValue(c.offsetBy(-1, 0, 0)));
         const float gy = 0.5f * (acc.getValue(c.offsetBy(0, 1, 0)) - acc.getValue(c.offsetBy(0, -1, 0)));
         const float gz = 0.5f * (acc.getValue(c.offsetBy(0, 0, 1)) - acc.getValue(c.offsetBy(0, 0, -1)));
-        samples.emplace_back(*v, 1.0f / std::max(std::sqrt(gx * gx + gy * gy + gz * gz), 1e-6f));
+        samples[at++] = {*v, 1.0f / std::max(std::sqrt(gx * gx + gy * gy + gz * gz), 1e-6f)};
       }
+    });
   }
   const auto level_for = [&](double volume) {
     if (flat) return 0.5;

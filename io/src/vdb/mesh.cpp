@@ -76,12 +76,31 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
   // Particles sorted into cells of side h, the kernel radius; a vertex's neighbours lie in the
   // 27 cells around its own.
   const double h = 2 * spacing;
+  // The particles' box (the smallest coordinates, then the cells from there), per chunk of
+  // particles in parallel, then over the chunks.
+  constexpr std::size_t kChunk = std::size_t(1) << 16;
+  const std::size_t chunks = (n + kChunk - 1) / kChunk;
+  const auto chunk_end = [&](std::size_t c) { return std::min(n, (c + 1) * kChunk); };
+  std::vector<std::array<double, 3>> chunk_lo(chunks);
+  slurry::parallel::parallel_tasks(0, std::int64_t(chunks), [&](std::int64_t c) {
+    std::array<double, 3> m{1e300, 1e300, 1e300};
+    for (std::size_t i = std::size_t(c) * kChunk; i < chunk_end(std::size_t(c)); ++i)
+      for (int d = 0; d < 3; ++d) m[d] = std::min(m[d], double(points.position[i][d]));
+    chunk_lo[std::size_t(c)] = m;
+  });
   std::array<double, 3> lo{1e300, 1e300, 1e300};
-  for (const auto& p : points.position)
-    for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], double(p[d]));
+  for (const auto& m : chunk_lo)
+    for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], m[d]);
+  std::vector<std::array<std::int64_t, 3>> chunk_dims(chunks);
+  slurry::parallel::parallel_tasks(0, std::int64_t(chunks), [&](std::int64_t c) {
+    std::array<std::int64_t, 3> m{1, 1, 1};
+    for (std::size_t i = std::size_t(c) * kChunk; i < chunk_end(std::size_t(c)); ++i)
+      for (int d = 0; d < 3; ++d) m[d] = std::max(m[d], std::int64_t((points.position[i][d] - lo[d]) / h) + 1);
+    chunk_dims[std::size_t(c)] = m;
+  });
   std::array<std::int64_t, 3> dims{1, 1, 1};
-  for (const auto& p : points.position)
-    for (int d = 0; d < 3; ++d) dims[d] = std::max(dims[d], std::int64_t((p[d] - lo[d]) / h) + 1);
+  for (const auto& m : chunk_dims)
+    for (int d = 0; d < 3; ++d) dims[d] = std::max(dims[d], m[d]);
   const auto cell_of = [&](const std::array<float, 3>& p, std::array<std::int64_t, 3>& c) {
     for (int d = 0; d < 3; ++d) c[d] = std::int64_t(std::floor((p[d] - lo[d]) / h));
   };
@@ -103,9 +122,14 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
   const double cell_count = double(dims[0]) * double(dims[1]) * double(dims[2]);
   std::vector<std::uint32_t> first;
   if (cell_count <= std::max(4.0 * double(n), double(1 << 20))) {
-    first.assign(std::size_t(cell_count) + 1, 0);
-    for (std::size_t i = 0; i < n; ++i) ++first[std::size_t(keys[i]) + 1];
-    for (std::size_t c = 0; c + 1 < first.size(); ++c) first[c + 1] += first[c];
+    // first[k] = the particles in cells before k: the sorted particle i that starts a run of
+    // keys is the first of its cell and of the empty cells just before it.
+    first.resize(std::size_t(cell_count) + 1);
+    slurry::parallel::parallel_for(0, std::int64_t(n) + 1, [&](std::int64_t i) {
+      const std::size_t from = i == 0 ? 0 : std::size_t(keys[std::size_t(i) - 1]) + 1;
+      const std::size_t to = std::size_t(i) == n ? first.size() - 1 : std::size_t(keys[std::size_t(i)]);
+      for (std::size_t k = from; k <= to; ++k) first[k] = std::uint32_t(i);
+    });
   }
   const auto row_begin = [&](std::int64_t k) {
     if (!first.empty()) return std::size_t(first[std::size_t(k)]);
