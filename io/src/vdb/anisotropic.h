@@ -8,12 +8,10 @@
 // leaf nodes of an OpenVDB tree), without OpenVDB.
 #include <array>
 #include <cstdint>
-#include <memory>
-#include <new>
-#include <utility>
 #include <vector>
 
 #include "slurry/io/surface.h"
+#include "vdb/uninit_vector.h"
 
 namespace slurry::io::detail {
 
@@ -27,30 +25,6 @@ struct AnisotropyConstants {
   int min_neighbours = 6;        ///< fewer neighbours: an isotropic kernel (N_eps)
   double droplet_support = 1.0;  ///< kernel radius of a particle without neighbours, spacings
 };
-
-/// An allocator that leaves the elements of a resized vector default-initialized (not zeroed),
-/// for buffers whose every element is written before it is read: a serial memset of tens of MB
-/// otherwise precedes their parallel filling.
-template <class T>
-struct DefaultInitAllocator : std::allocator<T> {
-  template <class U>
-  struct rebind {
-    using other = DefaultInitAllocator<U>;
-  };
-  DefaultInitAllocator() = default;
-  template <class U>
-  DefaultInitAllocator(const DefaultInitAllocator<U>&) noexcept {}
-  template <class U>
-  void construct(U* p) noexcept {
-    ::new (static_cast<void*>(p)) U;
-  }
-  template <class U, class... Args>
-  void construct(U* p, Args&&... args) {
-    ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
-  }
-};
-template <class T>
-using UninitVector = std::vector<T, DefaultInitAllocator<T>>;
 
 /// Values of the field on blocks of 8^3 voxels: block b covers index-space voxels
 /// origin[b] + [0, 8)^3 (origin a multiple of 8), value[512 b + 64 i + 8 j + k] being voxel

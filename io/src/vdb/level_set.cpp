@@ -422,8 +422,8 @@ bool droplet_contains(const TriangleMesh& mesh, std::size_t first, const openvdb
 /// The anisotropic method (surface.h, steps A1-A6): the zero level of `iso - field` meshed, and
 /// the narrow-band level set of that mesh; the vertices take the particles' velocities when
 /// `vertex_velocities` (particles_to_level_set wants the level set alone).
-Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& params, bool vertex_velocities,
-                            bool level_set = true) {
+Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& params,
+                            const detail::VelocitySampler* vertex_velocities, bool level_set = true) {
   const double h = params.voxel_size, s = params.spacing;
   const detail::FieldBlocks blocks = detail::anisotropic_field(points, h, s);
   openvdb::FloatGrid::Ptr field = openvdb::FloatGrid::create(0.0f);
@@ -563,7 +563,7 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
   const std::size_t body_triangles = out.mesh.triangles.size();
   add_droplets(out.mesh, points, droplets, particle_volume);
   if (vertex_velocities && !points.velocity.empty())
-    out.mesh.velocities = sample_velocities(out.mesh.vertices, points, s);
+    out.mesh.velocities = vertex_velocities->sample(out.mesh.vertices, nullptr);
   if (!level_set) return out;
   // A6: the narrow-band level set of the mesh (half-width 3 voxels): the distance to its
   // triangles (mesh_band.h), negative inside. Inside the body is where the field exceeds the level
@@ -613,7 +613,7 @@ LevelSet particles_to_level_set(const PointCloud& points, const SurfaceParams& p
   check_points(points);
   detail::initialize_openvdb();
   if (params.method == SurfaceMethod::Anisotropic) {
-    return anisotropic_surface(points, params, /*vertex_velocities=*/false).level_set;
+    return anisotropic_surface(points, params, /*vertex_velocities=*/nullptr).level_set;
   }
   return spheres_level_set(points, params);
 }
@@ -630,7 +630,7 @@ namespace {
 
 /// The level set with a "velocity" grid on its active voxels: the particles' velocity there,
 /// averaged as at the mesh vertices (sample_velocities).
-LevelSet with_velocity(const LevelSet& ls, const PointCloud& points, double spacing) {
+LevelSet with_velocity(const LevelSet& ls, const detail::VelocitySampler& sampler) {
   const openvdb::FloatGrid& grid = *ls.impl().grid;
   std::vector<openvdb::Coord> coords;
   coords.reserve(std::size_t(grid.activeVoxelCount()));
@@ -649,7 +649,7 @@ LevelSet with_velocity(const LevelSet& ls, const PointCloud& points, double spac
     where[i] = {float(w[0]), float(w[1]), float(w[2])};
   }
   std::vector<std::uint8_t> found;
-  const std::vector<std::array<float, 3>> v = detail::sample_velocities_near(where, points, spacing, &found);
+  const std::vector<std::array<float, 3>> v = sampler.sample(where, &found);
   openvdb::Vec3SGrid::Ptr velocity = openvdb::Vec3SGrid::create(openvdb::Vec3s(0, 0, 0));
   velocity->setTransform(grid.transform().copy());
   velocity->setName("velocity");
@@ -692,14 +692,17 @@ Surface surface_of(const PointCloud& points, const SurfaceParams& params, bool l
   check_points(points);
   detail::initialize_openvdb();
   Surface out;
+  // The particles sorted once for the vertex velocities and the velocity grid.
+  const detail::VelocitySampler sampler(points, params.spacing);
   if (params.method == SurfaceMethod::Anisotropic) {
-    out = anisotropic_surface(points, params, /*vertex_velocities=*/true, level_set);
+    out = anisotropic_surface(points, params, &sampler, level_set);
   } else {
     LevelSet ls = spheres_level_set(points, params);
-    TriangleMesh mesh = level_set_to_mesh(ls, points, params);
+    TriangleMesh mesh = mesh_grid(*ls.impl().grid, 0.0);  // level_set_to_mesh, with the sampler
+    if (!points.velocity.empty()) mesh.velocities = sampler.sample(mesh.vertices, nullptr);
     out = Surface{level_set ? std::move(ls) : LevelSet(nullptr), std::move(mesh)};
   }
-  if (level_set && !points.velocity.empty()) out.level_set = with_velocity(out.level_set, points, params.spacing);
+  if (level_set && !points.velocity.empty()) out.level_set = with_velocity(out.level_set, sampler);
   return out;
 }
 }  // namespace

@@ -61,21 +61,15 @@ PointCloud point_cloud(const Frame& frame, int material) {
 
 std::vector<std::array<float, 3>> sample_velocities(
     const std::vector<std::array<float, 3>>& vertices, const PointCloud& points, double spacing) {
-  return detail::sample_velocities_near(vertices, points, spacing, nullptr);
+  return detail::VelocitySampler(points, spacing).sample(vertices, nullptr);
 }
 
 namespace detail {
 
-std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::array<float, 3>>& vertices,
-                                                         const PointCloud& points, double spacing,
-                                                         std::vector<std::uint8_t>* found) {
+VelocitySampler::VelocitySampler(const PointCloud& points, double spacing) : points_(points), h_(2 * spacing) {
   const std::size_t n = points.size();
-  if (found) found->assign(vertices.size(), 0);
-  std::vector<std::array<float, 3>> out(vertices.size(), {0.0f, 0.0f, 0.0f});
-  if (n == 0 || points.velocity.size() != n) return out;
-  // Particles sorted into cells of side h, the kernel radius; a vertex's neighbours lie in the
-  // 27 cells around its own.
-  const double h = 2 * spacing;
+  if (n == 0 || points.velocity.size() != n) return;
+  const double h = h_;
   // The particles' box (the smallest coordinates, then the cells from there), per chunk of
   // particles in parallel, then over the chunks.
   constexpr std::size_t kChunk = std::size_t(1) << 16;
@@ -88,7 +82,8 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
       for (int d = 0; d < 3; ++d) m[d] = std::min(m[d], double(points.position[i][d]));
     chunk_lo[std::size_t(c)] = m;
   });
-  std::array<double, 3> lo{1e300, 1e300, 1e300};
+  std::array<double, 3>& lo = lo_;
+  lo = {1e300, 1e300, 1e300};
   for (const auto& m : chunk_lo)
     for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], m[d]);
   std::vector<std::array<std::int64_t, 3>> chunk_dims(chunks);
@@ -98,49 +93,66 @@ std::vector<std::array<float, 3>> sample_velocities_near(const std::vector<std::
       for (int d = 0; d < 3; ++d) m[d] = std::max(m[d], std::int64_t((points.position[i][d] - lo[d]) / h) + 1);
     chunk_dims[std::size_t(c)] = m;
   });
-  std::array<std::int64_t, 3> dims{1, 1, 1};
+  std::array<std::int64_t, 3>& dims = dims_;
   for (const auto& m : chunk_dims)
     for (int d = 0; d < 3; ++d) dims[d] = std::max(dims[d], m[d]);
+  // (cell key, particle) sorted by key, then particle.
+  keys_.resize(n);
+  std::vector<std::uint32_t> index(n);
+  slurry::parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t i) {
+    const auto& p = points.position[std::size_t(i)];
+    std::int64_t c[3];
+    for (int d = 0; d < 3; ++d) c[d] = std::int64_t(std::floor((p[d] - lo[d]) / h));
+    keys_[std::size_t(i)] = std::uint64_t((c[0] * dims[1] + c[1]) * dims[2] + c[2]);
+    index[std::size_t(i)] = std::uint32_t(i);
+  });
+  radix_sort_pairs(keys_, index);
+  // Where each cell's particles start in `keys`, when the cells of the particles' box are few
+  // enough for a table (else a binary search per row).
+  const double cell_count = double(dims[0]) * double(dims[1]) * double(dims[2]);
+  if (cell_count <= std::max(4.0 * double(n), double(1 << 20))) {
+    // first[k] = the particles in cells before k: the sorted particle i that starts a run of
+    // keys is the first of its cell and of the empty cells just before it.
+    first_.resize(std::size_t(cell_count) + 1);
+    slurry::parallel::parallel_for(0, std::int64_t(n) + 1, [&](std::int64_t i) {
+      const std::size_t from = i == 0 ? 0 : std::size_t(keys_[std::size_t(i) - 1]) + 1;
+      const std::size_t to = std::size_t(i) == n ? first_.size() - 1 : std::size_t(keys_[std::size_t(i)]);
+      for (std::size_t k = from; k <= to; ++k) first_[k] = std::uint32_t(i);
+    });
+  }
+  // Positions and velocities in cell order: a row of cells is one stretch of memory.
+  position_.resize(n);
+  velocity_.resize(n);
+  slurry::parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t t) {
+    position_[std::size_t(t)] = points.position[index[std::size_t(t)]];
+    velocity_[std::size_t(t)] = points.velocity[index[std::size_t(t)]];
+  });
+}
+
+std::vector<std::array<float, 3>> VelocitySampler::sample(const std::vector<std::array<float, 3>>& vertices,
+                                                          std::vector<std::uint8_t>* found) const {
+  const PointCloud& points = points_;
+  const std::size_t n = points.size();
+  if (found) found->assign(vertices.size(), 0);
+  std::vector<std::array<float, 3>> out(vertices.size(), {0.0f, 0.0f, 0.0f});
+  if (n == 0 || points.velocity.size() != n) return out;
+  const double h = h_;
+  const std::array<double, 3>& lo = lo_;
+  const std::array<std::int64_t, 3>& dims = dims_;
+  const std::vector<std::uint64_t>& keys = keys_;
+  const std::vector<std::uint32_t>& first = first_;
+  const std::vector<std::array<float, 3>>& position = position_;
+  const std::vector<std::array<float, 3>>& velocity = velocity_;
   const auto cell_of = [&](const std::array<float, 3>& p, std::array<std::int64_t, 3>& c) {
     for (int d = 0; d < 3; ++d) c[d] = std::int64_t(std::floor((p[d] - lo[d]) / h));
   };
   const auto key = [&](const std::array<std::int64_t, 3>& c) {
     return (c[0] * dims[1] + c[1]) * dims[2] + c[2];
   };
-  // (cell key, particle) sorted by key, then particle.
-  std::vector<std::uint64_t> keys(n);
-  std::vector<std::uint32_t> index(n);
-  slurry::parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t i) {
-    std::array<std::int64_t, 3> c;
-    cell_of(points.position[std::size_t(i)], c);
-    keys[std::size_t(i)] = std::uint64_t(key(c));
-    index[std::size_t(i)] = std::uint32_t(i);
-  });
-  radix_sort_pairs(keys, index);
-  // Where each cell's particles start in `keys`, when the cells of the particles' box are few
-  // enough for a table (else a binary search per row).
-  const double cell_count = double(dims[0]) * double(dims[1]) * double(dims[2]);
-  std::vector<std::uint32_t> first;
-  if (cell_count <= std::max(4.0 * double(n), double(1 << 20))) {
-    // first[k] = the particles in cells before k: the sorted particle i that starts a run of
-    // keys is the first of its cell and of the empty cells just before it.
-    first.resize(std::size_t(cell_count) + 1);
-    slurry::parallel::parallel_for(0, std::int64_t(n) + 1, [&](std::int64_t i) {
-      const std::size_t from = i == 0 ? 0 : std::size_t(keys[std::size_t(i) - 1]) + 1;
-      const std::size_t to = std::size_t(i) == n ? first.size() - 1 : std::size_t(keys[std::size_t(i)]);
-      for (std::size_t k = from; k <= to; ++k) first[k] = std::uint32_t(i);
-    });
-  }
   const auto row_begin = [&](std::int64_t k) {
     if (!first.empty()) return std::size_t(first[std::size_t(k)]);
     return std::size_t(std::lower_bound(keys.begin(), keys.end(), std::uint64_t(k)) - keys.begin());
   };
-  // Positions and velocities in cell order: a row of cells is one stretch of memory.
-  std::vector<std::array<float, 3>> position(n), velocity(n);
-  slurry::parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t t) {
-    position[std::size_t(t)] = points.position[index[std::size_t(t)]];
-    velocity[std::size_t(t)] = points.velocity[index[std::size_t(t)]];
-  });
 
   slurry::parallel::parallel_for(0, std::int64_t(vertices.size()), [&](std::int64_t vi) {
     const auto& q = vertices[std::size_t(vi)];

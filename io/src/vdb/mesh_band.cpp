@@ -9,6 +9,7 @@
 
 #include "slurry/transfer/parallel.h"
 #include "vdb/radix_sort.h"
+#include "vdb/uninit_vector.h"
 
 namespace slurry::io::detail {
 
@@ -17,10 +18,6 @@ namespace {
 constexpr int B = MeshBand::kSize;
 constexpr int kBits = 21;
 constexpr std::int64_t kRange = std::int64_t(1) << kBits;
-
-std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
-  return (std::uint64_t(z) << (2 * kBits)) | (std::uint64_t(y) << kBits) | std::uint64_t(x);
-}
 
 std::int64_t floor_div(std::int64_t a, std::int64_t b) {
   return a >= 0 ? a / b : -((-a + b - 1) / b);
@@ -102,22 +99,48 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
       throw std::invalid_argument("mesh_band: the mesh spans more than 2^21 blocks of 8 voxels");
   // One block beyond on each side, so that a block's face neighbours always have keys.
   for (int d = 0; d < 3; ++d) lo[d] -= 1;
-  std::vector<std::uint64_t> keys;
-  std::vector<std::uint32_t> owner;
-  keys.reserve(nt * 8);
-  owner.reserve(nt * 8);
-  for (std::size_t i = 0; i < nt; ++i) {
+  // Block keys x + nx (y + ny z) over the box of blocks (their neighbours included): ordered by
+  // z, then y, then x, in as few bits as the box needs (fewer sort passes).
+  const std::int64_t nx = hi[0] - lo[0] + 2, ny = hi[1] - lo[1] + 2;
+  const auto key_of = [&](std::int64_t x, std::int64_t y, std::int64_t z) { return std::uint64_t(x + nx * (y + ny * z)); };
+  const auto cell_of = [&](std::uint64_t k) {
+    const std::int64_t i = std::int64_t(k);
+    return std::array<std::int64_t, 3>{i % nx, (i / nx) % ny, i / (nx * ny)};
+  };
+  // Triangle i's blocks: [b0, b1] per axis.
+  const auto block_range = [&](std::size_t i, std::int64_t b0[3], std::int64_t b1[3]) {
     const Tri& t = tri[i];
-    std::int64_t b0[3], b1[3];
     for (int d = 0; d < 3; ++d)
       b0[d] = floor_div(t.lo[d] - width, B) - lo[d], b1[d] = floor_div(t.hi[d] + width, B) - lo[d];
-    for (std::int64_t z = b0[2]; z <= b1[2]; ++z)
-      for (std::int64_t y = b0[1]; y <= b1[1]; ++y)
-        for (std::int64_t x = b0[0]; x <= b1[0]; ++x) {
-          keys.push_back(pack(x, y, z));
-          owner.push_back(std::uint32_t(i));
-        }
-  }
+  };
+  // The (block, triangle) pairs in triangle order: counted per chunk of triangles, then each
+  // chunk writes its own stretch of the list.
+  constexpr std::size_t kChunk = std::size_t(1) << 12;
+  const std::size_t chunks = (nt + kChunk - 1) / kChunk;
+  const auto chunk_end = [&](std::size_t c) { return std::min(nt, (c + 1) * kChunk); };
+  std::vector<std::size_t> chunk_start(chunks + 1, 0);
+  parallel::parallel_tasks(0, std::int64_t(chunks), [&](std::int64_t c) {
+    std::size_t pairs = 0;
+    std::int64_t b0[3], b1[3];
+    for (std::size_t i = std::size_t(c) * kChunk; i < chunk_end(std::size_t(c)); ++i) {
+      block_range(i, b0, b1);
+      pairs += std::size_t((b1[0] - b0[0] + 1) * (b1[1] - b0[1] + 1) * (b1[2] - b0[2] + 1));
+    }
+    chunk_start[std::size_t(c) + 1] = pairs;
+  });
+  for (std::size_t c = 0; c < chunks; ++c) chunk_start[c + 1] += chunk_start[c];
+  UninitVector<std::uint64_t> keys(chunk_start[chunks]);
+  UninitVector<std::uint32_t> owner(chunk_start[chunks]);
+  parallel::parallel_tasks(0, std::int64_t(chunks), [&](std::int64_t c) {
+    std::size_t at = chunk_start[std::size_t(c)];
+    std::int64_t b0[3], b1[3];
+    for (std::size_t i = std::size_t(c) * kChunk; i < chunk_end(std::size_t(c)); ++i) {
+      block_range(i, b0, b1);
+      for (std::int64_t z = b0[2]; z <= b1[2]; ++z)
+        for (std::int64_t y = b0[1]; y <= b1[1]; ++y)
+          for (std::int64_t x = b0[0]; x <= b1[0]; ++x) keys[at] = key_of(x, y, z), owner[at++] = std::uint32_t(i);
+    }
+  });
   radix_sort_pairs(keys, owner);  // by block, then triangle
   std::vector<std::uint32_t> run;  // starts of each block's triangles, then keys.size()
   for (std::size_t i = 0; i < keys.size(); ++i)
@@ -127,21 +150,17 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
   std::vector<std::uint64_t> block_key(nb);
   for (std::size_t b = 0; b < nb; ++b) block_key[b] = keys[run[b]];
   const auto origin_of = [&](std::size_t b) {
-    const std::uint64_t k = block_key[b];
-    return std::array<std::int64_t, 3>{(std::int64_t(k & (kRange - 1)) + lo[0]) * B,
-                                       (std::int64_t((k >> kBits) & (kRange - 1)) + lo[1]) * B,
-                                       (std::int64_t(k >> (2 * kBits)) + lo[2]) * B};
+    const auto c = cell_of(block_key[b]);
+    return std::array<std::int64_t, 3>{(c[0] + lo[0]) * B, (c[1] + lo[1]) * B, (c[2] + lo[2]) * B};
   };
   // Face neighbours of each block (-1: none, so no band there).
   std::vector<std::array<std::int32_t, 6>> next(nb);
   parallel::parallel_for(0, std::int64_t(nb), [&](std::int64_t b) {
-    const std::uint64_t k = block_key[std::size_t(b)];
-    const std::int64_t c[3] = {std::int64_t(k & (kRange - 1)), std::int64_t((k >> kBits) & (kRange - 1)),
-                               std::int64_t(k >> (2 * kBits))};
+    const auto c = cell_of(block_key[std::size_t(b)]);
     for (int f = 0; f < 6; ++f) {
       std::int64_t n[3] = {c[0], c[1], c[2]};
       n[f / 2] += f % 2 ? 1 : -1;
-      const std::uint64_t nk = pack(n[0], n[1], n[2]);
+      const std::uint64_t nk = key_of(n[0], n[1], n[2]);
       const auto it = std::lower_bound(block_key.begin(), block_key.end(), nk);
       next[std::size_t(b)][std::size_t(f)] =
           it != block_key.end() && *it == nk ? std::int32_t(it - block_key.begin()) : -1;
@@ -149,13 +168,16 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
   });
   constexpr int V = B * B * B;
   const float none = std::numeric_limits<float>::infinity();
-  std::vector<float> dist2(nb * V, none);
-  std::vector<std::int32_t> closest(nb * V, -1);
+  // Each block's task fills its own values: no serial pass over the whole band.
+  UninitVector<float> dist2(nb * V);
+  UninitVector<std::int32_t> closest(nb * V);
   // 1. Seeds: each triangle's exact distance to the voxels within one voxel of its box.
   parallel::parallel_tasks(0, std::int64_t(nb), [&](std::int64_t b) {
     const auto o = origin_of(std::size_t(b));
     float* d2 = dist2.data() + std::size_t(b) * V;
     std::int32_t* cl = closest.data() + std::size_t(b) * V;
+    std::fill(d2, d2 + V, none);
+    std::fill(cl, cl + V, -1);
     for (std::uint32_t r = run[std::size_t(b)]; r < run[std::size_t(b) + 1]; ++r) {
       const std::uint32_t i = owner[r];
       const Tri& t = tri[i];
@@ -178,15 +200,15 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
     }
   });
   // 2. Layers: a voxel not reached takes the nearest of its face neighbours' closest triangles.
-  std::vector<float> dist2_next;
-  std::vector<std::int32_t> closest_next;
+  UninitVector<float> dist2_next(nb * V);
+  UninitVector<std::int32_t> closest_next(nb * V);
   const float reach2 = float(width) * float(width);
   for (int layer = 0; layer < width + 1; ++layer) {
-    dist2_next = dist2;
-    closest_next = closest;
     parallel::parallel_tasks(0, std::int64_t(nb), [&](std::int64_t b) {
       const auto o = origin_of(std::size_t(b));
       const auto& nbr = next[std::size_t(b)];
+      std::copy_n(dist2.data() + std::size_t(b) * V, V, dist2_next.data() + std::size_t(b) * V);
+      std::copy_n(closest.data() + std::size_t(b) * V, V, closest_next.data() + std::size_t(b) * V);
       for (int x = 0; x < B; ++x)
         for (int y = 0; y < B; ++y)
           for (int z = 0; z < B; ++z) {
@@ -221,16 +243,25 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
     dist2.swap(dist2_next);
     closest.swap(closest_next);
   }
-  // The blocks with a voxel in the band.
-  for (std::size_t b = 0; b < nb; ++b) {
-    const float* d2 = dist2.data() + b * V;
-    if (std::none_of(d2, d2 + V, [&](float e) { return e < reach2; })) continue;
-    const auto o = origin_of(b);
-    out.origin.push_back({std::int32_t(o[0]), std::int32_t(o[1]), std::int32_t(o[2])});
-    for (int v = 0; v < V; ++v) out.distance.push_back(std::sqrt(d2[v]));
-    out.triangle.insert(out.triangle.end(), closest.begin() + std::ptrdiff_t(b * V),
-                        closest.begin() + std::ptrdiff_t((b + 1) * V));
-  }
+  // The blocks with a voxel in the band, in block order: flagged, numbered, then copied.
+  std::vector<std::uint32_t> place(nb + 1, 0);
+  parallel::parallel_for(0, std::int64_t(nb), [&](std::int64_t b) {
+    const float* d2 = dist2.data() + std::size_t(b) * V;
+    place[std::size_t(b) + 1] = std::any_of(d2, d2 + V, [&](float e) { return e < reach2; }) ? 1 : 0;
+  });
+  for (std::size_t b = 0; b < nb; ++b) place[b + 1] += place[b];
+  out.origin.resize(place[nb]);
+  out.distance.resize(std::size_t(place[nb]) * V);
+  out.triangle.resize(std::size_t(place[nb]) * V);
+  parallel::parallel_tasks(0, std::int64_t(nb), [&](std::int64_t b) {
+    if (place[std::size_t(b) + 1] == place[std::size_t(b)]) return;
+    const std::size_t to = place[std::size_t(b)];
+    const auto o = origin_of(std::size_t(b));
+    out.origin[to] = {std::int32_t(o[0]), std::int32_t(o[1]), std::int32_t(o[2])};
+    const float* d2 = dist2.data() + std::size_t(b) * V;
+    for (int v = 0; v < V; ++v) out.distance[to * V + std::size_t(v)] = std::sqrt(d2[v]);
+    std::copy_n(closest.data() + std::size_t(b) * V, V, out.triangle.data() + to * V);
+  });
   return out;
 }
 
