@@ -384,7 +384,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   // voxel range is empty).
   struct Span {
     std::int32_t first[3];
-    std::uint16_t count[3];
+    std::int32_t count[3];
   };
   UninitVector<Kernel> by_block(n);
   UninitVector<Span> span(n);
@@ -398,7 +398,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
     for (int d = 0; d < 3; ++d) {
       const std::int64_t b0 = block_of(lo[d]) - blocks.lo[d];
       sp.first[d] = std::int32_t(b0);
-      sp.count[d] = empty ? 0 : std::uint16_t(block_of(hi[d]) - blocks.lo[d] - b0 + 1);
+      sp.count[d] = empty ? 0 : std::int32_t(block_of(hi[d]) - blocks.lo[d] - b0 + 1);
     }
   });
   // The (block, kernel) pairs in kernel order: counted per chunk of kernels, then each chunk
