@@ -61,7 +61,8 @@
 /// speed by 15. Most of the gain is the explicit jump's time integration: a 3D drop of 8 cells'
 /// radius oscillating at 10% amplitude had 4.8e-3 J of kinetic energy after 16 s at this
 /// substep, 5.4e-4 J at half of it and 7.5e-4 J at a quarter. Its mode-2 period stays 10-17%
-/// long at all three substeps, but falls with resolution (17% at 8 cells, 11% at 12). A
+/// long at all three substeps, but falls with resolution (17% at 8 cells, 11% at 12): most of
+/// it is where the pressure solve places the surface in a fluid cell (level_set.h). A
 /// projection weighted by the faces' particle mass (light faces moved more) made the gain far
 /// larger. The run's
 /// statistics count the surface energy sigma * area() (RunStats::surface).
