@@ -23,6 +23,8 @@
 #include <string>
 
 #include "slurry/transfer/parallel.h"
+#include "vdb/block_pairs.h"
+#include "vdb/point_bounds.h"
 #include "vdb/radix_sort.h"
 
 namespace slurry::io::detail {
@@ -63,23 +65,13 @@ struct CellGrid {
   CellGrid(const std::vector<std::array<float, 3>>& pos, double side_, std::int64_t pad,
            const char* what)
       : side(side_) {
-    // The cells' bounds, per chunk of points in parallel, then over the chunks.
-    constexpr std::size_t kChunk = std::size_t(1) << 16;
-    const std::size_t chunks = (pos.size() + kChunk - 1) / kChunk;
-    std::vector<std::array<std::int64_t, 6>> bounds(chunks);
-    parallel::parallel_tasks(0, std::int64_t(chunks), [&](std::int64_t ci) {
-      std::array<std::int64_t, 6> b{INT64_MAX, INT64_MAX, INT64_MAX, INT64_MIN, INT64_MIN, INT64_MIN};
-      for (std::size_t i = std::size_t(ci) * kChunk; i < std::min(pos.size(), std::size_t(ci + 1) * kChunk); ++i)
-        for (int d = 0; d < 3; ++d) {
-          const std::int64_t c = std::int64_t(std::floor(double(pos[i][d]) / side));
-          b[d] = std::min(b[d], c);
-          b[3 + d] = std::max(b[3 + d], c);
-        }
-      bounds[std::size_t(ci)] = b;
-    });
-    std::array<std::int64_t, 3> mn{INT64_MAX, INT64_MAX, INT64_MAX}, mx{INT64_MIN, INT64_MIN, INT64_MIN};
-    for (const auto& b : bounds)
-      for (int d = 0; d < 3; ++d) mn[d] = std::min(mn[d], b[d]), mx[d] = std::max(mx[d], b[3 + d]);
+    // The cells of the points' bounds (floor is monotonic: the smallest and largest cells).
+    const PointBounds b = point_bounds(pos);
+    std::array<std::int64_t, 3> mn{}, mx{};
+    for (int d = 0; d < 3; ++d) {
+      mn[d] = std::int64_t(std::floor(double(b.lo[d]) / side));
+      mx[d] = std::int64_t(std::floor(double(b.hi[d]) / side));
+    }
     for (int d = 0; d < 3; ++d) {
       lo[d] = mn[d] - pad;
       n[d] = mx[d] + pad - lo[d] + 1;
@@ -401,31 +393,15 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
       sp.count[d] = empty ? 0 : std::int32_t(block_of(hi[d]) - blocks.lo[d] - b0 + 1);
     }
   });
-  // The (block, kernel) pairs in kernel order: counted per chunk of kernels, then each chunk
-  // writes its own stretch of the list (the list of one loop over the kernels).
-  constexpr std::size_t kChunk = std::size_t(1) << 14;
-  const std::size_t chunks = (n + kChunk - 1) / kChunk;
-  const auto chunk_end = [&](std::size_t ci) { return std::min(n, (ci + 1) * kChunk); };
-  std::vector<std::size_t> chunk_start(chunks + 1, 0);
-  parallel::parallel_tasks(0, std::int64_t(chunks), [&](std::int64_t ci) {
-    std::size_t pairs = 0;
-    for (std::size_t q = std::size_t(ci) * kChunk; q < chunk_end(std::size_t(ci)); ++q)
-      pairs += std::size_t(span[q].count[0]) * span[q].count[1] * span[q].count[2];
-    chunk_start[std::size_t(ci) + 1] = pairs;
-  });
-  for (std::size_t ci = 0; ci < chunks; ++ci) chunk_start[ci + 1] += chunk_start[ci];
-  UninitVector<std::uint64_t> target(chunk_start[chunks]);  // block key of each (block, kernel) pair
-  UninitVector<std::uint32_t> listed(chunk_start[chunks]);  // the kernel, by its place in by_block
-  parallel::parallel_tasks(0, std::int64_t(chunks), [&](std::int64_t ci) {
-    std::size_t at = chunk_start[std::size_t(ci)];
-    for (std::size_t q = std::size_t(ci) * kChunk; q < chunk_end(std::size_t(ci)); ++q) {
-      const Span& sp = span[q];
-      for (std::int64_t z = sp.first[2]; z < sp.first[2] + sp.count[2]; ++z)
-        for (std::int64_t y = sp.first[1]; y < sp.first[1] + sp.count[1]; ++y)
-          for (std::int64_t x = sp.first[0]; x < sp.first[0] + sp.count[0]; ++x)
-            target[at] = blocks.key(x, y, z), listed[at++] = std::uint32_t(q);
-    }
-  });
+  // The (block, kernel) pairs, in kernel order.
+  UninitVector<std::uint64_t> target;  // block key of each (block, kernel) pair
+  UninitVector<std::uint32_t> listed;  // the kernel, by its place in by_block
+  list_block_pairs(
+      n,
+      [&](std::size_t q, std::int64_t b0[3], std::int64_t b1[3]) {
+        for (int d = 0; d < 3; ++d) b0[d] = span[q].first[d], b1[d] = span[q].first[d] + span[q].count[d] - 1;
+      },
+      [&](std::int64_t x, std::int64_t y, std::int64_t z) { return blocks.key(x, y, z); }, target, listed);
   radix_sort_pairs(target, listed);  // stable: within a block, the kernels' order above
   const std::vector<std::uint32_t> lists = runs(target);
   const std::size_t nb = lists.size() - 1;

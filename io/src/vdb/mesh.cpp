@@ -12,6 +12,7 @@
 #include "slurry/io/obj.h"
 #include "slurry/io/surface.h"
 #include "slurry/transfer/parallel.h"
+#include "vdb/point_bounds.h"
 #include "vdb/radix_sort.h"
 #include "vdb/velocities.h"
 
@@ -70,32 +71,15 @@ VelocitySampler::VelocitySampler(const PointCloud& points, double spacing) : poi
   const std::size_t n = points.size();
   if (n == 0 || points.velocity.size() != n) return;
   const double h = h_;
-  // The particles' box (the smallest coordinates, then the cells from there), per chunk of
-  // particles in parallel, then over the chunks.
-  constexpr std::size_t kChunk = std::size_t(1) << 16;
-  const std::size_t chunks = (n + kChunk - 1) / kChunk;
-  const auto chunk_end = [&](std::size_t c) { return std::min(n, (c + 1) * kChunk); };
-  std::vector<std::array<double, 3>> chunk_lo(chunks);
-  slurry::parallel::parallel_tasks(0, std::int64_t(chunks), [&](std::int64_t c) {
-    std::array<double, 3> m{1e300, 1e300, 1e300};
-    for (std::size_t i = std::size_t(c) * kChunk; i < chunk_end(std::size_t(c)); ++i)
-      for (int d = 0; d < 3; ++d) m[d] = std::min(m[d], double(points.position[i][d]));
-    chunk_lo[std::size_t(c)] = m;
-  });
-  std::array<double, 3>& lo = lo_;
-  lo = {1e300, 1e300, 1e300};
-  for (const auto& m : chunk_lo)
-    for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], m[d]);
-  std::vector<std::array<std::int64_t, 3>> chunk_dims(chunks);
-  slurry::parallel::parallel_tasks(0, std::int64_t(chunks), [&](std::int64_t c) {
-    std::array<std::int64_t, 3> m{1, 1, 1};
-    for (std::size_t i = std::size_t(c) * kChunk; i < chunk_end(std::size_t(c)); ++i)
-      for (int d = 0; d < 3; ++d) m[d] = std::max(m[d], std::int64_t((points.position[i][d] - lo[d]) / h) + 1);
-    chunk_dims[std::size_t(c)] = m;
-  });
-  std::array<std::int64_t, 3>& dims = dims_;
-  for (const auto& m : chunk_dims)
-    for (int d = 0; d < 3; ++d) dims[d] = std::max(dims[d], m[d]);
+  // The particles' box: its smallest coordinates, and the cells from there to its largest
+  // (truncation is monotonic: the largest cell of any particle).
+  const PointBounds b = point_bounds(points.position);
+  for (int d = 0; d < 3; ++d) {
+    lo_[d] = double(b.lo[d]);
+    dims_[d] = std::max<std::int64_t>(1, std::int64_t((b.hi[d] - lo_[d]) / h) + 1);
+  }
+  const std::array<double, 3>& lo = lo_;
+  const std::array<std::int64_t, 3>& dims = dims_;
   // (cell key, particle) sorted by key, then particle.
   keys_.resize(n);
   std::vector<std::uint32_t> index(n);

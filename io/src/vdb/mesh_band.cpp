@@ -8,6 +8,7 @@
 #include <stdexcept>
 
 #include "slurry/transfer/parallel.h"
+#include "vdb/block_pairs.h"
 #include "vdb/radix_sort.h"
 #include "vdb/uninit_vector.h"
 
@@ -113,34 +114,10 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
     for (int d = 0; d < 3; ++d)
       b0[d] = floor_div(t.lo[d] - width, B) - lo[d], b1[d] = floor_div(t.hi[d] + width, B) - lo[d];
   };
-  // The (block, triangle) pairs in triangle order: counted per chunk of triangles, then each
-  // chunk writes its own stretch of the list.
-  constexpr std::size_t kChunk = std::size_t(1) << 12;
-  const std::size_t chunks = (nt + kChunk - 1) / kChunk;
-  const auto chunk_end = [&](std::size_t c) { return std::min(nt, (c + 1) * kChunk); };
-  std::vector<std::size_t> chunk_start(chunks + 1, 0);
-  parallel::parallel_tasks(0, std::int64_t(chunks), [&](std::int64_t c) {
-    std::size_t pairs = 0;
-    std::int64_t b0[3], b1[3];
-    for (std::size_t i = std::size_t(c) * kChunk; i < chunk_end(std::size_t(c)); ++i) {
-      block_range(i, b0, b1);
-      pairs += std::size_t((b1[0] - b0[0] + 1) * (b1[1] - b0[1] + 1) * (b1[2] - b0[2] + 1));
-    }
-    chunk_start[std::size_t(c) + 1] = pairs;
-  });
-  for (std::size_t c = 0; c < chunks; ++c) chunk_start[c + 1] += chunk_start[c];
-  UninitVector<std::uint64_t> keys(chunk_start[chunks]);
-  UninitVector<std::uint32_t> owner(chunk_start[chunks]);
-  parallel::parallel_tasks(0, std::int64_t(chunks), [&](std::int64_t c) {
-    std::size_t at = chunk_start[std::size_t(c)];
-    std::int64_t b0[3], b1[3];
-    for (std::size_t i = std::size_t(c) * kChunk; i < chunk_end(std::size_t(c)); ++i) {
-      block_range(i, b0, b1);
-      for (std::int64_t z = b0[2]; z <= b1[2]; ++z)
-        for (std::int64_t y = b0[1]; y <= b1[1]; ++y)
-          for (std::int64_t x = b0[0]; x <= b1[0]; ++x) keys[at] = key_of(x, y, z), owner[at++] = std::uint32_t(i);
-    }
-  });
+  // The (block, triangle) pairs, in triangle order.
+  UninitVector<std::uint64_t> keys;
+  UninitVector<std::uint32_t> owner;
+  list_block_pairs(nt, block_range, key_of, keys, owner);
   radix_sort_pairs(keys, owner);  // by block, then triangle
   std::vector<std::uint32_t> run;  // starts of each block's triangles, then keys.size()
   for (std::size_t i = 0; i < keys.size(); ++i)
