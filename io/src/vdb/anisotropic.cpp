@@ -62,7 +62,8 @@ struct CellGrid {
   double side = 1;
   std::array<std::int64_t, 3> lo{};
   std::array<std::int64_t, 3> n{};  ///< cells per axis, pads included
-  CellGrid(const std::vector<std::array<float, 3>>& pos, double side_, std::int64_t pad,
+  template <class Points>
+  CellGrid(const Points& pos, double side_, std::int64_t pad,
            const char* what)
       : side(side_) {
     // The cells of the points' bounds (floor is monotonic: the smallest and largest cells).
@@ -98,8 +99,9 @@ struct CellGrid {
 };
 
 /// Indices of `pos` sorted by key (ties by index), and the sorted keys.
-void sort_by_cell(const std::vector<std::array<float, 3>>& pos, const CellGrid& grid,
-                  std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& order) {
+template <class Points>
+void sort_by_cell(const Points& pos, const CellGrid& grid, UninitVector<std::uint64_t>& keys,
+                  UninitVector<std::uint32_t>& order) {
   const std::size_t n = pos.size();
   keys.resize(n);
   order.resize(n);
@@ -124,7 +126,7 @@ std::vector<std::uint32_t> runs(const Keys& keys) {
 /// full (a probe per lookup on average), built once, read by every task.
 class CellIndex {
  public:
-  CellIndex(const std::vector<std::uint64_t>& keys, const std::vector<std::uint32_t>& runs) {
+  CellIndex(const UninitVector<std::uint64_t>& keys, const std::vector<std::uint32_t>& runs) {
     std::size_t size = 16;
     int bits = 4;
     while (size < 2 * runs.size()) size *= 2, ++bits;
@@ -153,8 +155,8 @@ class CellIndex {
   std::size_t hash(std::uint64_t k) const { return std::size_t((k * 0x9E3779B97F4A7C15ull) >> shift_); }
   std::size_t mask_ = 0;
   int shift_ = 60;
-  std::vector<std::uint64_t> slot_key_;
-  std::vector<std::uint32_t> slot_run_;
+  Buffer<std::uint64_t> slot_key_;
+  Buffer<std::uint32_t> slot_run_;
 };
 
 struct Kernel {
@@ -180,13 +182,13 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   out.neighbours.assign(n, 0);
   {
     const CellGrid grid(points.position, R, 1, "neighbourhoods");
-    std::vector<std::uint64_t> keys;
-    std::vector<std::uint32_t> order;
+    UninitVector<std::uint64_t> keys;
+    UninitVector<std::uint32_t> order;
     sort_by_cell(points.position, grid, keys, order);
     const std::vector<std::uint32_t> cells = runs(keys);
     const CellIndex index(keys, cells);
     // Positions in cell order, by coordinate: a row of cells is one range of each.
-    std::vector<float> sorted[3];
+    UninitVector<float> sorted[3];
     for (auto& axis : sorted) axis.resize(n);
     parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t a) {
       const auto& p = points.position[order[std::size_t(a)]];
@@ -348,7 +350,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   //    block sums its kernels in ascending order of their centres' blocks.
   constexpr int B = FieldBlocks::kSize;
   // The kernels' centres, and their longest reach, in one pass.
-  std::vector<std::array<float, 3>> centres(n);
+  UninitVector<std::array<float, 3>> centres(n);
   const float reach_max = parallel::parallel_max(0, std::int64_t(n), 0.0f, [&](std::int64_t b, std::int64_t e) {
     float m = 0;
     for (std::size_t i = std::size_t(b); i < std::size_t(e); ++i)
@@ -357,8 +359,8 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   });
   const std::int64_t rb = std::int64_t(std::ceil(double(reach_max) / h / B + 1e-9));
   const CellGrid blocks(centres, B * h, rb + 1, "blocks of 8 voxels");
-  std::vector<std::uint64_t> keys;
-  std::vector<std::uint32_t> order;
+  UninitVector<std::uint64_t> keys;
+  UninitVector<std::uint32_t> order;
   sort_by_cell(centres, blocks, keys, order);
   const float inv_h = float(1.0 / h);
   /// Kernel i's voxels: [lo, hi] per axis (empty when lo > hi on an axis).

@@ -11,7 +11,7 @@
 #include <vector>
 
 #include "slurry/io/surface.h"
-#include "vdb/uninit_vector.h"
+#include "vdb/buffer.h"
 
 namespace slurry::io::detail {
 

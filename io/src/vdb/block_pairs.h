@@ -7,7 +7,7 @@
 #include <vector>
 
 #include "slurry/transfer/parallel.h"
-#include "vdb/uninit_vector.h"
+#include "vdb/buffer.h"
 
 namespace slurry::io::detail {
 

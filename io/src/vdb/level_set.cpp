@@ -450,7 +450,7 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
   // frame) keeps the middle level, 1/2.
   bool flat = points.size() > 1;
   for (const auto& p : points.position) flat = flat && p[2] == points.position.front()[2];
-  std::vector<std::pair<float, float>> samples;  // (phi, 1 / (h |grad phi|))
+  detail::UninitVector<std::pair<float, float>> samples;  // (phi, 1 / (h |grad phi|))
   if (!flat) {
     // In the order of the tree's leaves and their active voxels, each leaf's stretch filled by
     // one task.

@@ -82,7 +82,7 @@ VelocitySampler::VelocitySampler(const PointCloud& points, double spacing) : poi
   const std::array<std::int64_t, 3>& dims = dims_;
   // (cell key, particle) sorted by key, then particle.
   keys_.resize(n);
-  std::vector<std::uint32_t> index(n);
+  UninitVector<std::uint32_t> index(n);
   slurry::parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t i) {
     const auto& p = points.position[std::size_t(i)];
     std::int64_t c[3];
@@ -123,10 +123,10 @@ std::vector<std::array<float, 3>> VelocitySampler::sample(const std::vector<std:
   const double h = h_;
   const std::array<double, 3>& lo = lo_;
   const std::array<std::int64_t, 3>& dims = dims_;
-  const std::vector<std::uint64_t>& keys = keys_;
-  const std::vector<std::uint32_t>& first = first_;
-  const std::vector<std::array<float, 3>>& position = position_;
-  const std::vector<std::array<float, 3>>& velocity = velocity_;
+  const UninitVector<std::uint64_t>& keys = keys_;
+  const UninitVector<std::uint32_t>& first = first_;
+  const UninitVector<std::array<float, 3>>& position = position_;
+  const UninitVector<std::array<float, 3>>& velocity = velocity_;
   const auto cell_of = [&](const std::array<float, 3>& p, std::array<std::int64_t, 3>& c) {
     for (int d = 0; d < 3; ++d) c[d] = std::int64_t(std::floor((p[d] - lo[d]) / h));
   };

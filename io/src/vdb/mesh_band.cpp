@@ -10,7 +10,7 @@
 #include "slurry/transfer/parallel.h"
 #include "vdb/block_pairs.h"
 #include "vdb/radix_sort.h"
-#include "vdb/uninit_vector.h"
+#include "vdb/buffer.h"
 
 namespace slurry::io::detail {
 
@@ -76,7 +76,7 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
   if (nt == 0) return out;
   if (!(h > 0) || width < 1) throw std::invalid_argument("mesh_band: expected h > 0 and width >= 1");
   const float inv_h = float(1 / h);
-  std::vector<Tri> tri(nt);
+  UninitVector<Tri> tri(nt);
   parallel::parallel_for(0, std::int64_t(nt), [&](std::int64_t i) {
     Tri& t = tri[std::size_t(i)];
     const auto& v = triangles[std::size_t(i)];
@@ -124,14 +124,14 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
     if (i == 0 || keys[i] != keys[i - 1]) run.push_back(std::uint32_t(i));
   run.push_back(std::uint32_t(keys.size()));
   const std::size_t nb = run.size() - 1;
-  std::vector<std::uint64_t> block_key(nb);
+  UninitVector<std::uint64_t> block_key(nb);
   for (std::size_t b = 0; b < nb; ++b) block_key[b] = keys[run[b]];
   const auto origin_of = [&](std::size_t b) {
     const auto c = cell_of(block_key[b]);
     return std::array<std::int64_t, 3>{(c[0] + lo[0]) * B, (c[1] + lo[1]) * B, (c[2] + lo[2]) * B};
   };
   // Face neighbours of each block (-1: none, so no band there).
-  std::vector<std::array<std::int32_t, 6>> next(nb);
+  UninitVector<std::array<std::int32_t, 6>> next(nb);
   parallel::parallel_for(0, std::int64_t(nb), [&](std::int64_t b) {
     const auto c = cell_of(block_key[std::size_t(b)]);
     for (int f = 0; f < 6; ++f) {

@@ -20,6 +20,8 @@
 #include <cstdint>
 #include <vector>
 
+#include "vdb/buffer.h"
+
 namespace slurry::io::detail {
 
 /// Distances on blocks of 8^3 voxels (index-space voxel (i, j, k) at world (i, j, k) h, blocks
@@ -28,8 +30,8 @@ namespace slurry::io::detail {
 struct MeshBand {
   static constexpr int kSize = 8;
   std::vector<std::array<std::int32_t, 3>> origin;
-  std::vector<float> distance;         ///< 512 per block
-  std::vector<std::int32_t> triangle;  ///< 512 per block: the closest triangle, or -1
+  UninitVector<float> distance;         ///< 512 per block
+  UninitVector<std::int32_t> triangle;  ///< 512 per block: the closest triangle, or -1
 };
 
 /// The band of `width` voxels around the triangles of (`vertices`, `triangles`) (world

@@ -15,8 +15,9 @@ struct PointBounds {
   std::array<float, 3> lo{}, hi{};
 };
 
-/// Bounds of `pos` (lo > hi on every axis when it is empty).
-inline PointBounds point_bounds(const std::vector<std::array<float, 3>>& pos) {
+/// Bounds of `pos`, a vector of std::array<float, 3> (lo > hi on every axis when it is empty).
+template <class Points>
+PointBounds point_bounds(const Points& pos) {
   constexpr std::size_t kChunk = std::size_t(1) << 16;
   const std::size_t chunks = (pos.size() + kChunk - 1) / kChunk;
   constexpr float kInf = std::numeric_limits<float>::infinity();

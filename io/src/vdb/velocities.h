@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "slurry/io/surface.h"
+#include "vdb/buffer.h"
 
 namespace slurry::io::detail {
 
@@ -26,9 +27,9 @@ class VelocitySampler {
   double h_ = 0;
   std::array<double, 3> lo_{};
   std::array<std::int64_t, 3> dims_{1, 1, 1};
-  std::vector<std::uint64_t> keys_;  ///< cell keys, sorted
-  std::vector<std::uint32_t> first_;  ///< where each cell starts in keys_ (empty: a binary search)
-  std::vector<std::array<float, 3>> position_, velocity_;  ///< in cell order
+  UninitVector<std::uint64_t> keys_;  ///< cell keys, sorted
+  UninitVector<std::uint32_t> first_;  ///< where each cell starts in keys_ (empty: a binary search)
+  UninitVector<std::array<float, 3>> position_, velocity_;  ///< in cell order
 };
 
 }  // namespace slurry::io::detail
