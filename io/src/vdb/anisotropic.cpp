@@ -17,6 +17,7 @@
 #include <Eigen/Dense>
 
 #include <algorithm>
+#include <optional>
 #include <utility>
 #include <cmath>
 #include <stdexcept>
@@ -159,6 +160,49 @@ class CellIndex {
   Buffer<std::uint32_t> slot_run_;
 };
 
+/// Cell key to its particles' range in sorted order: a dense table of every cell's start when
+/// the cells' box holds at most kDenseCellsPerParticle cells per particle (a row of cells is then
+/// two adjacent reads, and neighbouring rows are near in memory), else CellIndex's hash.
+constexpr double kDenseCellsPerParticle = 4;
+class CellRanges {
+ public:
+  CellRanges(const CellGrid& grid, const UninitVector<std::uint64_t>& keys, const std::vector<std::uint32_t>& runs)
+      : runs_(runs) {
+    const std::size_t n = keys.size();
+    const double cells = double(grid.n[0]) * double(grid.n[1]) * double(grid.n[2]);
+    if (cells <= std::max(kDenseCellsPerParticle * double(n), double(1 << 20))) {
+      // first_[k] = the particles in cells before k: sorted particle i, the first of a run of
+      // keys, starts its cell and every empty cell before it.
+      first_.resize(std::size_t(cells) + 1);
+      parallel::parallel_for(0, std::int64_t(n) + 1, [&](std::int64_t i) {
+        const std::size_t from = i == 0 ? 0 : std::size_t(keys[std::size_t(i) - 1]) + 1;
+        const std::size_t to = std::size_t(i) == n ? first_.size() - 1 : std::size_t(keys[std::size_t(i)]);
+        for (std::size_t k = from; k <= to; ++k) first_[k] = std::uint32_t(i);
+      });
+    } else {
+      index_.emplace(keys, runs);
+    }
+  }
+  /// The particles of the `count` consecutive cells from `key`, [begin, end) of the sorted
+  /// order (begin == end when they are all empty).
+  std::pair<std::uint32_t, std::uint32_t> range(std::uint64_t key, int count) const {
+    if (!first_.empty()) return {first_[key], first_[key + std::uint64_t(count)]};
+    std::uint32_t first = UINT32_MAX, last = 0;
+    for (int e = 0; e < count; ++e) {
+      const std::int64_t run = index_->find(key + std::uint64_t(e));
+      if (run < 0) continue;
+      first = std::min(first, runs_[std::size_t(run)]), last = std::max(last, runs_[std::size_t(run) + 1]);
+    }
+    return first == UINT32_MAX ? std::pair<std::uint32_t, std::uint32_t>{0, 0}
+                               : std::pair<std::uint32_t, std::uint32_t>{first, last};
+  }
+
+ private:
+  const std::vector<std::uint32_t>& runs_;
+  UninitVector<std::uint32_t> first_;
+  std::optional<CellIndex> index_;
+};
+
 struct Kernel {
   std::array<float, 3> centre;
   std::array<float, 9> map;  ///< row-major A^-1 V^T: world offset to the unit ball
@@ -186,7 +230,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
     UninitVector<std::uint32_t> order;
     sort_by_cell(points.position, grid, keys, order);
     const std::vector<std::uint32_t> cells = runs(keys);
-    const CellIndex index(keys, cells);
+    const CellRanges ranges(grid, keys, cells);
     // Positions in cell order, by coordinate: a row of cells is one range of each.
     UninitVector<float> sorted[3];
     for (auto& axis : sorted) axis.resize(n);
@@ -201,19 +245,13 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
       for (int dy = -1, r = 0; dy <= 1; ++dy)
         for (int dz = -1; dz <= 1; ++dz, ++r) {
           // The row's cells are consecutive keys, so its particles are one range of `order`.
-          std::uint32_t first = UINT32_MAX, last = 0;
-          for (int e = 0; e < 3; ++e) {
-            const std::int64_t run = index.find(grid.key(cc[0] - 1 + e, cc[1] + dy, cc[2] + dz));
-            if (run < 0) {
-              fewest = 0;
-              continue;
+          const std::uint64_t row = grid.key(cc[0] - 1, cc[1] + dy, cc[2] + dz);
+          rows[std::size_t(r)] = ranges.range(row, 3);
+          if (fewest > 0)
+            for (int e = 0; e < 3; ++e) {
+              const auto [b, en] = ranges.range(row + std::uint64_t(e), 1);
+              fewest = std::min(fewest, en - b);
             }
-            const std::uint32_t b = cells[std::size_t(run)], en = cells[std::size_t(run) + 1];
-            fewest = std::min(fewest, en - b);
-            first = std::min(first, b), last = std::max(last, en);
-          }
-          rows[std::size_t(r)] = first == UINT32_MAX ? std::pair<std::uint32_t, std::uint32_t>{0, 0}
-                                                     : std::pair<std::uint32_t, std::uint32_t>{first, last};
         }
       // Deep in the liquid (each of the 27 cells holds at least 3/4 of the 8 particles a cell
       // of side 2 spacings holds at rest): a particle's neighbourhood fills its ball, so its
@@ -222,7 +260,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
         for (std::uint32_t a = cells[std::size_t(c)]; a < cells[std::size_t(c) + 1]; ++a) {
           const std::uint32_t i = order[a];
           Kernel& ker = kernel[i];
-          ker.centre = points.position[i];
+          ker.centre = {sorted[0][a], sorted[1][a], sorted[2][a]};
           ker.map = {float(1 / H), 0, 0, 0, float(1 / H), 0, 0, 0, float(1 / H)};
           ker.weight = float(volume * K / (H * H * H));
           ker.reach = float(H);

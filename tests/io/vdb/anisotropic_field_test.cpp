@@ -1,0 +1,66 @@
+// The anisotropic field (io/src/vdb/anisotropic.h) finds each particle's neighbours through a
+// dense table of cells when the particles' box holds few cells per particle, else through a hash
+// of the occupied cells: both give the same field, bit for bit.
+#include <gtest/gtest.h>
+
+#include <cstring>
+#include <map>
+#include <random>
+
+#include "vdb/anisotropic.h"
+
+namespace {
+
+using slurry::io::PointCloud;
+using slurry::io::detail::anisotropic_field;
+using slurry::io::detail::FieldBlocks;
+
+constexpr double dx = 0.02, s = 0.01;  // 8 particles per cell, on voxels of dx
+
+/// A jittered 0.3 x 0.2 x 0.3 m block of particles at spacing s, with a hole (so that some
+/// particles are deep and some are not).
+PointCloud block() {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(-0.3f * float(s), 0.3f * float(s));
+  PointCloud c;
+  for (double x = 0.5 * s; x < 0.3; x += s)
+    for (double y = 0.5 * s; y < 0.2; y += s)
+      for (double z = 0.5 * s; z < 0.3; z += s) {
+        const double r2 = (x - 0.15) * (x - 0.15) + (y - 0.1) * (y - 0.1) + (z - 0.15) * (z - 0.15);
+        if (r2 < 0.05 * 0.05) continue;
+        c.position.push_back({float(x) + u(rng), float(y) + u(rng), float(z) + u(rng)});
+      }
+  return c;
+}
+
+std::map<std::array<std::int32_t, 3>, const float*> by_origin(const FieldBlocks& f) {
+  std::map<std::array<std::int32_t, 3>, const float*> m;
+  for (std::size_t b = 0; b < f.origin.size(); ++b) m[f.origin[b]] = f.value.data() + b * 512;
+  return m;
+}
+
+TEST(AnisotropicField, DenseAndHashedCellTablesGiveTheSameField) {
+  const PointCloud near = block();
+  // One particle 8 m away on each axis: the box of neighbourhood cells (side 2 s) grows to
+  // about 400^3, far over 4 per particle, so the cells are hashed.
+  PointCloud far = near;
+  far.position.push_back({8.0f, 8.0f, 8.0f});
+  const FieldBlocks dense = anisotropic_field(near, dx, s), hashed = anisotropic_field(far, dx, s);
+  ASSERT_GT(hashed.origin.size(), dense.origin.size()) << "the lone particle's blocks";
+  const auto a = by_origin(dense), b = by_origin(hashed);
+  std::size_t deep = 0;
+  for (std::size_t i = 0; i < near.size(); ++i) {
+    ASSERT_EQ(dense.neighbours[i], hashed.neighbours[i]) << "particle " << i;
+    deep += dense.neighbours[i] == 255;
+  }
+  EXPECT_GT(deep, 0u);
+  EXPECT_LT(deep, near.size());
+  for (const auto& [origin, values] : a) {
+    const auto it = b.find(origin);
+    ASSERT_NE(it, b.end());
+    EXPECT_EQ(std::memcmp(values, it->second, 512 * sizeof(float)), 0)
+        << "block at " << origin[0] << " " << origin[1] << " " << origin[2];
+  }
+}
+
+}  // namespace
