@@ -138,6 +138,12 @@ std::vector<std::array<float, 3>> VelocitySampler::sample(const std::vector<std:
     return std::size_t(std::lower_bound(keys.begin(), keys.end(), std::uint64_t(k)) - keys.begin());
   };
 
+  const auto row_end = [&](std::int64_t k_last) {
+    if (!first.empty()) return std::size_t(first[std::size_t(k_last) + 1]);
+    return std::size_t(std::upper_bound(keys.begin(), keys.end(), std::uint64_t(k_last)) - keys.begin());
+  };
+  const double h2 = h * h;
+
   slurry::parallel::parallel_for(0, std::int64_t(vertices.size()), [&](std::int64_t vi) {
     const auto& q = vertices[std::size_t(vi)];
     std::array<std::int64_t, 3> c;
@@ -145,25 +151,49 @@ std::vector<std::array<float, 3>> VelocitySampler::sample(const std::vector<std:
     double w_sum = 0, u[3] = {0, 0, 0}, nearest = 1e300;
     std::size_t nearest_index = 0;  // in cell order
     // The cells (a, b, c[2] - 1 .. c[2] + 1) are consecutive keys: one range per row, visited
-    // in the same order as cell by cell.
+    // in the same order as cell by cell. Per row, the squared distances in one loop (vectors),
+    // the candidates within h listed without branches, then summed in order.
+    thread_local std::vector<double> r2s;
+    thread_local std::vector<std::uint32_t> within;
+    std::array<std::pair<std::size_t, std::size_t>, 9> rows{};
+    int row_count = 0;
     for (std::int64_t a = c[0] - 1; a <= c[0] + 1; ++a)
       for (std::int64_t b = c[1] - 1; b <= c[1] + 1; ++b) {
         if (a < 0 || b < 0 || a >= dims[0] || b >= dims[1]) continue;
         const std::int64_t e0 = std::max<std::int64_t>(c[2] - 1, 0), e1 = std::min(c[2] + 1, dims[2] - 1);
         if (e0 > e1) continue;
-        const std::uint64_t k_end = std::uint64_t(key({a, b, e1}));
-        for (std::size_t t = row_begin(key({a, b, e0})); t < n && keys[t] <= k_end; ++t) {
-          const auto& p = position[t];
+        const std::size_t t0 = row_begin(key({a, b, e0})), t1 = row_end(key({a, b, e1}));
+        if (t0 >= t1) continue;
+        rows[std::size_t(row_count++)] = {t0, t1};
+        const std::size_t m = t1 - t0;
+        if (r2s.size() < m) r2s.resize(m), within.resize(m);
+        double* const r2 = r2s.data();
+        for (std::size_t j = 0; j < m; ++j) {
+          const auto& p = position[t0 + j];
           const double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
-          const double r2 = dx * dx + dy * dy + dz * dz;
-          if (r2 < nearest) nearest = r2, nearest_index = t;
-          if (r2 >= h * h) continue;
-          const double s = 1 - r2 / (h * h),
+          r2[j] = dx * dx + dy * dy + dz * dz;
+        }
+        std::size_t listed = 0;
+        for (std::size_t j = 0; j < m; ++j) {
+          within[listed] = std::uint32_t(j);
+          listed += r2[j] < h2 ? 1 : 0;
+        }
+        for (std::size_t k = 0; k < listed; ++k) {
+          const std::size_t j = within[k], t = t0 + j;
+          const double s = 1 - r2[j] / h2,
                        w = s * s * s;  // poly6 (Mueller et al. 2003, eq. 20), unnormalized
           w_sum += w;
           for (int d = 0; d < 3; ++d) u[d] += w * velocity[t][d];
         }
       }
+    if (!(w_sum > 0))  // none within h: the nearest of the rows (the first of equals)
+      for (int r = 0; r < row_count; ++r)
+        for (std::size_t t = rows[std::size_t(r)].first; t < rows[std::size_t(r)].second; ++t) {
+          const auto& p = position[t];
+          const double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
+          const double r2 = dx * dx + dy * dy + dz * dz;
+          if (r2 < nearest) nearest = r2, nearest_index = t;
+        }
     auto& o = out[std::size_t(vi)];
     if (w_sum > 0) {
       for (int d = 0; d < 3; ++d) o[d] = float(u[d] / w_sum);
