@@ -1,6 +1,8 @@
 // The pool of large buffers' mappings (buffer.h).
 #include "vdb/buffer.h"
 
+#include "slurry/io/surface.h"
+
 #include <algorithm>
 #include <map>
 #include <mutex>
@@ -118,3 +120,11 @@ std::size_t buffer_pool_bytes() noexcept {
 }
 
 }  // namespace slurry::io::detail
+
+namespace slurry::io {
+
+std::size_t release_surfacing_memory() {
+  return detail::release_buffer_pool();
+}
+
+}  // namespace slurry::io

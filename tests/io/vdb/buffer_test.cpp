@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cstdint>
 
+#include "slurry/io/surface.h"
 #include "vdb/buffer.h"
 
 namespace {
@@ -85,6 +86,24 @@ TEST(BufferPool, KeepsAtMostItsLimitDroppingTheLargestFirst) {
   EXPECT_EQ(buffer_pool_bytes(), small + big);
   EXPECT_LE(buffer_pool_bytes(), kPoolBytes);
   EXPECT_EQ(release_buffer_pool(), small + big);
+}
+
+TEST(BufferPool, SurfacingKeepsItsLargeBuffersUntilReleased) {
+  release_buffer_pool();
+  // 125 k particles at spacing 0.01 m: the kernels alone take 7 MB.
+  slurry::io::PointCloud cloud;
+  for (int i = 0; i < 50; ++i)
+    for (int j = 0; j < 50; ++j)
+      for (int k = 0; k < 50; ++k)
+        cloud.position.push_back({0.01f * (float(i) + 0.5f), 0.01f * (float(j) + 0.5f), 0.01f * (float(k) + 0.5f)});
+  const slurry::io::Surface first = slurry::io::surface_mesh(cloud, slurry::io::SurfaceParams{0.02, 0.01});
+  const std::size_t kept = buffer_pool_bytes();
+  EXPECT_GE(kept, 8 * kMiB);
+  const slurry::io::Surface second = slurry::io::surface_mesh(cloud, slurry::io::SurfaceParams{0.02, 0.01});
+  EXPECT_EQ(buffer_pool_bytes(), kept) << "the second frame reuses the first's buffers";
+  EXPECT_EQ(second.mesh.vertices, first.mesh.vertices);
+  EXPECT_EQ(slurry::io::release_surfacing_memory(), kept);
+  EXPECT_EQ(buffer_pool_bytes(), 0u);
 }
 
 }  // namespace

@@ -153,6 +153,11 @@ Surface surface_particles(const PointCloud& points, const SurfaceParams& params)
 /// its velocity grid, about 40% of its time; the spheres method meshes its level set and drops
 /// it without a velocity grid. Surface::level_set is empty (no voxels).
 Surface surface_mesh(const PointCloud& points, const SurfaceParams& params);
+/// Surfacing keeps the large buffers (4 MiB and more) that a frame frees, up to 2 GiB in all, and
+/// reuses them at the next frame instead of touching fresh pages (io/src/vdb/buffer.h). This
+/// returns them to the system, for a process that surfaces no more frames (a bake's end, an
+/// editor session); it returns the bytes released. Thread-safe.
+std::size_t release_surfacing_memory();
 
 /// Per-vertex velocities (step 5) at `vertices` from `points` (which must have velocities).
 std::vector<std::array<float, 3>> sample_velocities(
