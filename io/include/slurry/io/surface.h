@@ -150,8 +150,9 @@ TriangleMesh level_set_to_mesh(const LevelSet& level_set, const PointCloud& poin
 Surface surface_particles(const PointCloud& points, const SurfaceParams& params);
 /// The mesh of surface_particles alone (the same vertices, triangles and vertex velocities), for
 /// outputs without a .vdb: the anisotropic method then skips the level set of its mesh (A6) and
-/// its velocity grid, about 40% of its time; the spheres method meshes its level set and drops
-/// it without a velocity grid. Surface::level_set is empty (no voxels).
+/// its velocity grid, a quarter of its time on the 3D dam break (benchmarks/RESULTS.md); the
+/// spheres method meshes its level set and drops it without a velocity grid.
+/// Surface::level_set is empty (no voxels).
 Surface surface_mesh(const PointCloud& points, const SurfaceParams& params);
 /// Surfacing keeps the large buffers (4 MiB and more) that a frame frees, up to 2 GiB in all, and
 /// reuses them at the next frame instead of touching fresh pages (io/src/vdb/buffer.h). This
