@@ -25,6 +25,7 @@
 
 #include "slurry/transfer/parallel.h"
 #include "vdb/block_pairs.h"
+#include "vdb/cell_starts.h"
 #include "vdb/point_bounds.h"
 #include "vdb/radix_sort.h"
 
@@ -160,28 +161,17 @@ class CellIndex {
   Buffer<std::uint32_t> slot_run_;
 };
 
-/// Cell key to its particles' range in sorted order: a dense table of every cell's start when
-/// the cells' box holds at most kDenseCellsPerParticle cells per particle (a row of cells is then
-/// two adjacent reads, and neighbouring rows are near in memory), else CellIndex's hash.
-constexpr double kDenseCellsPerParticle = 4;
+/// Cell key to its particles' range in sorted order: a dense table of every cell's start
+/// (cell_starts.h) when the cells' box is small enough, else CellIndex's hash.
 class CellRanges {
  public:
   CellRanges(const CellGrid& grid, const UninitVector<std::uint64_t>& keys, const std::vector<std::uint32_t>& runs)
       : runs_(runs) {
-    const std::size_t n = keys.size();
     const double cells = double(grid.n[0]) * double(grid.n[1]) * double(grid.n[2]);
-    if (cells <= std::max(kDenseCellsPerParticle * double(n), double(1 << 20))) {
-      // first_[k] = the particles in cells before k: sorted particle i, the first of a run of
-      // keys, starts its cell and every empty cell before it.
-      first_.resize(std::size_t(cells) + 1);
-      parallel::parallel_for(0, std::int64_t(n) + 1, [&](std::int64_t i) {
-        const std::size_t from = i == 0 ? 0 : std::size_t(keys[std::size_t(i) - 1]) + 1;
-        const std::size_t to = std::size_t(i) == n ? first_.size() - 1 : std::size_t(keys[std::size_t(i)]);
-        for (std::size_t k = from; k <= to; ++k) first_[k] = std::uint32_t(i);
-      });
-    } else {
+    if (dense_cell_table(cells, keys.size()))
+      first_ = cell_starts(keys, std::size_t(cells));
+    else
       index_.emplace(keys, runs);
-    }
   }
   /// The particles of the `count` consecutive cells from `key`, [begin, end) of the sorted
   /// order (begin == end when they are all empty).

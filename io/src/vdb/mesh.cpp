@@ -12,6 +12,7 @@
 #include "slurry/io/obj.h"
 #include "slurry/io/surface.h"
 #include "slurry/transfer/parallel.h"
+#include "vdb/cell_starts.h"
 #include "vdb/point_bounds.h"
 #include "vdb/radix_sort.h"
 #include "vdb/velocities.h"
@@ -94,16 +95,7 @@ VelocitySampler::VelocitySampler(const PointCloud& points, double spacing) : poi
   // Where each cell's particles start in `keys`, when the cells of the particles' box are few
   // enough for a table (else a binary search per row).
   const double cell_count = double(dims[0]) * double(dims[1]) * double(dims[2]);
-  if (cell_count <= std::max(4.0 * double(n), double(1 << 20))) {
-    // first[k] = the particles in cells before k: the sorted particle i that starts a run of
-    // keys is the first of its cell and of the empty cells just before it.
-    first_.resize(std::size_t(cell_count) + 1);
-    slurry::parallel::parallel_for(0, std::int64_t(n) + 1, [&](std::int64_t i) {
-      const std::size_t from = i == 0 ? 0 : std::size_t(keys_[std::size_t(i) - 1]) + 1;
-      const std::size_t to = std::size_t(i) == n ? first_.size() - 1 : std::size_t(keys_[std::size_t(i)]);
-      for (std::size_t k = from; k <= to; ++k) first_[k] = std::uint32_t(i);
-    });
-  }
+  if (dense_cell_table(cell_count, n)) first_ = cell_starts(keys_, std::size_t(cell_count));
   // Positions and velocities in cell order: a row of cells is one stretch of memory.
   position_.resize(n);
   velocity_.resize(n);
