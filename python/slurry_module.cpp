@@ -492,6 +492,13 @@ PYBIND11_MODULE(slurry, m) {
       },
       py::arg("scene"), "Builds the solver the scene asks for (reading its mesh files).");
 
+#ifdef SLURRY_PYTHON_WITH_OPENVDB
+  m.def("release_surfacing_memory", &slurry::io::release_surfacing_memory,
+        "Returns to the system the buffers that surfacing (Simulation.surface) keeps for its next call, "
+        "and the bytes released: for a session that surfaces no more frames. run_scene returns them itself "
+        "when it ends.");
+#endif
+
   py::class_<StopToken>(m, "StopToken",
                         "Stops a run_scene or advance_to call from another thread or a callback: the call ends "
                         "after the frame it is computing (run_scene: written, with a checkpoint for resume).")
@@ -517,6 +524,11 @@ PYBIND11_MODULE(slurry, m) {
         const bool pipeline = write_files && (!scene.output.surface.empty() || scene.output.vdb_points);
 #ifdef SLURRY_PYTHON_WITH_OPENVDB
         const slurry::io::FrameOutputs outputs = slurry::io::frame_outputs(scene);
+        // The surfacer keeps its buffers from frame to frame; the run returns them when it ends,
+        // however it ends, so that the Python process does not hold them after the bake.
+        struct ReleaseSurfacing {
+          ~ReleaseSurfacing() { slurry::io::release_surfacing_memory(); }
+        } release_surfacing;
 #else
         if (pipeline)
           throw slurry::SceneError(scene.source + ": " + (scene.output.vdb_points ? "output.vdb_points" : "output.surface") +

@@ -242,3 +242,20 @@ def test_run_scene_writes_the_surfaces_the_scene_asks_for(tmp_path):
     with open(tmp_path / "surface_0002.ply", "rb") as fh:
         header = fh.read(400).decode("ascii", "replace")
     assert "property float vx" in header and "element face" in header
+
+
+def test_surfacing_memory_is_kept_for_the_next_call_until_released(tmp_path):
+    # On voxels of a tenth of a cell the surfacer's buffers reach its pool's 4 MiB threshold:
+    # surface() keeps them for its next call; release_surfacing_memory returns them, once.
+    sim = slurry.make_simulation(slurry.parse_scene(BALL))
+    slurry.release_surfacing_memory()
+    assert len(sim.surface(voxel_size=0.005)["faces"]) > 1000
+    assert slurry.release_surfacing_memory() >= 4 << 20
+    assert slurry.release_surfacing_memory() == 0
+    # A run with the same surfaces returns them when it ends.
+    scene = {**BALL, "output": {**BALL["output"], "frames": 1, "surface_voxel_size": 0.005}}
+    files = []
+    slurry.run_scene(slurry.parse_scene(scene), directory=str(tmp_path), threads=1,
+                     on_frame=lambda f: files.append(f["pipeline_files"]))
+    assert len(files) == 2 and all(len(fs) == 1 for fs in files)
+    assert slurry.release_surfacing_memory() == 0
