@@ -23,6 +23,7 @@
 #include "slurry/io/surface.h"
 #include "slurry/transfer/parallel.h"
 #include "vdb/anisotropic.h"
+#include "vdb/field_sampler.h"
 #include "vdb/mesh_band.h"
 #include "vdb/vdb_common.h"
 #include "vdb/velocities.h"
@@ -499,18 +500,28 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
   std::vector<std::size_t> droplets;
   if (!flat) {
     std::vector<std::uint8_t> is_droplet(points.size(), 0);
-    slurry::parallel::parallel_chunks(0, std::int64_t(points.size()), [&](std::int64_t b, std::int64_t e) {
-      const openvdb::FloatGrid::ConstAccessor acc = field->getConstAccessor();
-      const openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::BoxSampler> sampler(
-          acc, field->transform());
-      for (std::int64_t i = b; i < e; ++i) {
-        const auto& p = points.position[std::size_t(i)];
-        const int n = blocks.neighbours[std::size_t(i)];
-        const double f = sampler.wsSample(openvdb::Vec3R(p[0], p[1], p[2]));
-        is_droplet[std::size_t(i)] =
-            (n < detail::AnisotropyConstants{}.min_neighbours && f < iso) || f < kFarOutside * iso;
-      }
-    });
+    const auto droplet = [&](std::size_t i, double f) {
+      const int n = blocks.neighbours[i];
+      return (n < detail::AnisotropyConstants{}.min_neighbours && f < iso) || f < kFarOutside * iso;
+    };
+    // The field at the particles: from its blocks directly (the tree's trilinear value, bit for
+    // bit) unless it was smoothed or its blocks are too scattered for a table.
+    const detail::FieldSampler direct(blocks, h);
+    if (params.smoothing == 0 && direct.usable()) {
+      slurry::parallel::parallel_for(0, std::int64_t(points.size()), [&](std::int64_t i) {
+        is_droplet[std::size_t(i)] = droplet(std::size_t(i), direct.sample(points.position[std::size_t(i)]));
+      });
+    } else {
+      slurry::parallel::parallel_chunks(0, std::int64_t(points.size()), [&](std::int64_t b, std::int64_t e) {
+        const openvdb::FloatGrid::ConstAccessor acc = field->getConstAccessor();
+        const openvdb::tools::GridSampler<openvdb::FloatGrid::ConstAccessor, openvdb::tools::BoxSampler> sampler(
+            acc, field->transform());
+        for (std::int64_t i = b; i < e; ++i) {
+          const auto& p = points.position[std::size_t(i)];
+          is_droplet[std::size_t(i)] = droplet(std::size_t(i), sampler.wsSample(openvdb::Vec3R(p[0], p[1], p[2])));
+        }
+      });
+    }
     for (std::size_t i = 0; i < points.size(); ++i)
       if (is_droplet[i]) droplets.push_back(i);
     if (!droplets.empty()) iso = level_for(double(points.size() - droplets.size()) * particle_volume);
