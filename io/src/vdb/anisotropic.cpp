@@ -26,6 +26,7 @@
 #include "slurry/transfer/parallel.h"
 #include "vdb/block_pairs.h"
 #include "vdb/cell_starts.h"
+#include "vdb/lanes.h"
 #include "vdb/point_bounds.h"
 #include "vdb/radix_sort.h"
 
@@ -38,23 +39,8 @@ constexpr int kBits = 21;
 /// particle treated as deep (a round kernel, no neighbour sums).
 constexpr std::uint32_t kDeepCell = 6;
 constexpr std::int64_t kRange = std::int64_t(1) << kBits;
-/// The neighbour sums run over every candidate in kLanes partial sums (candidate q in lane
-/// q mod kLanes, a loop of whole vectors that compilers vectorize), then the lanes are added as a
-/// tree in double: the same additions on any machine, whatever its vector width. kLanes is a
-/// multiple of the widest vector's float lanes (16).
-constexpr std::size_t kLanes = 16;
 /// A padding coordinate for the candidates: beyond any neighbourhood, its square still finite.
 constexpr float kFar = 1e15f;
-
-/// The sum of kLanes lanes in double, as a tree of halving strides.
-template <class T>
-double lane_total(const T (&lanes)[kLanes]) {
-  double s[kLanes];
-  for (std::size_t l = 0; l < kLanes; ++l) s[l] = double(lanes[l]);
-  for (std::size_t w = kLanes / 2; w > 0; w /= 2)
-    for (std::size_t l = 0; l < w; ++l) s[l] += s[l + w];
-  return s[0];
-}
 
 /// Integer cells of side `side` (m) holding `pos`, numbered x fastest over the box of cells they
 /// span plus `pad` cells on each side (so that a row of cells along x is a contiguous key range,
@@ -301,7 +287,8 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
             c00[l] += w * d0 * d0, c11[l] += w * d1 * d1, c22[l] += w * d2 * d2;
             c01[l] += w * d0 * d1, c02[l] += w * d0 * d2, c12[l] += w * d1 * d2;
           }
-        const int inside = int(lane_total(in));
+        int inside = 0;  // exact in any order
+        for (const std::int32_t c : in) inside += c;
         double mean[3] = {lane_total(m0), lane_total(m1), lane_total(m2)};
         const double second[6] = {lane_total(c00), lane_total(c11), lane_total(c22),
                                   lane_total(c01), lane_total(c02), lane_total(c12)};
