@@ -1,6 +1,7 @@
 // The anisotropic field (io/src/vdb/anisotropic.h) finds each particle's neighbours through a
 // dense table of cells when the particles' box holds few cells per particle, else through a hash
-// of the occupied cells: both give the same field, bit for bit.
+// of the occupied cells: both give the same field, bit for bit. Its neighbour sums' lanes are
+// added in vector operations in the same order as one addition at a time (lanes.h).
 #include <gtest/gtest.h>
 
 #include <cmath>
