@@ -26,13 +26,15 @@ class FieldSampler {
     if (field.origin.empty()) return;
     std::array<std::int32_t, 3> lo = field.origin.front(), hi = lo;
     for (const auto& o : field.origin)
-      for (int d = 0; d < 3; ++d) lo[std::size_t(d)] = std::min(lo[std::size_t(d)], o[std::size_t(d)]),
-                                  hi[std::size_t(d)] = std::max(hi[std::size_t(d)], o[std::size_t(d)]);
+      for (std::size_t d = 0; d < 3; ++d) {
+        lo[d] = std::min(lo[d], o[d]);
+        hi[d] = std::max(hi[d], o[d]);
+      }
     double cells = 1;
-    for (int d = 0; d < 3; ++d) {
-      lo_[std::size_t(d)] = lo[std::size_t(d)] / B;
-      dims_[std::size_t(d)] = (hi[std::size_t(d)] - lo[std::size_t(d)]) / B + 1;
-      cells *= double(dims_[std::size_t(d)]);
+    for (std::size_t d = 0; d < 3; ++d) {
+      lo_[d] = lo[d] / B;  // origins are multiples of B
+      dims_[d] = (hi[d] - lo[d]) / B + 1;
+      cells *= double(dims_[d]);
     }
     if (cells > 64.0 * double(field.origin.size()) || cells > double(1 << 24)) return;
     table_.assign(std::size_t(cells), -1);

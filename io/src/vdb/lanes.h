@@ -26,9 +26,12 @@ inline double lane_total_scalar(const float (&lanes)[kLanes]) {
 inline double lane_total(const float (&lanes)[kLanes]) {
   static_assert(kLanes == 16);
 #ifdef __AVX512F__
-  // The same additions, a stride per vector operation.
-  const __m512d s8 = _mm512_add_pd(_mm512_cvtps_pd(_mm256_loadu_ps(lanes)), _mm512_cvtps_pd(_mm256_loadu_ps(lanes + 8)));
-  const __m256d s4 = _mm256_add_pd(_mm512_castpd512_pd256(s8), _mm512_extractf64x4_pd(s8, 1));
+  // The same additions, a stride per vector operation. (The zero-masked forms with every lane
+  // kept: GCC 12's unmasked ones read an "undefined" vector that -Wuninitialized reports.)
+  const __mmask8 all = 0xff;
+  const __m512d s8 = _mm512_add_pd(_mm512_maskz_cvtps_pd(all, _mm256_loadu_ps(lanes)),
+                                   _mm512_maskz_cvtps_pd(all, _mm256_loadu_ps(lanes + 8)));
+  const __m256d s4 = _mm256_add_pd(_mm512_maskz_extractf64x4_pd(all, s8, 0), _mm512_maskz_extractf64x4_pd(all, s8, 1));
   const __m128d s2 = _mm_add_pd(_mm256_castpd256_pd128(s4), _mm256_extractf128_pd(s4, 1));
   return _mm_cvtsd_f64(_mm_add_sd(s2, _mm_unpackhi_pd(s2, s2)));
 #else

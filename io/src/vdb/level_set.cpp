@@ -15,6 +15,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <optional>
 #include <stdexcept>
 #include <system_error>
 
@@ -505,11 +506,13 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
       return (n < detail::AnisotropyConstants{}.min_neighbours && f < iso) || f < kFarOutside * iso;
     };
     // The field at the particles: from its blocks directly (the tree's trilinear value, bit for
-    // bit) unless it was smoothed or its blocks are too scattered for a table.
-    const detail::FieldSampler direct(blocks, h);
-    if (params.smoothing == 0 && direct.usable()) {
+    // bit) unless it was smoothed (the blocks are then not the tree) or its blocks are too
+    // scattered for a table.
+    std::optional<detail::FieldSampler> direct;
+    if (params.smoothing == 0) direct.emplace(blocks, h);
+    if (direct && direct->usable()) {
       slurry::parallel::parallel_for(0, std::int64_t(points.size()), [&](std::int64_t i) {
-        is_droplet[std::size_t(i)] = droplet(std::size_t(i), direct.sample(points.position[std::size_t(i)]));
+        is_droplet[std::size_t(i)] = droplet(std::size_t(i), direct->sample(points.position[std::size_t(i)]));
       });
     } else {
       slurry::parallel::parallel_chunks(0, std::int64_t(points.size()), [&](std::int64_t b, std::int64_t e) {
