@@ -19,6 +19,11 @@ namespace {
 constexpr int B = MeshBand::kSize;
 constexpr int kBits = 21;
 constexpr std::int64_t kRange = std::int64_t(1) << kBits;
+/// A lower bound of a squared distance (voxels^2) skips the exact one only when it exceeds the
+/// best distance so far by this much, relative and absolute: far beyond the rounding of either
+/// (a few float ulps of distances of a few voxels), so a skipped triangle is never the closest
+/// or tied with it, and the band is the one every exact distance gives.
+constexpr float kBoundMargin = 1e-3f;
 
 std::int64_t floor_div(std::int64_t a, std::int64_t b) {
   return a >= 0 ? a / b : -((-a + b - 1) / b);
@@ -70,7 +75,8 @@ float distance2(const Tri& t, const float p[3]) {
 }  // namespace
 
 MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
-                   const std::vector<std::array<std::int32_t, 3>>& triangles, double h, int width) {
+                   const std::vector<std::array<std::int32_t, 3>>& triangles, double h, int width,
+                   bool exhaustive) {
   MeshBand out;
   const std::size_t nt = triangles.size();
   if (nt == 0) return out;
@@ -166,17 +172,46 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
         empty = empty || v0[d] > v1[d];
       }
       if (empty) continue;
-      for (std::int64_t x = v0[0]; x <= v1[0]; ++x)
-        for (std::int64_t y = v0[1]; y <= v1[1]; ++y)
+      // The squared distance to the triangle's bounding box is a lower bound of its distance:
+      // a voxel whose bound exceeds the distance it already has, by more than distance2's
+      // rounding could make up, keeps its triangle without the exact distance.
+      float box_lo[3], box_hi[3];
+      for (int d = 0; d < 3; ++d)
+        box_lo[d] = std::min({t.a[d], t.b[d], t.c[d]}), box_hi[d] = std::max({t.a[d], t.b[d], t.c[d]});
+      const auto gap2 = [&](int d, std::int64_t v) {
+        const float g = std::max({box_lo[d] - float(v), float(v) - box_hi[d], 0.0f});
+        return g * g;
+      };
+      for (std::int64_t x = v0[0]; x <= v1[0]; ++x) {
+        const float gx = gap2(0, x);
+        for (std::int64_t y = v0[1]; y <= v1[1]; ++y) {
+          const float gxy = gx + gap2(1, y);
           for (std::int64_t z = v0[2]; z <= v1[2]; ++z) {
+            const std::size_t at = std::size_t(((x - o[0]) * B + (y - o[1])) * B + (z - o[2]));
+            if (!exhaustive && gxy + gap2(2, z) > d2[at] * (1 + kBoundMargin) + kBoundMargin) continue;
             const float p[3] = {float(x), float(y), float(z)};
             const float e = distance2(t, p);
-            const std::size_t at = std::size_t(((x - o[0]) * B + (y - o[1])) * B + (z - o[2]));
             if (e < d2[at]) d2[at] = e, cl[at] = std::int32_t(i);  // ascending i: ties keep the lower
           }
+        }
+      }
     }
   });
   // 2. Layers: a voxel not reached takes the nearest of its face neighbours' closest triangles.
+  //    Only a voxel beside one reached in the layer before can change (the others would see the
+  //    same neighbours as then): each block's voxels as 8 words of 64 bits (x; bit 8 y + z),
+  //    the reached ones and the newly reached ones, whose face neighbours are the next layer's
+  //    candidates. A layer reads only the previous one: its results are kept aside, then stored.
+  constexpr std::uint64_t kZ0 = 0x0101010101010101ull, kZ7 = kZ0 << 7;
+  UninitVector<std::array<std::uint64_t, B>> reached(nb), fresh(nb), fresh_next(nb);
+  parallel::parallel_for(0, std::int64_t(nb), [&](std::int64_t b) {
+    const std::int32_t* cl = closest.data() + std::size_t(b) * V;
+    for (int x = 0; x < B; ++x) {
+      std::uint64_t word = 0;
+      for (int v = 0; v < B * B; ++v) word |= std::uint64_t(cl[x * B * B + v] >= 0) << v;
+      reached[std::size_t(b)][std::size_t(x)] = fresh[std::size_t(b)][std::size_t(x)] = word;
+    }
+  });
   UninitVector<float> dist2_next(nb * V);
   UninitVector<std::int32_t> closest_next(nb * V);
   const float reach2 = float(width) * float(width);
@@ -184,41 +219,63 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
     parallel::parallel_tasks(0, std::int64_t(nb), [&](std::int64_t b) {
       const auto o = origin_of(std::size_t(b));
       const auto& nbr = next[std::size_t(b)];
-      std::copy_n(dist2.data() + std::size_t(b) * V, V, dist2_next.data() + std::size_t(b) * V);
-      std::copy_n(closest.data() + std::size_t(b) * V, V, closest_next.data() + std::size_t(b) * V);
-      for (int x = 0; x < B; ++x)
-        for (int y = 0; y < B; ++y)
-          for (int z = 0; z < B; ++z) {
-            const std::size_t at = std::size_t(std::size_t(b) * V + std::size_t((x * B + y) * B + z));
-            if (closest[at] >= 0) continue;
-            std::int32_t cand[6];
-            int nc = 0;
-            const int q[3] = {x, y, z};
-            for (int f = 0; f < 6; ++f) {
-              int n[3] = {q[0], q[1], q[2]};
-              n[f / 2] += f % 2 ? 1 : -1;
-              std::int64_t blk = b;
-              if (n[f / 2] < 0 || n[f / 2] >= B) {
-                blk = nbr[std::size_t(f)];
-                if (blk < 0) continue;
-                n[f / 2] = (n[f / 2] + B) % B;
-              }
-              const std::int32_t c = closest[std::size_t(blk) * V + std::size_t((n[0] * B + n[1]) * B + n[2])];
-              if (c < 0 || std::find(cand, cand + nc, c) != cand + nc) continue;
-              cand[nc++] = c;
+      const auto word = [&](int f, int x) {  // face neighbour f's word x, 0 without one
+        return nbr[std::size_t(f)] < 0 ? std::uint64_t(0) : fresh[std::size_t(nbr[std::size_t(f)])][std::size_t(x)];
+      };
+      const auto& mine = fresh[std::size_t(b)];
+      auto& out_fresh = fresh_next[std::size_t(b)];
+      for (int x = 0; x < B; ++x) {
+        const std::uint64_t w = mine[std::size_t(x)];
+        std::uint64_t near = ((w << 1) & ~kZ0) | ((w >> 1) & ~kZ7) | (w << B) | (w >> B);
+        near |= x > 0 ? mine[std::size_t(x - 1)] : word(0, B - 1);
+        near |= x < B - 1 ? mine[std::size_t(x + 1)] : word(1, 0);
+        near |= word(2, x) >> (B * (B - 1));  // -y neighbour's row y = 7 beside row y = 0
+        near |= word(3, x) << (B * (B - 1));  // +y neighbour's row y = 0 beside row y = 7
+        near |= (word(4, x) >> (B - 1)) & kZ0;
+        near |= (word(5, x) << (B - 1)) & kZ7;
+        std::uint64_t todo = (exhaustive ? ~std::uint64_t(0) : near) & ~reached[std::size_t(b)][std::size_t(x)], got = 0;
+        for (; todo != 0; todo &= todo - 1) {
+          const int bit = __builtin_ctzll(todo), y = bit / B, z = bit % B;
+          const std::size_t at = std::size_t(std::size_t(b) * V + std::size_t((x * B + y) * B + z));
+          std::int32_t cand[6];
+          int nc = 0;
+          const int q[3] = {x, y, z};
+          for (int f = 0; f < 6; ++f) {
+            int n[3] = {q[0], q[1], q[2]};
+            n[f / 2] += f % 2 ? 1 : -1;
+            std::int64_t blk = b;
+            if (n[f / 2] < 0 || n[f / 2] >= B) {
+              blk = nbr[std::size_t(f)];
+              if (blk < 0) continue;
+              n[f / 2] = (n[f / 2] + B) % B;
             }
-            if (nc == 0) continue;
-            std::sort(cand, cand + nc);
-            const float p[3] = {float(o[0] + x), float(o[1] + y), float(o[2] + z)};
-            float best = none;
-            std::int32_t who = -1;
-            for (int k = 0; k < nc; ++k)
-              if (const float e = distance2(tri[std::size_t(cand[k])], p); e < best) best = e, who = cand[k];
-            if (best < reach2) dist2_next[at] = best, closest_next[at] = who;
+            const std::int32_t c = closest[std::size_t(blk) * V + std::size_t((n[0] * B + n[1]) * B + n[2])];
+            if (c < 0 || std::find(cand, cand + nc, c) != cand + nc) continue;
+            cand[nc++] = c;
           }
+          if (nc == 0) continue;
+          std::sort(cand, cand + nc);
+          const float p[3] = {float(o[0] + x), float(o[1] + y), float(o[2] + z)};
+          float best = none;
+          std::int32_t who = -1;
+          for (int k = 0; k < nc; ++k)
+            if (const float e = distance2(tri[std::size_t(cand[k])], p); e < best) best = e, who = cand[k];
+          if (best < reach2) dist2_next[at] = best, closest_next[at] = who, got |= std::uint64_t(1) << bit;
+        }
+        out_fresh[std::size_t(x)] = got;
+      }
     });
-    dist2.swap(dist2_next);
-    closest.swap(closest_next);
+    parallel::parallel_tasks(0, std::int64_t(nb), [&](std::int64_t b) {
+      for (int x = 0; x < B; ++x) {
+        const std::uint64_t got = fresh_next[std::size_t(b)][std::size_t(x)];
+        reached[std::size_t(b)][std::size_t(x)] |= got;
+        for (std::uint64_t todo = got; todo != 0; todo &= todo - 1) {
+          const std::size_t at = std::size_t(b) * V + std::size_t(x * B * B + __builtin_ctzll(todo));
+          dist2[at] = dist2_next[at], closest[at] = closest_next[at];
+        }
+      }
+    });
+    fresh.swap(fresh_next);
   }
   // The blocks with a voxel in the band, in block order: flagged, numbered, then copied.
   std::vector<std::uint32_t> place(nb + 1, 0);

@@ -8,9 +8,12 @@
 // The method is a closest-triangle transform in two stages (as in Mauch's closest point transform,
 // restricted to a band, and as OpenVDB's mesh-to-volume expands its band):
 //  1. each triangle gives the exact distance to the voxels within one voxel of its bounding box
-//     (every voxel the surface passes through and its neighbours), the smallest kept;
+//     (every voxel the surface passes through and its neighbours), the smallest kept; a voxel
+//     whose distance to the triangle's bounding box already exceeds its best distance (by a
+//     margin far above rounding) skips the exact distance, which could not win;
 //  2. the band grows a layer of voxels at a time: a voxel not yet reached takes the nearest of its
-//     six face neighbours' closest triangles, until `width` voxels.
+//     six face neighbours' closest triangles, until `width` voxels; only the voxels beside one
+//     reached in the layer before are tried (the others would see the same neighbours again).
 // Within one voxel of the mesh the distance is exact (the voxel is seeded by its closest
 // triangle). A voxel reached in stage 2 can miss its true closest triangle when none of its
 // neighbours has it as theirs; the distance is then an upper bound (on a ball's inside, at most
@@ -35,8 +38,11 @@ struct MeshBand {
 };
 
 /// The band of `width` voxels around the triangles of (`vertices`, `triangles`) (world
-/// coordinates, metres) at voxel size `h`.
+/// coordinates, metres) at voxel size `h`. `exhaustive`: every seed's exact distance, and every
+/// voxel not yet reached tried in every layer, with nothing skipped: slower, the same band bit for
+/// bit (the reference the skipping is tested against).
 MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
-                   const std::vector<std::array<std::int32_t, 3>>& triangles, double h, int width);
+                   const std::vector<std::array<std::int32_t, 3>>& triangles, double h, int width,
+                   bool exhaustive = false);
 
 }  // namespace slurry::io::detail
