@@ -20,9 +20,10 @@ constexpr int B = MeshBand::kSize;
 constexpr int kBits = 21;
 constexpr std::int64_t kRange = std::int64_t(1) << kBits;
 /// A lower bound of a squared distance (voxels^2) skips the exact one only when it exceeds the
-/// best distance so far by this much, relative and absolute: far beyond the rounding of either
-/// (a few float ulps of distances of a few voxels), so a skipped triangle is never the closest
-/// or tied with it, and the band is the one every exact distance gives.
+/// best distance so far by this much relative, plus this much times (1 + s^2) absolute, s the
+/// span of the voxels around the triangle: far beyond the rounding of either (distance2 rounds
+/// within a few float ulps of the squares of its differences, at most s^2), so a skipped triangle
+/// is never the closest or tied with it, and the band is the one every exact distance gives.
 constexpr float kBoundMargin = 1e-3f;
 
 std::int64_t floor_div(std::int64_t a, std::int64_t b) {
@@ -174,10 +175,13 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
       if (empty) continue;
       // The squared distance to the triangle's bounding box is a lower bound of its distance:
       // a voxel whose bound exceeds the distance it already has, by more than distance2's
-      // rounding could make up, keeps its triangle without the exact distance.
-      float box_lo[3], box_hi[3];
-      for (int d = 0; d < 3; ++d)
+      // rounding could make up, keeps the triangle it has without this one's exact distance.
+      float box_lo[3], box_hi[3], span = 0;
+      for (int d = 0; d < 3; ++d) {
         box_lo[d] = std::min({t.a[d], t.b[d], t.c[d]}), box_hi[d] = std::max({t.a[d], t.b[d], t.c[d]});
+        span = std::max(span, float(t.hi[d] - t.lo[d]));
+      }
+      const float slack = kBoundMargin * (1 + span * span);
       const auto gap2 = [&](int d, std::int64_t v) {
         const float g = std::max({box_lo[d] - float(v), float(v) - box_hi[d], 0.0f});
         return g * g;
@@ -188,7 +192,7 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
           const float gxy = gx + gap2(1, y);
           for (std::int64_t z = v0[2]; z <= v1[2]; ++z) {
             const std::size_t at = std::size_t(((x - o[0]) * B + (y - o[1])) * B + (z - o[2]));
-            if (!exhaustive && gxy + gap2(2, z) > d2[at] * (1 + kBoundMargin) + kBoundMargin) continue;
+            if (!exhaustive && gxy + gap2(2, z) > d2[at] * (1 + kBoundMargin) + slack) continue;
             const float p[3] = {float(x), float(y), float(z)};
             const float e = distance2(t, p);
             if (e < d2[at]) d2[at] = e, cl[at] = std::int32_t(i);  // ascending i: ties keep the lower
