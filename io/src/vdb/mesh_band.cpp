@@ -33,7 +33,9 @@ std::int64_t floor_div(std::int64_t a, std::int64_t b) {
 /// A triangle in index space.
 struct Tri {
   float a[3], b[3], c[3];
-  std::int32_t lo[3], hi[3];  ///< voxels within one voxel of the bounding box
+  float box_lo[3], box_hi[3];  ///< the bounding box
+  std::int32_t lo[3], hi[3];   ///< voxels within one voxel of the bounding box
+  float slack;                 ///< kBoundMargin (1 + s^2), s the most voxels [lo, hi] spans
 };
 
 /// Squared distance from p to the triangle: the closest point by the Voronoi regions of the
@@ -91,9 +93,12 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
       t.a[d] = vertices[std::size_t(v[0])][d] * inv_h;
       t.b[d] = vertices[std::size_t(v[1])][d] * inv_h;
       t.c[d] = vertices[std::size_t(v[2])][d] * inv_h;
-      t.lo[d] = std::int32_t(std::ceil(std::min({t.a[d], t.b[d], t.c[d]}) - 1));
-      t.hi[d] = std::int32_t(std::floor(std::max({t.a[d], t.b[d], t.c[d]}) + 1));
+      t.box_lo[d] = std::min({t.a[d], t.b[d], t.c[d]}), t.box_hi[d] = std::max({t.a[d], t.b[d], t.c[d]});
+      t.lo[d] = std::int32_t(std::ceil(t.box_lo[d] - 1));
+      t.hi[d] = std::int32_t(std::floor(t.box_hi[d] + 1));
     }
+    const float span = float(std::max({t.hi[0] - t.lo[0], t.hi[1] - t.lo[1], t.hi[2] - t.lo[2]}));
+    t.slack = kBoundMargin * (1 + span * span);
   });
   // Blocks a triangle's band can reach: its seeded voxels plus `width` layers.
   std::int64_t lo[3] = {INT64_MAX, INT64_MAX, INT64_MAX}, hi[3] = {INT64_MIN, INT64_MIN, INT64_MIN};
@@ -176,14 +181,8 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
       // The squared distance to the triangle's bounding box is a lower bound of its distance:
       // a voxel whose bound exceeds the distance it already has, by more than distance2's
       // rounding could make up, keeps the triangle it has without this one's exact distance.
-      float box_lo[3], box_hi[3], span = 0;
-      for (int d = 0; d < 3; ++d) {
-        box_lo[d] = std::min({t.a[d], t.b[d], t.c[d]}), box_hi[d] = std::max({t.a[d], t.b[d], t.c[d]});
-        span = std::max(span, float(t.hi[d] - t.lo[d]));
-      }
-      const float slack = kBoundMargin * (1 + span * span);
       const auto gap2 = [&](int d, std::int64_t v) {
-        const float g = std::max({box_lo[d] - float(v), float(v) - box_hi[d], 0.0f});
+        const float g = std::max({t.box_lo[d] - float(v), float(v) - t.box_hi[d], 0.0f});
         return g * g;
       };
       for (std::int64_t x = v0[0]; x <= v1[0]; ++x) {
@@ -192,7 +191,7 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
           const float gxy = gx + gap2(1, y);
           for (std::int64_t z = v0[2]; z <= v1[2]; ++z) {
             const std::size_t at = std::size_t(((x - o[0]) * B + (y - o[1])) * B + (z - o[2]));
-            if (!exhaustive && gxy + gap2(2, z) > d2[at] * (1 + kBoundMargin) + slack) continue;
+            if (!exhaustive && gxy + gap2(2, z) > d2[at] * (1 + kBoundMargin) + t.slack) continue;
             const float p[3] = {float(x), float(y), float(z)};
             const float e = distance2(t, p);
             if (e < d2[at]) d2[at] = e, cl[at] = std::int32_t(i);  // ascending i: ties keep the lower
