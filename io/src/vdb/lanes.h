@@ -1,9 +1,12 @@
 #pragma once
-// The anisotropic field's partial sums (anisotropic.cpp): kLanes lanes added as a fixed tree.
+// Vector forms that give the plain loop's result bit for bit: the anisotropic field's partial sums
+// (anisotropic.cpp), kLanes lanes added as a fixed tree; the velocity sampler's list of the
+// candidates within its radius (mesh.cpp).
 #ifdef __AVX512F__
 #include <immintrin.h>
 #endif
 #include <cstddef>
+#include <cstdint>
 
 namespace slurry::io::detail {
 
@@ -36,6 +39,39 @@ inline double lane_total(const float (&lanes)[kLanes]) {
   return _mm_cvtsd_f64(_mm_add_sd(s2, _mm_unpackhi_pd(s2, s2)));
 #else
   return lane_total_scalar(lanes);
+#endif
+}
+
+/// list_below one value at a time (the definition; list_below must equal it).
+inline std::size_t list_below_scalar(const double* value, std::size_t m, double limit, std::uint32_t* out,
+                                     std::uint32_t first = 0) {
+  std::size_t k = 0;
+  for (std::size_t j = 0; j < m; ++j) {
+    out[k] = first + std::uint32_t(j);
+    k += value[j] < limit ? 1 : 0;
+  }
+  return k;
+}
+
+/// The indices j of [0, m) with value[j] < limit, ascending, in out[0, k); returns k. `out`
+/// holds m + 8 entries (past k it holds anything).
+inline std::size_t list_below(const double* value, std::size_t m, double limit, std::uint32_t* out) {
+#if defined(__AVX512F__) && defined(__AVX512VL__)
+  // Eight values a vector: their indices where below, compressed in a register and stored whole
+  // (the tail is overwritten by the next); the rest one at a time.
+  const __m512d below = _mm512_set1_pd(limit);
+  const __m256i eight = _mm256_set1_epi32(8);
+  __m256i index = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  std::size_t k = 0, j = 0;
+  for (; j + 8 <= m; j += 8) {
+    const __mmask8 in = _mm512_cmp_pd_mask(_mm512_loadu_pd(value + j), below, _CMP_LT_OQ);
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + k), _mm256_maskz_compress_epi32(in, index));
+    k += std::size_t(__builtin_popcount(unsigned(in)));
+    index = _mm256_add_epi32(index, eight);
+  }
+  return k + list_below_scalar(value + j, m - j, limit, out + k, std::uint32_t(j));
+#else
+  return list_below_scalar(value, m, limit, out);
 #endif
 }
 

@@ -13,6 +13,7 @@
 #include "slurry/io/surface.h"
 #include "slurry/transfer/parallel.h"
 #include "vdb/cell_starts.h"
+#include "vdb/lanes.h"
 #include "vdb/point_bounds.h"
 #include "vdb/radix_sort.h"
 #include "vdb/velocities.h"
@@ -158,18 +159,14 @@ std::vector<std::array<float, 3>> VelocitySampler::sample(const std::vector<std:
         if (t0 >= t1) continue;
         rows[std::size_t(row_count++)] = {t0, t1};
         const std::size_t m = t1 - t0;
-        if (r2s.size() < m) r2s.resize(m), within.resize(m);
+        if (r2s.size() < m) r2s.resize(m), within.resize(m + 8);
         double* const r2 = r2s.data();
         for (std::size_t j = 0; j < m; ++j) {
           const auto& p = position[t0 + j];
           const double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
           r2[j] = dx * dx + dy * dy + dz * dz;
         }
-        std::size_t listed = 0;
-        for (std::size_t j = 0; j < m; ++j) {
-          within[listed] = std::uint32_t(j);
-          listed += r2[j] < h2 ? 1 : 0;
-        }
+        const std::size_t listed = list_below(r2, m, h2, within.data());
         for (std::size_t k = 0; k < listed; ++k) {
           const std::size_t j = within[k], t = t0 + j;
           const double s = 1 - r2[j] / h2,
