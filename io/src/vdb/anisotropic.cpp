@@ -444,22 +444,15 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
       // Map scaled to index space: q = M h (i - P).
       float M[9];
       for (int m = 0; m < 9; ++m) M[m] = ker.map[std::size_t(m)] * float(h);
+      const float m_z[3] = {M[2], M[5], M[8]};
+      static_assert(B == 8);  // a row of the block along z is splat_row's 8 voxels
       for (std::int64_t x = lo_i[0]; x <= hi_i[0]; ++x) {
         const float dxv = float(x) - P[0];
         for (std::int64_t y = lo_i[1]; y <= hi_i[1]; ++y) {
           const float dyv = float(y) - P[1];
-          const float a0 = M[0] * dxv + M[1] * dyv, a1 = M[3] * dxv + M[4] * dyv,
-                      a2 = M[6] * dxv + M[7] * dyv;
-          float* row = v + ((x - o[0]) * B + (y - o[1])) * B;
-          for (std::int64_t z = lo_i[2]; z <= hi_i[2]; ++z) {
-            const float dzv = float(z) - P[2];
-            const float q0 = a0 + M[2] * dzv, q1 = a1 + M[5] * dzv, q2 = a2 + M[8] * dzv;
-            const float q = q0 * q0 + q1 * q1 + q2 * q2;
-            if (q < 1.0f) {
-              const float t = 1.0f - q;
-              row[z - o[2]] += ker.weight * t * t * t;
-            }
-          }
+          const float a[3] = {M[0] * dxv + M[1] * dyv, M[3] * dxv + M[4] * dyv, M[6] * dxv + M[7] * dyv};
+          splat_row(v + ((x - o[0]) * B + (y - o[1])) * B, std::int32_t(o[2]), int(lo_i[2] - o[2]),
+                    int(hi_i[2] - o[2]), P[2], a, m_z, ker.weight);
         }
       }
     }

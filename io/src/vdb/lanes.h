@@ -1,10 +1,11 @@
 #pragma once
 // Vector forms that give the plain loop's result bit for bit: the anisotropic field's partial sums
-// (anisotropic.cpp), kLanes lanes added as a fixed tree; the velocity sampler's list of the
-// candidates within its radius (mesh.cpp).
-#ifdef __AVX512F__
+// (anisotropic.cpp), kLanes lanes added as a fixed tree, and its kernels added to a row of voxels;
+// the velocity sampler's list of the candidates within its radius (mesh.cpp).
+#if defined(__AVX512F__) || (defined(__AVX2__) && defined(__FMA__))
 #include <immintrin.h>
 #endif
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 
@@ -72,6 +73,49 @@ inline std::size_t list_below(const double* value, std::size_t m, double limit, 
   return k + list_below_scalar(value + j, m - j, limit, out + k, std::uint32_t(j));
 #else
   return list_below_scalar(value, m, limit, out);
+#endif
+}
+
+/// splat_row one voxel at a time (the definition; splat_row must equal it bit for bit).
+inline void splat_row_scalar(float* row, std::int32_t origin, int first, int last, float centre, const float (&a)[3],
+                             const float (&m)[3], float weight) {
+  for (int l = first; l <= last; ++l) {
+    const float dz = float(origin + l) - centre;
+    const float q0 = std::fma(m[0], dz, a[0]), q1 = std::fma(m[1], dz, a[1]), q2 = std::fma(m[2], dz, a[2]);
+    const float q = std::fma(q2, q2, std::fma(q0, q0, q1 * q1));
+    if (q < 1.0f) {
+      const float t = 1.0f - q;
+      row[l] = std::fma(weight * t * t, t, row[l]);
+    }
+  }
+}
+
+/// A kernel added to a row of 8 voxels along z (the anisotropic field's blocks, anisotropic.cpp):
+/// voxel l of [first, last] (within [0, 8)), at index z = origin + l, gets weight (1 - q)^3 where
+/// q = |a + (z - centre) m|^2 < 1; the roundings spelled out: dz = float(z) - centre,
+/// q_k = fma(m_k, dz, a_k), q = fma(q2, q2, fma(q0, q0, q1 q1)), row[l] = fma(weight t t, t, row[l])
+/// with t = 1 - q.
+inline void splat_row(float* row, std::int32_t origin, int first, int last, float centre, const float (&a)[3],
+                      const float (&m)[3], float weight) {
+#if defined(__AVX2__) && defined(__FMA__)
+  // The 8 voxels in one vector; those outside [first, last] or the ellipsoid keep their value.
+  const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m256 dz =
+      _mm256_sub_ps(_mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(origin), lane)), _mm256_set1_ps(centre));
+  const __m256 one = _mm256_set1_ps(1.0f);
+  const __m256 q0 = _mm256_fmadd_ps(_mm256_set1_ps(m[0]), dz, _mm256_set1_ps(a[0]));
+  const __m256 q1 = _mm256_fmadd_ps(_mm256_set1_ps(m[1]), dz, _mm256_set1_ps(a[1]));
+  const __m256 q2 = _mm256_fmadd_ps(_mm256_set1_ps(m[2]), dz, _mm256_set1_ps(a[2]));
+  const __m256 q = _mm256_fmadd_ps(q2, q2, _mm256_fmadd_ps(q0, q0, _mm256_mul_ps(q1, q1)));
+  const __m256 t = _mm256_sub_ps(one, q);
+  const __m256i in_range = _mm256_and_si256(_mm256_cmpgt_epi32(lane, _mm256_set1_epi32(first - 1)),
+                                            _mm256_cmpgt_epi32(_mm256_set1_epi32(last + 1), lane));
+  const __m256 in = _mm256_and_ps(_mm256_castsi256_ps(in_range), _mm256_cmp_ps(q, one, _CMP_LT_OQ));
+  const __m256 value = _mm256_loadu_ps(row);
+  const __m256 sum = _mm256_fmadd_ps(_mm256_mul_ps(_mm256_mul_ps(_mm256_set1_ps(weight), t), t), t, value);
+  _mm256_storeu_ps(row, _mm256_blendv_ps(value, sum, in));
+#else
+  splat_row_scalar(row, origin, first, last, centre, a, m, weight);
 #endif
 }
 
