@@ -646,22 +646,36 @@ namespace {
 /// averaged as at the mesh vertices (sample_velocities).
 LevelSet with_velocity(const LevelSet& ls, const detail::VelocitySampler& sampler) {
   const openvdb::FloatGrid& grid = *ls.impl().grid;
+  // The active voxels, in the order of the value iterator: leaf by leaf, each leaf's stretch filled
+  // by one task (a grid with active tiles, which the band never has, one voxel at a time).
   std::vector<openvdb::Coord> coords;
-  coords.reserve(std::size_t(grid.activeVoxelCount()));
-  for (auto it = grid.cbeginValueOn(); it; ++it) {
-    if (it.isVoxelValue()) {
-      coords.push_back(it.getCoord());
-    } else {
-      openvdb::CoordBBox box;
-      it.getBoundingBox(box);
-      for (auto c = box.begin(); c; ++c) coords.push_back(*c);
+  std::vector<const openvdb::FloatTree::LeafNodeType*> leaves;
+  for (auto it = grid.tree().cbeginLeaf(); it; ++it) leaves.push_back(it.getLeaf());
+  if (grid.tree().activeTileCount() == 0) {
+    std::vector<std::size_t> start(leaves.size() + 1, 0);
+    for (std::size_t b = 0; b < leaves.size(); ++b) start[b + 1] = start[b] + std::size_t(leaves[b]->onVoxelCount());
+    coords.resize(start.back());
+    slurry::parallel::parallel_tasks(0, std::int64_t(leaves.size()), [&](std::int64_t b) {
+      std::size_t at = start[std::size_t(b)];
+      for (auto v = leaves[std::size_t(b)]->cbeginValueOn(); v; ++v) coords[at++] = v.getCoord();
+    });
+  } else {
+    coords.reserve(std::size_t(grid.activeVoxelCount()));
+    for (auto it = grid.cbeginValueOn(); it; ++it) {
+      if (it.isVoxelValue()) {
+        coords.push_back(it.getCoord());
+      } else {
+        openvdb::CoordBBox box;
+        it.getBoundingBox(box);
+        for (auto c = box.begin(); c; ++c) coords.push_back(*c);
+      }
     }
   }
   std::vector<std::array<float, 3>> where(coords.size());
-  for (std::size_t i = 0; i < coords.size(); ++i) {
-    const openvdb::Vec3d w = grid.indexToWorld(coords[i]);
-    where[i] = {float(w[0]), float(w[1]), float(w[2])};
-  }
+  slurry::parallel::parallel_for(0, std::int64_t(coords.size()), [&](std::int64_t i) {
+    const openvdb::Vec3d w = grid.indexToWorld(coords[std::size_t(i)]);
+    where[std::size_t(i)] = {float(w[0]), float(w[1]), float(w[2])};
+  });
   std::vector<std::uint8_t> found;
   const std::vector<std::array<float, 3>> v = sampler.sample(where, &found);
   openvdb::Vec3SGrid::Ptr velocity = openvdb::Vec3SGrid::create(openvdb::Vec3s(0, 0, 0));
