@@ -48,11 +48,39 @@ class FieldSampler {
 
   /// The field at world position p (BoxSampler's value there).
   float sample(const std::array<float, 3>& p) const {
+    float v[2][2][2];
+    double u[3];
+    corners(p, v, u);
+    return interpolate(v, u);
+  }
+
+  /// Whether double(sample(p)) < bound, for bound >= 0; without the interpolation where the
+  /// eight corners decide it: each interpolation lies between its two values up to its roundings
+  /// (a few float ulps of the larger), so corners all at least bound + 1e-4 of the largest give
+  /// a sample of at least bound.
+  bool below(const std::array<float, 3>& p, double bound) const {
+    float v[2][2][2];
+    double u[3];
+    corners(p, v, u);
+    float lo = v[0][0][0], hi = v[0][0][0];
+    for (int a = 0; a < 2; ++a)
+      for (int b = 0; b < 2; ++b)
+        for (int c = 0; c < 2; ++c) lo = std::min(lo, v[a][b][c]), hi = std::max(hi, v[a][b][c]);
+    if (double(lo) >= bound + 1e-4 * double(hi)) return false;
+    return double(interpolate(v, u)) < bound;
+  }
+
+ private:
+  static constexpr int B = FieldBlocks::kSize;
+  static constexpr int kLog2 = 3;
+  static_assert(B == 1 << kLog2);
+
+  /// The values v at the eight voxels around p and p's fractions u between them.
+  void corners(const std::array<float, 3>& p, float (&v)[2][2][2], double (&u)[3]) const {
     const double x[3] = {double(p[0]) * inverse_h_, double(p[1]) * inverse_h_, double(p[2]) * inverse_h_};
     const std::int32_t i[3] = {std::int32_t(std::floor(x[0])), std::int32_t(std::floor(x[1])),
                                std::int32_t(std::floor(x[2]))};
-    const double u[3] = {x[0] - i[0], x[1] - i[1], x[2] - i[2]};
-    float v[2][2][2];
+    for (int d = 0; d < 3; ++d) u[d] = x[d] - i[d];
     const std::int32_t m = B - 1;
     if ((i[0] & m) != m && (i[1] & m) != m && (i[2] & m) != m) {
       // The eight corners in one block (7 times in 8 per axis).
@@ -66,15 +94,13 @@ class FieldSampler {
         for (int b = 0; b < 2; ++b)
           for (int c = 0; c < 2; ++c) v[a][b][c] = voxel(i[0] + a, i[1] + b, i[2] + c);
     }
+  }
+  /// BoxSampler's interpolation of the corners: along z, then y, then x.
+  static float interpolate(const float (&v)[2][2][2], const double (&u)[3]) {
     const auto lerp = [](float a, float b, double w) { return a + float(double(b - a) * w); };
     return lerp(lerp(lerp(v[0][0][0], v[0][0][1], u[2]), lerp(v[0][1][0], v[0][1][1], u[2]), u[1]),
                 lerp(lerp(v[1][0][0], v[1][0][1], u[2]), lerp(v[1][1][0], v[1][1][1], u[2]), u[1]), u[0]);
   }
-
- private:
-  static constexpr int B = FieldBlocks::kSize;
-  static constexpr int kLog2 = 3;
-  static_assert(B == 1 << kLog2);
 
   std::int64_t slot(std::int32_t bx, std::int32_t by, std::int32_t bz) const {
     return (std::int64_t(bx - lo_[0]) * dims_[1] + (by - lo_[1])) * dims_[2] + (bz - lo_[2]);

@@ -511,8 +511,14 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
     std::optional<detail::FieldSampler> direct;
     if (params.smoothing == 0) direct.emplace(blocks, h);
     if (direct && direct->usable()) {
+      // A particle with enough neighbours is a droplet only below kFarOutside of the level: the
+      // field's corners around it mostly decide that without the interpolation.
+      const double far_outside = kFarOutside * iso;
       slurry::parallel::parallel_for(0, std::int64_t(points.size()), [&](std::int64_t i) {
-        is_droplet[std::size_t(i)] = droplet(std::size_t(i), direct->sample(points.position[std::size_t(i)]));
+        const auto& p = points.position[std::size_t(i)];
+        is_droplet[std::size_t(i)] = blocks.neighbours[std::size_t(i)] < detail::AnisotropyConstants{}.min_neighbours
+                                         ? droplet(std::size_t(i), direct->sample(p))
+                                         : direct->below(p, far_outside);
       });
     } else {
       slurry::parallel::parallel_chunks(0, std::int64_t(points.size()), [&](std::int64_t b, std::int64_t e) {

@@ -1,6 +1,8 @@
 // The direct sampler of the anisotropic field's blocks (io/src/vdb/field_sampler.h) against
 // OpenVDB's BoxSampler on a tree of the same blocks, built as the surfacer builds it: the same
-// float at every point, bit for bit (the surfacer's droplet test reads either).
+// float at every point, bit for bit (the surfacer's droplet test reads either). Its test of a
+// sample against a bound, which skips the interpolation where the corners decide, agrees with the
+// sample.
 #include <gtest/gtest.h>
 
 #include <openvdb/openvdb.h>
@@ -86,6 +88,35 @@ TEST(FieldSampler, ScatteredBlocksLeaveTheTreeToTheCaller) {
   EXPECT_FALSE(FieldSampler(f, 0.02).usable());
   c.position.pop_back();
   EXPECT_TRUE(FieldSampler(anisotropic_field(c, 0.02, 0.01), 0.02).usable());
+}
+
+// below(p, bound) is double(sample(p)) < bound at every point: at bounds far from the sample (where
+// the corners decide), at the sample itself, a float ulp either side of it, and just below it.
+TEST(FieldSampler, BelowAgreesWithTheSample) {
+  const double h = 0.013, s = 0.01;
+  const PointCloud c = cloud(s);
+  const FieldBlocks f = anisotropic_field(c, h, s);
+  const FieldSampler direct(f, h);
+  ASSERT_TRUE(direct.usable());
+  std::vector<std::array<float, 3>> at = c.position;
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<float> u(-0.2f, 0.2f);
+  for (int k = 0; k < 20000; ++k) at.push_back({u(rng), u(rng) * 0.5f, u(rng)});
+  int differ = 0, below = 0, checks = 0;
+  for (const auto& p : at) {
+    const float v = direct.sample(p);
+    for (const double bound : {0.0, 0.015, 0.1, 0.5, 2.0, double(v), double(std::nextafter(v, 10.0f)),
+                               double(std::nextafter(v, -10.0f)), 0.999 * double(v), 0.99999 * double(v)}) {
+      if (bound < 0) continue;
+      const bool want = double(v) < bound;
+      differ += direct.below(p, bound) != want;
+      below += want;
+      ++checks;
+    }
+  }
+  EXPECT_EQ(differ, 0);
+  EXPECT_GT(below, checks / 5);
+  EXPECT_LT(below, checks * 4 / 5);
 }
 
 }  // namespace
