@@ -119,4 +119,48 @@ inline void splat_row(float* row, std::int32_t origin, int first, int last, floa
 #endif
 }
 
+/// The squared distance list_within computes: the float differences in double, squared and added,
+/// dz^2 + (dx^2 + dy^2). The square of a float is exact in double, so the sum rounds alike whether
+/// or not a compiler fuses its multiplications into the additions.
+inline double within_norm2(float px, float py, float pz, const float (&q)[3]) {
+  const double dx = px - q[0], dy = py - q[1], dz = pz - q[2];
+  return std::fma(dz, dz, std::fma(dx, dx, dy * dy));
+}
+
+/// list_within one candidate at a time (the definition; list_within must equal it bit for bit).
+inline std::size_t list_within_scalar(const float* px, const float* py, const float* pz, std::size_t m,
+                                      const float (&q)[3], double limit, double* r2, std::uint32_t* out) {
+  for (std::size_t j = 0; j < m; ++j) r2[j] = within_norm2(px[j], py[j], pz[j], q);
+  return list_below_scalar(r2, m, limit, out);
+}
+
+/// The squared distances r2[0, m) from q to the points (px, py, pz)[0, m) (within_norm2), and the
+/// indices of those below limit, ascending, in out[0, k); returns k. `out` holds m + 8 entries.
+inline std::size_t list_within(const float* px, const float* py, const float* pz, std::size_t m,
+                               const float (&q)[3], double limit, double* r2, std::uint32_t* out) {
+#if defined(__AVX512F__) && defined(__AVX512VL__)
+  // Eight points a vector, the last one partly masked.
+  const __m256 qx = _mm256_set1_ps(q[0]), qy = _mm256_set1_ps(q[1]), qz = _mm256_set1_ps(q[2]);
+  const __m512d below = _mm512_set1_pd(limit);
+  const __m256i eight = _mm256_set1_epi32(8);
+  __m256i index = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  std::size_t k = 0;
+  for (std::size_t j = 0; j < m; j += 8) {
+    const __mmask8 live = m - j >= 8 ? __mmask8(0xff) : __mmask8((1u << (m - j)) - 1);
+    const __m512d dx = _mm512_cvtps_pd(_mm256_sub_ps(_mm256_maskz_loadu_ps(live, px + j), qx));
+    const __m512d dy = _mm512_cvtps_pd(_mm256_sub_ps(_mm256_maskz_loadu_ps(live, py + j), qy));
+    const __m512d dz = _mm512_cvtps_pd(_mm256_sub_ps(_mm256_maskz_loadu_ps(live, pz + j), qz));
+    const __m512d d2 = _mm512_fmadd_pd(dz, dz, _mm512_fmadd_pd(dx, dx, _mm512_mul_pd(dy, dy)));
+    _mm512_mask_storeu_pd(r2 + j, live, d2);
+    const __mmask8 in = _mm512_mask_cmp_pd_mask(live, d2, below, _CMP_LT_OQ);
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + k), _mm256_maskz_compress_epi32(in, index));
+    k += std::size_t(__builtin_popcount(unsigned(in)));
+    index = _mm256_add_epi32(index, eight);
+  }
+  return k;
+#else
+  return list_within_scalar(px, py, pz, m, q, limit, r2, out);
+#endif
+}
+
 }  // namespace slurry::io::detail

@@ -98,10 +98,11 @@ VelocitySampler::VelocitySampler(const PointCloud& points, double spacing) : poi
   const double cell_count = double(dims[0]) * double(dims[1]) * double(dims[2]);
   if (dense_cell_table(cell_count, n)) first_ = cell_starts(keys_, std::size_t(cell_count));
   // Positions and velocities in cell order: a row of cells is one stretch of memory.
-  position_.resize(n);
+  for (auto& axis : position_) axis.resize(n);
   velocity_.resize(n);
   slurry::parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t t) {
-    position_[std::size_t(t)] = points.position[index[std::size_t(t)]];
+    const auto& p = points.position[index[std::size_t(t)]];
+    for (int d = 0; d < 3; ++d) position_[d][std::size_t(t)] = p[std::size_t(d)];
     velocity_[std::size_t(t)] = points.velocity[index[std::size_t(t)]];
   });
 }
@@ -118,7 +119,9 @@ std::vector<std::array<float, 3>> VelocitySampler::sample(const std::vector<std:
   const std::array<std::int64_t, 3>& dims = dims_;
   const UninitVector<std::uint64_t>& keys = keys_;
   const UninitVector<std::uint32_t>& first = first_;
-  const UninitVector<std::array<float, 3>>& position = position_;
+  const float* const px = position_[0].data();
+  const float* const py = position_[1].data();
+  const float* const pz = position_[2].data();
   const UninitVector<std::array<float, 3>>& velocity = velocity_;
   const auto cell_of = [&](const std::array<float, 3>& p, std::array<std::int64_t, 3>& c) {
     for (int d = 0; d < 3; ++d) c[d] = std::int64_t(std::floor((p[d] - lo[d]) / h));
@@ -139,13 +142,14 @@ std::vector<std::array<float, 3>> VelocitySampler::sample(const std::vector<std:
 
   slurry::parallel::parallel_for(0, std::int64_t(vertices.size()), [&](std::int64_t vi) {
     const auto& q = vertices[std::size_t(vi)];
+    const float qf[3] = {q[0], q[1], q[2]};
     std::array<std::int64_t, 3> c;
     cell_of(q, c);
     double w_sum = 0, u[3] = {0, 0, 0}, nearest = 1e300;
     std::size_t nearest_index = 0;  // in cell order
     // The cells (a, b, c[2] - 1 .. c[2] + 1) are consecutive keys: one range per row, visited
-    // in the same order as cell by cell. Per row, the squared distances in one loop (vectors),
-    // the candidates within h listed without branches, then summed in order.
+    // in the same order as cell by cell. Per row, the squared distances and the candidates within
+    // h listed in one loop (vectors), then summed in order.
     thread_local std::vector<double> r2s;
     thread_local std::vector<std::uint32_t> within;
     std::array<std::pair<std::size_t, std::size_t>, 9> rows{};
@@ -161,12 +165,7 @@ std::vector<std::array<float, 3>> VelocitySampler::sample(const std::vector<std:
         const std::size_t m = t1 - t0;
         if (r2s.size() < m) r2s.resize(m), within.resize(m + 8);
         double* const r2 = r2s.data();
-        for (std::size_t j = 0; j < m; ++j) {
-          const auto& p = position[t0 + j];
-          const double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
-          r2[j] = dx * dx + dy * dy + dz * dz;
-        }
-        const std::size_t listed = list_below(r2, m, h2, within.data());
+        const std::size_t listed = list_within(px + t0, py + t0, pz + t0, m, qf, h2, r2, within.data());
         for (std::size_t k = 0; k < listed; ++k) {
           const std::size_t j = within[k], t = t0 + j;
           const double s = 1 - r2[j] / h2,
@@ -178,9 +177,7 @@ std::vector<std::array<float, 3>> VelocitySampler::sample(const std::vector<std:
     if (!(w_sum > 0))  // none within h: the nearest of the rows (the first of equals)
       for (int r = 0; r < row_count; ++r)
         for (std::size_t t = rows[std::size_t(r)].first; t < rows[std::size_t(r)].second; ++t) {
-          const auto& p = position[t];
-          const double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
-          const double r2 = dx * dx + dy * dy + dz * dz;
+          const double r2 = within_norm2(px[t], py[t], pz[t], qf);
           if (r2 < nearest) nearest = r2, nearest_index = t;
         }
     auto& o = out[std::size_t(vi)];

@@ -29,7 +29,8 @@ class VelocitySampler {
   std::array<std::int64_t, 3> dims_{1, 1, 1};
   UninitVector<std::uint64_t> keys_;  ///< cell keys, sorted
   UninitVector<std::uint32_t> first_;  ///< where each cell starts in keys_ (empty: a binary search)
-  UninitVector<std::array<float, 3>> position_, velocity_;  ///< in cell order
+  UninitVector<float> position_[3];               ///< by coordinate, in cell order
+  UninitVector<std::array<float, 3>> velocity_;  ///< in cell order
 };
 
 }  // namespace slurry::io::detail

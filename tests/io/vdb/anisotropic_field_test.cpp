@@ -2,8 +2,9 @@
 // dense table of cells when the particles' box holds few cells per particle, else through a hash
 // of the occupied cells: both give the same field, bit for bit. Its neighbour sums' lanes are
 // added in vector operations in the same order as one addition at a time, a kernel added to a
-// row of voxels in vector operations is the one-voxel loop's, and the velocity sampler's vector
-// list of candidates within its radius is the plain loop's (lanes.h).
+// row of voxels in vector operations is the one-voxel loop's, and the velocity sampler's squared
+// distances and list of candidates within its radius in vector operations are the plain loop's
+// (lanes.h).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -148,6 +149,41 @@ TEST(SplatRow, VectorRowIsTheScalarRow) {
   // Voxels inside the kernels and voxels outside, both in numbers (of 1.6 M).
   EXPECT_GT(touched, 50000);
   EXPECT_LT(touched, 800000);
+}
+
+// The squared distances and the list of points within a radius in vector operations (lanes.h, on
+// machines with AVX-512) are the one-point loop's bit for bit, for every length (whole vectors and
+// a partial one), with points on the radius (not within) among them.
+TEST(ListWithin, VectorListIsTheScalarList) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  const float q[3] = {0.31f, -0.12f, 0.57f};
+  const double limit = 0.25;
+  std::size_t listed = 0, compared = 0;
+  for (std::size_t m = 0; m <= 40; ++m)
+    for (int trial = 0; trial < 100; ++trial) {
+      std::vector<float> px(m), py(m), pz(m);
+      for (std::size_t j = 0; j < m; ++j) {
+        px[j] = q[0] + u(rng), py[j] = q[1] + u(rng), pz[j] = q[2] + u(rng);
+        if (j % 7 == 3) px[j] = q[0] + 0.5f, py[j] = q[1], pz[j] = q[2];  // on the radius: 0.5^2 = limit
+      }
+      std::vector<double> ra(m), rb(m);
+      std::vector<std::uint32_t> a(m + 8), b(m + 8);
+      const std::size_t ka =
+          slurry::io::detail::list_within(px.data(), py.data(), pz.data(), m, q, limit, ra.data(), a.data());
+      const std::size_t kb =
+          slurry::io::detail::list_within_scalar(px.data(), py.data(), pz.data(), m, q, limit, rb.data(), b.data());
+      ASSERT_EQ(ka, kb) << "length " << m;
+      ASSERT_EQ(std::memcmp(ra.data(), rb.data(), m * sizeof(double)), 0) << "length " << m;
+      for (std::size_t k = 0; k < ka; ++k) {
+        ASSERT_EQ(a[k], b[k]) << "length " << m << ", entry " << k;
+        ASSERT_LT(rb[b[k]], limit);
+      }
+      listed += ka, compared += m;
+    }
+  // About a sixth of the random points (a ball of radius 0.5 in a cube of side 2) are listed.
+  EXPECT_GT(listed, compared / 20);
+  EXPECT_LT(listed, compared / 3);
 }
 
 }  // namespace
