@@ -43,37 +43,15 @@ inline double lane_total(const float (&lanes)[kLanes]) {
 #endif
 }
 
-/// list_below one value at a time (the definition; list_below must equal it).
-inline std::size_t list_below_scalar(const double* value, std::size_t m, double limit, std::uint32_t* out,
-                                     std::uint32_t first = 0) {
+/// The indices j of [0, m) with value[j] < limit, ascending, in out[0, k), one value at a time
+/// without branches; returns k. `out` holds m entries.
+inline std::size_t list_below(const double* value, std::size_t m, double limit, std::uint32_t* out) {
   std::size_t k = 0;
   for (std::size_t j = 0; j < m; ++j) {
-    out[k] = first + std::uint32_t(j);
+    out[k] = std::uint32_t(j);
     k += value[j] < limit ? 1 : 0;
   }
   return k;
-}
-
-/// The indices j of [0, m) with value[j] < limit, ascending, in out[0, k); returns k. `out`
-/// holds m + 8 entries (past k it holds anything).
-inline std::size_t list_below(const double* value, std::size_t m, double limit, std::uint32_t* out) {
-#if defined(__AVX512F__) && defined(__AVX512VL__)
-  // Eight values a vector: their indices where below, compressed in a register and stored whole
-  // (the tail is overwritten by the next); the rest one at a time.
-  const __m512d below = _mm512_set1_pd(limit);
-  const __m256i eight = _mm256_set1_epi32(8);
-  __m256i index = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-  std::size_t k = 0, j = 0;
-  for (; j + 8 <= m; j += 8) {
-    const __mmask8 in = _mm512_cmp_pd_mask(_mm512_loadu_pd(value + j), below, _CMP_LT_OQ);
-    _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + k), _mm256_maskz_compress_epi32(in, index));
-    k += std::size_t(__builtin_popcount(unsigned(in)));
-    index = _mm256_add_epi32(index, eight);
-  }
-  return k + list_below_scalar(value + j, m - j, limit, out + k, std::uint32_t(j));
-#else
-  return list_below_scalar(value, m, limit, out);
-#endif
 }
 
 /// splat_row one voxel at a time (the definition; splat_row must equal it bit for bit).
@@ -131,7 +109,7 @@ inline double within_norm2(float px, float py, float pz, const float (&q)[3]) {
 inline std::size_t list_within_scalar(const float* px, const float* py, const float* pz, std::size_t m,
                                       const float (&q)[3], double limit, double* r2, std::uint32_t* out) {
   for (std::size_t j = 0; j < m; ++j) r2[j] = within_norm2(px[j], py[j], pz[j], q);
-  return list_below_scalar(r2, m, limit, out);
+  return list_below(r2, m, limit, out);
 }
 
 /// The squared distances r2[0, m) from q to the points (px, py, pz)[0, m) (within_norm2), and the

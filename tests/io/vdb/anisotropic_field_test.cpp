@@ -10,7 +10,6 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
-#include <limits>
 #include <map>
 #include <random>
 #include <vector>
@@ -86,40 +85,6 @@ TEST(LaneTotal, VectorTreeIsTheScalarTree) {
     differ += std::memcmp(&a, &b, sizeof a) != 0;
   }
   EXPECT_EQ(differ, 0);
-}
-
-// The list of values below a limit in vector operations (lanes.h, on machines with AVX-512) is the
-// plain loop's: the same indices in the same order, for every length (whole vectors and a tail),
-// with values equal to the limit (not below) and NaN (not below) among them.
-TEST(ListBelow, VectorListIsTheScalarList) {
-  std::mt19937 rng(5);
-  std::uniform_real_distribution<double> u(0.0, 2.0);
-  std::uniform_int_distribution<int> kind(0, 9);
-  const double limit = 1.0;
-  std::size_t listed = 0, compared = 0;
-  for (std::size_t m = 0; m <= 70; ++m)
-    for (int trial = 0; trial < 50; ++trial) {
-      std::vector<double> value(m);
-      for (double& v : value) {
-        const int k = kind(rng);
-        v = k == 0   ? limit
-            : k == 1 ? std::numeric_limits<double>::quiet_NaN()
-            : k == 2 ? std::nextafter(limit, 0.0)
-                     : u(rng);
-      }
-      std::vector<std::uint32_t> a(m + 8), b(m + 8);
-      const std::size_t ka = slurry::io::detail::list_below(value.data(), m, limit, a.data());
-      const std::size_t kb = slurry::io::detail::list_below_scalar(value.data(), m, limit, b.data());
-      std::size_t below = 0;
-      for (const double v : value) below += v < limit ? 1 : 0;
-      ASSERT_EQ(ka, below) << "length " << m;
-      ASSERT_EQ(ka, kb) << "length " << m;
-      for (std::size_t k = 0; k < ka; ++k) ASSERT_EQ(a[k], b[k]) << "length " << m << ", entry " << k;
-      listed += ka, compared += m;
-    }
-  // Half the random values and the values just below the limit are listed.
-  EXPECT_GT(listed, compared / 3);
-  EXPECT_LT(listed, compared * 2 / 3);
 }
 
 // A kernel added to a row of 8 voxels in vector operations (lanes.h, on machines with AVX2 and
