@@ -1,7 +1,8 @@
 #pragma once
 // Vector forms that give the plain loop's result bit for bit: the anisotropic field's partial sums
 // (anisotropic.cpp), kLanes lanes added as a fixed tree, and its kernels added to a row of voxels;
-// the velocity sampler's list of the candidates within its radius (mesh.cpp).
+// the velocity sampler's squared distances to its candidates and the list of those within its
+// radius (mesh.cpp).
 #if defined(__AVX512F__) || (defined(__AVX2__) && defined(__FMA__))
 #include <immintrin.h>
 #endif
@@ -97,9 +98,9 @@ inline void splat_row(float* row, std::int32_t origin, int first, int last, floa
 #endif
 }
 
-/// The squared distance list_within computes: the float differences in double, squared and added,
-/// dz^2 + (dx^2 + dy^2). The square of a float is exact in double, so the sum rounds alike whether
-/// or not a compiler fuses its multiplications into the additions.
+/// The squared distance list_within computes: the differences in float, widened to double, squared
+/// and added, dz^2 + (dx^2 + dy^2). The square of a float is exact in double, so the sum rounds
+/// alike whether or not a compiler fuses its multiplications into the additions.
 inline double within_norm2(float px, float py, float pz, const float (&q)[3]) {
   const double dx = px - q[0], dy = py - q[1], dz = pz - q[2];
   return std::fma(dz, dz, std::fma(dx, dx, dy * dy));
