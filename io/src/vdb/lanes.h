@@ -99,11 +99,11 @@ inline void splat_row(float* row, std::int32_t origin, int first, int last, floa
 }
 
 /// The squared distance list_within computes: the differences in float, widened to double, squared
-/// and added, dz^2 + (dx^2 + dy^2). The square of a float is exact in double, so the sum rounds
-/// alike whether or not a compiler fuses its multiplications into the additions.
+/// and added. The square of a float is exact in double, so the sum rounds alike whether or not a
+/// compiler (or the vector form) fuses the multiplications into the additions.
 inline double within_norm2(float px, float py, float pz, const float (&q)[3]) {
   const double dx = px - q[0], dy = py - q[1], dz = pz - q[2];
-  return std::fma(dz, dz, std::fma(dx, dx, dy * dy));
+  return dx * dx + dy * dy + dz * dz;
 }
 
 /// list_within one candidate at a time (the definition; list_within must equal it bit for bit).

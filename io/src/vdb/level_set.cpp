@@ -501,9 +501,10 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
   std::vector<std::size_t> droplets;
   if (!flat) {
     std::vector<std::uint8_t> is_droplet(points.size(), 0);
+    const double far_outside = kFarOutside * iso;
     const auto droplet = [&](std::size_t i, double f) {
       const int n = blocks.neighbours[i];
-      return (n < detail::AnisotropyConstants{}.min_neighbours && f < iso) || f < kFarOutside * iso;
+      return (n < detail::AnisotropyConstants{}.min_neighbours && f < iso) || f < far_outside;
     };
     // The field at the particles: from its blocks directly (the tree's trilinear value, bit for
     // bit) unless it was smoothed (the blocks are then not the tree) or its blocks are too
@@ -511,9 +512,8 @@ Surface anisotropic_surface(const PointCloud& points, const SurfaceParams& param
     std::optional<detail::FieldSampler> direct;
     if (params.smoothing == 0) direct.emplace(blocks, h);
     if (direct && direct->usable()) {
-      // A particle with enough neighbours is a droplet only below kFarOutside of the level: the
-      // field's corners around it mostly decide that without the interpolation.
-      const double far_outside = kFarOutside * iso;
+      // A particle with enough neighbours is a droplet only below far_outside: the field's
+      // corners around it mostly decide that without the interpolation.
       slurry::parallel::parallel_for(0, std::int64_t(points.size()), [&](std::int64_t i) {
         const auto& p = points.position[std::size_t(i)];
         is_droplet[std::size_t(i)] = blocks.neighbours[std::size_t(i)] < detail::AnisotropyConstants{}.min_neighbours
@@ -655,9 +655,9 @@ LevelSet with_velocity(const LevelSet& ls, const detail::VelocitySampler& sample
   // The active voxels, in the order of the value iterator: leaf by leaf, each leaf's stretch filled
   // by one task (a grid with active tiles, which the band never has, one voxel at a time).
   std::vector<openvdb::Coord> coords;
-  std::vector<const openvdb::FloatTree::LeafNodeType*> leaves;
-  for (auto it = grid.tree().cbeginLeaf(); it; ++it) leaves.push_back(it.getLeaf());
   if (grid.tree().activeTileCount() == 0) {
+    std::vector<const openvdb::FloatTree::LeafNodeType*> leaves;
+    for (auto it = grid.tree().cbeginLeaf(); it; ++it) leaves.push_back(it.getLeaf());
     std::vector<std::size_t> start(leaves.size() + 1, 0);
     for (std::size_t b = 0; b < leaves.size(); ++b) start[b + 1] = start[b] + std::size_t(leaves[b]->onVoxelCount());
     coords.resize(start.back());
