@@ -26,6 +26,7 @@
 #include "slurry/transfer/parallel.h"
 #include "vdb/block_pairs.h"
 #include "vdb/cell_starts.h"
+#include "vdb/kernel_shape.h"
 #include "vdb/lanes.h"
 #include "vdb/point_bounds.h"
 #include "vdb/radix_sort.h"
@@ -179,13 +180,6 @@ class CellRanges {
   std::optional<CellIndex> index_;
 };
 
-struct Kernel {
-  std::array<float, 3> centre;
-  std::array<float, 9> map;  ///< row-major A^-1 V^T: world offset to the unit ball
-  float weight;              ///< V K / (a_1 a_2 a_3)
-  float reach;               ///< the longest axis (m), or a bound above it (the Cholesky path)
-};
-
 }  // namespace
 
 FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, double spacing,
@@ -195,6 +189,14 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   if (n == 0) return out;
   const double s = spacing, R = k.neighbourhood * s, H = k.support * s, h = voxel_size;
   const double volume = s * s * s, K = 315.0 / (64.0 * M_PI), s_bulk = 0.15 * R * R;
+  ShapeConstants shape_constants;
+  shape_constants.smoothing = k.smoothing;
+  shape_constants.min_neighbours = k.min_neighbours;
+  shape_constants.max_stretch = k.max_stretch;
+  shape_constants.s_bulk = s_bulk;
+  shape_constants.support = H;
+  shape_constants.volume = volume;
+  shape_constants.normalisation = K;
 
   // 1. Kernels, from each particle's neighbourhood (cells of side R: neighbours lie in the 3 x 3
   //    rows of 3 cells around a particle's cell). One task per cell of particles.
@@ -265,10 +267,12 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
       const float* const py = gathered[1].data();
       const float* const pz = gathered[2].data();
       const float R2 = float(R * R), inv_R = float(1 / R);
-      for (std::uint32_t a = cells[std::size_t(c)]; a < cells[std::size_t(c) + 1]; ++a) {
+      thread_local NeighbourSums sums;
+      const std::uint32_t first = cells[std::size_t(c)];
+      sums.resize(cells[std::size_t(c) + 1] - first);
+      for (std::uint32_t a = first; a < cells[std::size_t(c) + 1]; ++a) {
         const std::uint32_t i = order[a];
-        const float xi[3] = {sorted[0][a], sorted[1][a], sorted[2][a]};
-        const float xi0 = xi[0], xi1 = xi[1], xi2 = xi[2];
+        const float xi0 = sorted[0][a], xi1 = sorted[1][a], xi2 = sorted[2][a];
         // Every candidate, branch-free (one beyond R weighs 0), in kLanes partial sums.
         // The particle itself is inside, counted once.
         float W[kLanes] = {}, m0[kLanes] = {}, m1[kLanes] = {}, m2[kLanes] = {}, c00[kLanes] = {},
@@ -288,19 +292,30 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
             c01[l] += w * d0 * d1, c02[l] += w * d0 * d2, c12[l] += w * d1 * d2;
           }
         int inside = 0;  // exact in any order
-        for (const std::int32_t c : in) inside += c;
-        double mean[3] = {lane_total(m0), lane_total(m1), lane_total(m2)};
-        const double second[6] = {lane_total(c00), lane_total(c11), lane_total(c22),
-                                  lane_total(c01), lane_total(c02), lane_total(c12)};
-        const double W_sum = lane_total(W);
-        const int count = inside - 1;
-        for (int m = 0; m < 3; ++m) mean[m] /= W_sum;  // W_sum >= 1: the particle itself
-        Kernel& ker = kernel[i];
-        out.neighbours[i] = std::uint8_t(std::min(count, 255));
-        for (int m = 0; m < 3; ++m) ker.centre[m] = float(xi[m] + k.smoothing * mean[m]);
+        for (const std::int32_t n_in : in) inside += n_in;
+        const std::size_t p = a - first;
+        sums.W[p] = lane_total(W);
+        sums.m[0][p] = lane_total(m0), sums.m[1][p] = lane_total(m1), sums.m[2][p] = lane_total(m2);
+        sums.s[0][p] = lane_total(c00), sums.s[1][p] = lane_total(c11), sums.s[2][p] = lane_total(c22);
+        sums.s[3][p] = lane_total(c01), sums.s[4][p] = lane_total(c02), sums.s[5][p] = lane_total(c12);
+        sums.x[0][p] = xi0, sums.x[1][p] = xi1, sums.x[2][p] = xi2;
+        sums.neighbours[p] = inside - 1;
+        sums.index[p] = i;
+        out.neighbours[i] = std::uint8_t(std::min(inside - 1, 255));
+      }
+      // The centres, and the kernels whose covariance needs no clamp, several at a time
+      // (kernel_shape.h); the others here: by the eigendecomposition, or round.
+      shape_kernels(sums, shape_constants, kernel.data());
+      for (std::size_t p = 0; p < sums.size(); ++p) {
+        if (sums.shaped[p]) continue;
+        const double mean[3] = {sums.mean[0][p], sums.mean[1][p], sums.mean[2][p]};
+        const double second[6] = {sums.s[0][p], sums.s[1][p], sums.s[2][p], sums.s[3][p], sums.s[4][p], sums.s[5][p]};
+        const double W_sum = sums.W[p];
+        const int count = sums.neighbours[p];
+        Kernel& ker = kernel[sums.index[p]];
         std::array<double, 3> axis;
         Eigen::Matrix3d V = Eigen::Matrix3d::Identity();
-        if (count >= k.min_neighbours) {
+        if (count >= k.min_neighbours) {  // a clamp may apply: the eigendecomposition
           Eigen::Matrix3d C;
           C(0, 0) = second[0] / W_sum - mean[0] * mean[0];
           C(1, 1) = second[1] / W_sum - mean[1] * mean[1];
@@ -308,32 +323,6 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
           C(0, 1) = C(1, 0) = second[3] / W_sum - mean[0] * mean[1];
           C(0, 2) = C(2, 0) = second[4] / W_sum - mean[0] * mean[2];
           C(1, 2) = C(2, 1) = second[5] / W_sum - mean[1] * mean[2];
-          // Where neither clamp applies (every eigenvalue s_k within [s_1 / k_r^2, k_r^2 s_bulk]),
-          // the kernel's quadratic form V A^-2 V^T is (s_bulk / H^2) C^-1: its Cholesky factor
-          // maps offsets to the unit ball without an eigendecomposition. Decided on bounds:
-          // s_3 >= 1 / |C^-1|_F, s_1 <= the smaller of |C|_F and the largest Gershgorin row sum.
-          Eigen::Matrix3d inverse;
-          double det = 0;
-          bool invertible = false;
-          C.computeInverseAndDetWithCheck(inverse, det, invertible, 0.0);
-          if (invertible && det > 0) {
-            double rows = 0;
-            for (int row = 0; row < 3; ++row) rows = std::max(rows, C.row(row).cwiseAbs().sum());
-            const double largest = std::min(C.norm(), rows);
-            const double kr2 = k.max_stretch * k.max_stretch;
-            if (largest <= kr2 / inverse.norm() && largest <= kr2 * s_bulk) {
-              const Eigen::Matrix3d form = (s_bulk / (H * H)) * inverse;
-              const Eigen::LLT<Eigen::Matrix3d> llt(form);
-              if (llt.info() == Eigen::Success) {
-                const Eigen::Matrix3d L = llt.matrixL();
-                for (int row = 0; row < 3; ++row)
-                  for (int col = 0; col < 3; ++col) ker.map[std::size_t(3 * row + col)] = float(L(col, row));
-                ker.weight = float(volume * K / (H * H * H * std::sqrt(det / (s_bulk * s_bulk * s_bulk))));
-                ker.reach = float(H * std::sqrt(largest / s_bulk));
-                continue;
-              }
-            }
-          }
           Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
           es.computeDirect(C);
           V = es.eigenvectors();
