@@ -11,6 +11,7 @@
 #include "vdb/block_pairs.h"
 #include "vdb/radix_sort.h"
 #include "vdb/buffer.h"
+#include "vdb/triangle_distance.h"
 
 namespace slurry::io::detail {
 
@@ -28,51 +29,6 @@ constexpr float kBoundMargin = 1e-3f;
 
 std::int64_t floor_div(std::int64_t a, std::int64_t b) {
   return a >= 0 ? a / b : -((-a + b - 1) / b);
-}
-
-/// A triangle in index space.
-struct Tri {
-  float a[3], b[3], c[3];
-  float box_lo[3], box_hi[3];  ///< the bounding box
-  std::int32_t lo[3], hi[3];   ///< voxels within one voxel of the bounding box
-  float slack;                 ///< kBoundMargin (1 + s^2), s the most voxels [lo, hi] spans
-};
-
-/// Squared distance from p to the triangle: the closest point by the Voronoi regions of the
-/// triangle's vertices, edges and face (Ericson, Real-Time Collision Detection, 2005, 5.1.5).
-float distance2(const Tri& t, const float p[3]) {
-  float ab[3], ac[3], ap[3], bp[3], cp[3];
-  for (int d = 0; d < 3; ++d) {
-    ab[d] = t.b[d] - t.a[d], ac[d] = t.c[d] - t.a[d];
-    ap[d] = p[d] - t.a[d], bp[d] = p[d] - t.b[d], cp[d] = p[d] - t.c[d];
-  }
-  const auto dot = [](const float* u, const float* v) { return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]; };
-  const auto len2 = [&](float x, float y, float z) { return x * x + y * y + z * z; };
-  const float d1 = dot(ab, ap), d2 = dot(ac, ap);
-  if (d1 <= 0 && d2 <= 0) return dot(ap, ap);
-  const float d3 = dot(ab, bp), d4 = dot(ac, bp);
-  if (d3 >= 0 && d4 <= d3) return dot(bp, bp);
-  const float vc = d1 * d4 - d3 * d2;
-  if (vc <= 0 && d1 >= 0 && d3 <= 0) {
-    const float v = d1 / (d1 - d3);
-    return len2(ap[0] - v * ab[0], ap[1] - v * ab[1], ap[2] - v * ab[2]);
-  }
-  const float d5 = dot(ab, cp), d6 = dot(ac, cp);
-  if (d6 >= 0 && d5 <= d6) return dot(cp, cp);
-  const float vb = d5 * d2 - d1 * d6;
-  if (vb <= 0 && d2 >= 0 && d6 <= 0) {
-    const float w = d2 / (d2 - d6);
-    return len2(ap[0] - w * ac[0], ap[1] - w * ac[1], ap[2] - w * ac[2]);
-  }
-  const float va = d3 * d6 - d5 * d4;
-  if (va <= 0 && d4 - d3 >= 0 && d5 - d6 >= 0) {
-    const float w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-    return len2(bp[0] - w * (t.c[0] - t.b[0]), bp[1] - w * (t.c[1] - t.b[1]), bp[2] - w * (t.c[2] - t.b[2]));
-  }
-  const float sum = va + vb + vc;
-  if (!(sum > 0)) return std::min({dot(ap, ap), dot(bp, bp), dot(cp, cp)});  // degenerate
-  const float v = vb / sum, w = vc / sum;
-  return len2(ap[0] - ab[0] * v - ac[0] * w, ap[1] - ab[1] * v - ac[1] * w, ap[2] - ab[2] * v - ac[2] * w);
 }
 
 }  // namespace
@@ -185,19 +141,54 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
         const float g = std::max({t.box_lo[d] - float(v), float(v) - t.box_hi[d], 0.0f});
         return g * g;
       };
+#if defined(__AVX2__) && defined(__FMA__)
+      // A row of the block along z at a time, its 8 voxels in one vector; those outside
+      // [v0, v1] along z, or ruled out by the bound, keep what they have.
+      static_assert(B == 8);
+      const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+      const __m256 in_z = _mm256_castsi256_ps(
+          _mm256_and_si256(_mm256_cmpgt_epi32(lane, _mm256_set1_epi32(std::int32_t(v0[2] - o[2]) - 1)),
+                           _mm256_cmpgt_epi32(_mm256_set1_epi32(std::int32_t(v1[2] - o[2]) + 1), lane)));
+      const __m256 z = _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(std::int32_t(o[2])), lane));
+      const __m256 gz = _mm256_max_ps(
+          _mm256_max_ps(_mm256_sub_ps(_mm256_set1_ps(t.box_lo[2]), z), _mm256_sub_ps(z, _mm256_set1_ps(t.box_hi[2]))),
+          _mm256_setzero_ps());
+      const __m256 gz2 = _mm256_mul_ps(gz, gz);
+      for (std::int64_t x = v0[0]; x <= v1[0]; ++x) {
+        const float gx = gap2(0, x);
+        for (std::int64_t y = v0[1]; y <= v1[1]; ++y) {
+          const float gxy = gx + gap2(1, y);
+          const std::size_t row = std::size_t(((x - o[0]) * B + (y - o[1])) * B);
+          const __m256 best = _mm256_loadu_ps(d2 + row);
+          __m256 live = in_z;
+          if (!exhaustive) {
+            const __m256 bound = _mm256_fmadd_ps(best, _mm256_set1_ps(1 + kBoundMargin), _mm256_set1_ps(t.slack));
+            live = _mm256_andnot_ps(_mm256_cmp_ps(_mm256_add_ps(_mm256_set1_ps(gxy), gz2), bound, _CMP_GT_OQ), live);
+          }
+          if (_mm256_testz_ps(live, live)) continue;
+          const __m256 e = distance2_row(t, float(x), float(y), std::int32_t(o[2]));
+          const __m256 closer = _mm256_and_ps(live, _mm256_cmp_ps(e, best, _CMP_LT_OQ));  // ties keep the lower i
+          _mm256_storeu_ps(d2 + row, _mm256_blendv_ps(best, e, closer));
+          const __m256 who = _mm256_loadu_ps(reinterpret_cast<const float*>(cl + row));
+          _mm256_storeu_ps(reinterpret_cast<float*>(cl + row),
+                           _mm256_blendv_ps(who, _mm256_castsi256_ps(_mm256_set1_epi32(std::int32_t(i))), closer));
+        }
+      }
+#else
       for (std::int64_t x = v0[0]; x <= v1[0]; ++x) {
         const float gx = gap2(0, x);
         for (std::int64_t y = v0[1]; y <= v1[1]; ++y) {
           const float gxy = gx + gap2(1, y);
           for (std::int64_t z = v0[2]; z <= v1[2]; ++z) {
             const std::size_t at = std::size_t(((x - o[0]) * B + (y - o[1])) * B + (z - o[2]));
-            if (!exhaustive && gxy + gap2(2, z) > d2[at] * (1 + kBoundMargin) + t.slack) continue;
+            if (!exhaustive && gxy + gap2(2, z) > std::fma(d2[at], 1 + kBoundMargin, t.slack)) continue;
             const float p[3] = {float(x), float(y), float(z)};
             const float e = distance2(t, p);
             if (e < d2[at]) d2[at] = e, cl[at] = std::int32_t(i);  // ascending i: ties keep the lower
           }
         }
       }
+#endif
     }
   });
   // 2. Layers: a voxel not reached takes the nearest of its face neighbours' closest triangles.

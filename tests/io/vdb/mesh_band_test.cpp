@@ -1,6 +1,8 @@
 // The narrow band of distances to a mesh (io/src/vdb/mesh_band.h): the band it builds, skipping the
 // seeds' exact distances that a bounding box rules out and the voxels no new neighbour reached, is
-// the band of the exhaustive search (every exact distance, every voxel tried), bit for bit.
+// the band of the exhaustive search (every exact distance, every voxel tried), bit for bit. The
+// squared distance to a triangle for a row of 8 voxels in one vector is the one-point definition's,
+// bit for bit, in every Voronoi region and for degenerate triangles (triangle_distance.h).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -10,6 +12,7 @@
 #include "slurry/io/surface.h"
 #include "slurry/transfer/parallel.h"
 #include "vdb/mesh_band.h"
+#include "vdb/triangle_distance.h"
 
 namespace {
 
@@ -92,6 +95,53 @@ TEST(MeshBand, SkippingGivesTheExhaustiveBandBitForBit) {
     expect_same(mesh_band(va, ta, h, 3), mesh_band(va, ta, h, 3, /*exhaustive=*/true), "assorted triangles");
     expect_same(mesh_band(va, ta, h, 5), mesh_band(va, ta, h, 5, /*exhaustive=*/true), "assorted triangles, width 5");
   }
+}
+
+TEST(TriangleDistance, RowIsThePointByPoint) {
+#if defined(__AVX2__) && defined(__FMA__)
+  using slurry::io::detail::Tri;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(-2.0f, 2.0f);
+  std::size_t compared = 0, regions[8] = {};
+  for (int n = 0; n < 40000; ++n) {
+    Tri t{};
+    for (int d = 0; d < 3; ++d) t.a[d] = u(rng), t.b[d] = u(rng), t.c[d] = u(rng);
+    switch (n % 10) {  // degenerate ones: a repeated vertex, a sliver, a point
+      case 0: std::copy(t.a, t.a + 3, t.b); break;
+      case 1: for (int d = 0; d < 3; ++d) t.c[d] = t.a[d] + 0.5f * (t.b[d] - t.a[d]); break;
+      case 2: std::copy(t.a, t.a + 3, t.b), std::copy(t.a, t.a + 3, t.c); break;
+      case 3:  // whole coordinates: exact products, ties and zero areas
+        for (int d = 0; d < 3; ++d) t.a[d] = std::round(t.a[d]), t.b[d] = std::round(t.b[d]), t.c[d] = std::round(t.c[d]);
+        break;
+      default: break;
+    }
+    const float px = std::round(u(rng) * 2), py = std::round(u(rng) * 2);
+    const std::int32_t z0 = std::int32_t(std::round(u(rng) * 3)) - 4;
+    float row[8];
+    _mm256_storeu_ps(row, slurry::io::detail::distance2_row(t, px, py, z0));
+    for (int l = 0; l < 8; ++l) {
+      const float p[3] = {px, py, float(z0 + l)};
+      const float e = slurry::io::detail::distance2(t, p);
+      ASSERT_EQ(std::memcmp(&row[l], &e, sizeof(float)), 0) << n << " lane " << l << ": " << row[l] << " vs " << e;
+      ++compared;
+      // Which region gave it: a vertex (its squared distance), else an edge or the face.
+      const float ap[3] = {p[0] - t.a[0], p[1] - t.a[1], p[2] - t.a[2]};
+      const float bp[3] = {p[0] - t.b[0], p[1] - t.b[1], p[2] - t.b[2]};
+      const float cp[3] = {p[0] - t.c[0], p[1] - t.c[1], p[2] - t.c[2]};
+      const auto sq = [](const float* v) { return v[0] * v[0] + v[1] * v[1] + v[2] * v[2]; };
+      const float nearest = std::min({sq(ap), sq(bp), sq(cp)});
+      regions[e < nearest * (1 - 1e-5f) ? (n % 10 < 4 ? 1 : 2) : 0] += 1;
+    }
+  }
+  EXPECT_EQ(compared, 320000u);
+  // Vertices, edges of degenerate (or whole-coordinate) triangles, and edges or faces of the
+  // others all occur.
+  EXPECT_GT(regions[0], compared / 20);
+  EXPECT_GT(regions[1], compared / 100);
+  EXPECT_GT(regions[2], compared / 20);
+#else
+  GTEST_SKIP() << "built without AVX2 and FMA: distance2_row is not compiled";
+#endif
 }
 
 }  // namespace
