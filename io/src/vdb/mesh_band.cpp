@@ -56,44 +56,75 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
     const float span = float(std::max({t.hi[0] - t.lo[0], t.hi[1] - t.lo[1], t.hi[2] - t.lo[2]}));
     t.slack = kBoundMargin * (1 + span * span);
   });
-  // Blocks a triangle's band can reach: its seeded voxels plus `width` layers.
+  // The blocks the triangles seed (their voxels within one voxel of their box). The band reaches
+  // `width` voxels further: at most `reach` blocks beyond a seeded one on each axis.
+  const std::int64_t reach = (width + B - 1) / B;
   std::int64_t lo[3] = {INT64_MAX, INT64_MAX, INT64_MAX}, hi[3] = {INT64_MIN, INT64_MIN, INT64_MIN};
   for (const Tri& t : tri)
     for (int d = 0; d < 3; ++d) {
-      lo[d] = std::min(lo[d], floor_div(t.lo[d] - width, B));
-      hi[d] = std::max(hi[d], floor_div(t.hi[d] + width, B));
+      lo[d] = std::min(lo[d], floor_div(t.lo[d], B));
+      hi[d] = std::max(hi[d], floor_div(t.hi[d], B));
     }
   for (int d = 0; d < 3; ++d)
-    if (hi[d] - lo[d] + 3 >= kRange)
+    if (hi[d] - lo[d] + 2 * reach + 3 >= kRange)
       throw std::invalid_argument("mesh_band: the mesh spans more than 2^21 blocks of 8 voxels");
-  // One block beyond on each side, so that a block's face neighbours always have keys.
-  for (int d = 0; d < 3; ++d) lo[d] -= 1;
-  // Block keys x + nx (y + ny z) over the box of blocks (their neighbours included): ordered by
-  // z, then y, then x, in as few bits as the box needs (fewer sort passes).
-  const std::int64_t nx = hi[0] - lo[0] + 2, ny = hi[1] - lo[1] + 2;
+  // Keys for the blocks within `reach` of a seeded one and one block beyond, so that a block's
+  // face neighbours always have keys.
+  for (int d = 0; d < 3; ++d) lo[d] -= reach + 1;
+  // Block keys x + nx (y + ny z) over that box of blocks: ordered by z, then y, then x, in as few
+  // bits as the box needs (fewer sort passes).
+  const std::int64_t nx = hi[0] - lo[0] + reach + 2, ny = hi[1] - lo[1] + reach + 2;
   const auto key_of = [&](std::int64_t x, std::int64_t y, std::int64_t z) { return std::uint64_t(x + nx * (y + ny * z)); };
   const auto cell_of = [&](std::uint64_t k) {
     const std::int64_t i = std::int64_t(k);
     return std::array<std::int64_t, 3>{i % nx, (i / nx) % ny, i / (nx * ny)};
   };
-  // Triangle i's blocks: [b0, b1] per axis.
+  // The blocks triangle i seeds: [b0, b1] per axis.
   const auto block_range = [&](std::size_t i, std::int64_t b0[3], std::int64_t b1[3]) {
     const Tri& t = tri[i];
-    for (int d = 0; d < 3; ++d)
-      b0[d] = floor_div(t.lo[d] - width, B) - lo[d], b1[d] = floor_div(t.hi[d] + width, B) - lo[d];
+    for (int d = 0; d < 3; ++d) b0[d] = floor_div(t.lo[d], B) - lo[d], b1[d] = floor_div(t.hi[d], B) - lo[d];
   };
-  // The (block, triangle) pairs, in triangle order.
+  // The (seeded block, triangle) pairs, in triangle order.
   UninitVector<std::uint64_t> keys;
   UninitVector<std::uint32_t> owner;
   list_block_pairs(nt, block_range, key_of, keys, owner);
   radix_sort_pairs(keys, owner);  // by block, then triangle
-  std::vector<std::uint32_t> run;  // starts of each block's triangles, then keys.size()
+  std::vector<std::uint32_t> run;  // starts of each seeded block's triangles, then keys.size()
   for (std::size_t i = 0; i < keys.size(); ++i)
     if (i == 0 || keys[i] != keys[i - 1]) run.push_back(std::uint32_t(i));
   run.push_back(std::uint32_t(keys.size()));
-  const std::size_t nb = run.size() - 1;
-  UninitVector<std::uint64_t> block_key(nb);
-  for (std::size_t b = 0; b < nb; ++b) block_key[b] = keys[run[b]];
+  // The blocks: those within `width` voxels of a seeded block's seeded voxels (every voxel the
+  // band can reach), ascending; each with its triangles, the seeded block's run or none.
+  const std::size_t ns = run.size() - 1;
+  std::vector<std::array<std::int64_t, 6>> near(ns);  // block range per axis: lo x y z, hi x y z
+  parallel::parallel_for(0, std::int64_t(ns), [&](std::int64_t r) {
+    const auto c = cell_of(keys[run[std::size_t(r)]]);
+    std::int64_t v0[3] = {INT64_MAX, INT64_MAX, INT64_MAX}, v1[3] = {INT64_MIN, INT64_MIN, INT64_MIN};
+    for (std::uint32_t q = run[std::size_t(r)]; q < run[std::size_t(r) + 1]; ++q)
+      for (int d = 0; d < 3; ++d) {
+        const std::int64_t o = (c[std::size_t(d)] + lo[d]) * B;
+        v0[d] = std::min(v0[d], std::max<std::int64_t>(tri[owner[q]].lo[d], o));
+        v1[d] = std::max(v1[d], std::min<std::int64_t>(tri[owner[q]].hi[d], o + B - 1));
+      }
+    for (int d = 0; d < 3; ++d) {
+      near[std::size_t(r)][std::size_t(d)] = floor_div(v0[d] - width, B) - lo[d];
+      near[std::size_t(r)][std::size_t(d) + 3] = floor_div(v1[d] + width, B) - lo[d];
+    }
+  });
+  std::vector<std::uint64_t> block_key;
+  for (const auto& b : near)
+    for (std::int64_t z = b[2]; z <= b[5]; ++z)
+      for (std::int64_t y = b[1]; y <= b[4]; ++y)
+        for (std::int64_t x = b[0]; x <= b[3]; ++x) block_key.push_back(key_of(x, y, z));
+  std::sort(block_key.begin(), block_key.end());
+  block_key.erase(std::unique(block_key.begin(), block_key.end()), block_key.end());
+  const std::size_t nb = block_key.size();
+  std::vector<std::array<std::uint32_t, 2>> seeds(nb, {0, 0});  // [begin, end) of its triangles
+  for (std::size_t b = 0, r = 0; b < nb && r < ns; ++b) {
+    if (block_key[b] != keys[run[r]]) continue;
+    seeds[b] = {run[r], run[r + 1]};
+    ++r;
+  }
   const auto origin_of = [&](std::size_t b) {
     const auto c = cell_of(block_key[b]);
     return std::array<std::int64_t, 3>{(c[0] + lo[0]) * B, (c[1] + lo[1]) * B, (c[2] + lo[2]) * B};
@@ -123,7 +154,7 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
     std::int32_t* cl = closest.data() + std::size_t(b) * V;
     std::fill(d2, d2 + V, none);
     std::fill(cl, cl + V, -1);
-    for (std::uint32_t r = run[std::size_t(b)]; r < run[std::size_t(b) + 1]; ++r) {
+    for (std::uint32_t r = seeds[std::size_t(b)][0]; r < seeds[std::size_t(b)][1]; ++r) {
       const std::uint32_t i = owner[r];
       const Tri& t = tri[i];
       std::int64_t v0[3], v1[3];
