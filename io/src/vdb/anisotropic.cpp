@@ -24,7 +24,6 @@
 #include <string>
 
 #include "slurry/transfer/parallel.h"
-#include "vdb/block_pairs.h"
 #include "vdb/cell_starts.h"
 #include "vdb/kernel_shape.h"
 #include "vdb/lanes.h"
@@ -399,22 +398,62 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
       sp.count[d] = empty ? 0 : std::int32_t(block_of(hi[d]) - blocks.lo[d] - b0 + 1);
     }
   });
-  // The (block, kernel) pairs, in kernel order.
-  UninitVector<std::uint64_t> target;  // block key of each (block, kernel) pair
-  UninitVector<std::uint32_t> listed;  // the kernel, by its place in by_block
-  list_block_pairs(
-      n,
-      [&](std::size_t q, std::int64_t b0[3], std::int64_t b1[3]) {
-        for (int d = 0; d < 3; ++d) b0[d] = span[q].first[d], b1[d] = span[q].first[d] + span[q].count[d] - 1;
-      },
-      [&](std::int64_t x, std::int64_t y, std::int64_t z) { return blocks.key(x, y, z); }, target, listed);
-  radix_sort_pairs(target, listed);  // stable: within a block, the kernels' order above
-  const std::vector<std::uint32_t> lists = runs(target);
+  // Each block's kernels without a sort of (block, kernel) pairs: a kernel reaches only blocks
+  // within `around` blocks of its centre's block, so the kernels of a centre's block are listed by the
+  // offset of each block they reach (slot), in their order; a block then reads, for each
+  // centre's block around it in ascending order, the list under its own offset from it. Its
+  // kernels come in ascending order of their centres' blocks, then of their place in by_block.
+  const std::vector<std::uint32_t> centre_runs = runs(keys);
+  const std::size_t nc = centre_runs.size() - 1;
+  const std::int64_t around = rb + 1, side = 2 * around + 1;  // the CellGrid's pad
+  const std::size_t slots = std::size_t(side * side * side);
+  const auto slot_of = [&](const std::array<std::int64_t, 3>& c, std::int64_t x, std::int64_t y, std::int64_t z) {
+    return std::size_t(((z - c[2] + around) * side + (y - c[1] + around)) * side + (x - c[0] + around));
+  };
+  const auto for_each_block = [&](std::size_t q, auto&& f) {
+    const Span& sp = span[q];
+    for (std::int32_t z = sp.first[2]; z < sp.first[2] + sp.count[2]; ++z)
+      for (std::int32_t y = sp.first[1]; y < sp.first[1] + sp.count[1]; ++y)
+        for (std::int32_t x = sp.first[0]; x < sp.first[0] + sp.count[0]; ++x) f(x, y, z);
+  };
+  std::vector<std::uint32_t> slot_start(nc * slots + 1, 0);  // counts, then starts in `listed`
+  parallel::parallel_tasks(0, std::int64_t(nc), [&](std::int64_t c) {
+    const auto cc = blocks.unpack(keys[centre_runs[std::size_t(c)]]);
+    std::uint32_t* count = slot_start.data() + 1 + std::size_t(c) * slots;
+    for (std::uint32_t q = centre_runs[std::size_t(c)]; q < centre_runs[std::size_t(c) + 1]; ++q)
+      for_each_block(q, [&](std::int64_t x, std::int64_t y, std::int64_t z) { ++count[slot_of(cc, x, y, z)]; });
+  });
+  for (std::size_t k = 0; k < nc * slots; ++k) slot_start[k + 1] += slot_start[k];
+  UninitVector<std::uint32_t> listed(slot_start[nc * slots]);  // kernels, by their place in by_block
+  parallel::parallel_tasks(0, std::int64_t(nc), [&](std::int64_t c) {
+    const auto cc = blocks.unpack(keys[centre_runs[std::size_t(c)]]);
+    std::vector<std::uint32_t> at(slot_start.begin() + std::ptrdiff_t(std::size_t(c) * slots),
+                                  slot_start.begin() + std::ptrdiff_t(std::size_t(c + 1) * slots));
+    for (std::uint32_t q = centre_runs[std::size_t(c)]; q < centre_runs[std::size_t(c) + 1]; ++q)
+      for_each_block(q, [&](std::int64_t x, std::int64_t y, std::int64_t z) { listed[at[slot_of(cc, x, y, z)]++] = q; });
+  });
+  // The blocks: (block key, list) for every non-empty list, by block key, then centre's block.
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> part;  // list: c * slots + slot
+  for (std::size_t c = 0; c < nc; ++c) {
+    const auto cc = blocks.unpack(keys[centre_runs[c]]);
+    for (std::int64_t z = -around; z <= around; ++z)
+      for (std::int64_t y = -around; y <= around; ++y)
+        for (std::int64_t x = -around; x <= around; ++x) {
+          const std::size_t k = c * slots + slot_of(cc, cc[0] + x, cc[1] + y, cc[2] + z);
+          if (slot_start[k + 1] > slot_start[k])
+            part.push_back({blocks.key(cc[0] + x, cc[1] + y, cc[2] + z), std::uint32_t(k)});
+        }
+  }
+  std::sort(part.begin(), part.end());  // list numbers ascend with the centre's block
+  std::vector<std::uint32_t> lists;  // starts of each block's parts, then part.size()
+  for (std::size_t i = 0; i < part.size(); ++i)
+    if (i == 0 || part[i].first != part[i - 1].first) lists.push_back(std::uint32_t(i));
+  lists.push_back(std::uint32_t(part.size()));
   const std::size_t nb = lists.size() - 1;
   out.value.resize(nb * B * B * B);  // each block's task zeroes its own values
   out.origin.resize(nb);
   parallel::parallel_tasks(0, std::int64_t(nb), [&](std::int64_t bi) {
-    const auto bc = blocks.unpack(target[lists[std::size_t(bi)]]);
+    const auto bc = blocks.unpack(part[lists[std::size_t(bi)]].first);
     // Index-space origin of the block.
     const std::int64_t o[3] = {(bc[0] + blocks.lo[0]) * B, (bc[1] + blocks.lo[1]) * B,
                                (bc[2] + blocks.lo[2]) * B};
@@ -422,26 +461,29 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
     float* v = out.value.data() + std::size_t(bi) * B * B * B;
     std::fill(v, v + B * B * B, 0.0f);
     for (std::uint32_t at = lists[std::size_t(bi)]; at < lists[std::size_t(bi) + 1]; ++at) {
-      const Kernel& ker = by_block[listed[at]];
-      const float P[3] = {ker.centre[0] * inv_h, ker.centre[1] * inv_h, ker.centre[2] * inv_h};
-      std::int64_t lo_i[3], hi_i[3];
-      voxel_range(ker, lo_i, hi_i);
-      for (int d = 0; d < 3; ++d) {
-        lo_i[d] = std::max<std::int64_t>(o[d], lo_i[d]);
-        hi_i[d] = std::min<std::int64_t>(o[d] + B - 1, hi_i[d]);
-      }
-      // Map scaled to index space: q = M h (i - P).
-      float M[9];
-      for (int m = 0; m < 9; ++m) M[m] = ker.map[std::size_t(m)] * float(h);
-      const float m_z[3] = {M[2], M[5], M[8]};
-      static_assert(B == 8);  // a row of the block along z is splat_row's 8 voxels
-      for (std::int64_t x = lo_i[0]; x <= hi_i[0]; ++x) {
-        const float dxv = float(x) - P[0];
-        for (std::int64_t y = lo_i[1]; y <= hi_i[1]; ++y) {
-          const float dyv = float(y) - P[1];
-          const float a[3] = {M[0] * dxv + M[1] * dyv, M[3] * dxv + M[4] * dyv, M[6] * dxv + M[7] * dyv};
-          splat_row(v + ((x - o[0]) * B + (y - o[1])) * B, std::int32_t(o[2]), int(lo_i[2] - o[2]),
-                    int(hi_i[2] - o[2]), P[2], a, m_z, ker.weight);
+      const std::uint32_t list = part[at].second;
+      for (std::uint32_t item = slot_start[list]; item < slot_start[list + 1]; ++item) {
+        const Kernel& ker = by_block[listed[item]];
+        const float P[3] = {ker.centre[0] * inv_h, ker.centre[1] * inv_h, ker.centre[2] * inv_h};
+        std::int64_t lo_i[3], hi_i[3];
+        voxel_range(ker, lo_i, hi_i);
+        for (int d = 0; d < 3; ++d) {
+          lo_i[d] = std::max<std::int64_t>(o[d], lo_i[d]);
+          hi_i[d] = std::min<std::int64_t>(o[d] + B - 1, hi_i[d]);
+        }
+        // Map scaled to index space: q = M h (i - P).
+        float M[9];
+        for (int m = 0; m < 9; ++m) M[m] = ker.map[std::size_t(m)] * float(h);
+        const float m_z[3] = {M[2], M[5], M[8]};
+        static_assert(B == 8);  // a row of the block along z is splat_row's 8 voxels
+        for (std::int64_t x = lo_i[0]; x <= hi_i[0]; ++x) {
+          const float dxv = float(x) - P[0];
+          for (std::int64_t y = lo_i[1]; y <= hi_i[1]; ++y) {
+            const float dyv = float(y) - P[1];
+            const float a[3] = {M[0] * dxv + M[1] * dyv, M[3] * dxv + M[4] * dyv, M[6] * dxv + M[7] * dyv};
+            splat_row(v + ((x - o[0]) * B + (y - o[1])) * B, std::int32_t(o[2]), int(lo_i[2] - o[2]),
+                      int(hi_i[2] - o[2]), P[2], a, m_z, ker.weight);
+          }
         }
       }
     }
