@@ -199,7 +199,19 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
 
   // 1. Kernels, from each particle's neighbourhood (cells of side R: neighbours lie in the 3 x 3
   //    rows of 3 cells around a particle's cell). One task per cell of particles.
-  UninitVector<Kernel> kernel(n);  // every particle's kernel is written below
+  UninitVector<Kernel> kernel(n);  // every kernel but a deep particle's is written below
+  // A deep particle's kernel is the round one at its position, not written: `deep` marks it.
+  std::vector<std::uint8_t> deep(n, 0);
+  Kernel round{};
+  round.map = {float(1 / H), 0, 0, 0, float(1 / H), 0, 0, 0, float(1 / H)};
+  round.weight = float(volume * K / (H * H * H));
+  round.reach = float(H);
+  const auto kernel_of = [&](std::size_t i) {
+    if (!deep[i]) return kernel[i];
+    Kernel ker = round;
+    ker.centre = points.position[i];
+    return ker;
+  };
   out.neighbours.assign(n, 0);
   {
     const CellGrid grid(points.position, R, 1, "neighbourhoods");
@@ -236,11 +248,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
       if (fewest >= kDeepCell) {
         for (std::uint32_t a = cells[std::size_t(c)]; a < cells[std::size_t(c) + 1]; ++a) {
           const std::uint32_t i = order[a];
-          Kernel& ker = kernel[i];
-          ker.centre = {sorted[0][a], sorted[1][a], sorted[2][a]};
-          ker.map = {float(1 / H), 0, 0, 0, float(1 / H), 0, 0, 0, float(1 / H)};
-          ker.weight = float(volume * K / (H * H * H));
-          ker.reach = float(H);
+          deep[i] = 1;
           out.neighbours[i] = 255;
         }
         return;
@@ -357,7 +365,10 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   const float reach_max = parallel::parallel_max(0, std::int64_t(n), 0.0f, [&](std::int64_t b, std::int64_t e) {
     float m = 0;
     for (std::size_t i = std::size_t(b); i < std::size_t(e); ++i)
-      centres[i] = kernel[i].centre, m = std::max(m, kernel[i].reach);
+      if (deep[i])
+        centres[i] = points.position[i], m = std::max(m, round.reach);
+      else
+        centres[i] = kernel[i].centre, m = std::max(m, kernel[i].reach);
     return m;
   });
   const std::int64_t rb = std::int64_t(std::ceil(double(reach_max) / h / B + 1e-9));
@@ -386,7 +397,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   UninitVector<Kernel> by_block(n);
   UninitVector<Span> span(n);
   parallel::parallel_for(0, std::int64_t(n), [&](std::int64_t q) {
-    const Kernel& ker = kernel[order[std::size_t(q)]];
+    const Kernel ker = kernel_of(order[std::size_t(q)]);
     by_block[std::size_t(q)] = ker;
     Span& sp = span[std::size_t(q)];
     std::int64_t lo[3], hi[3];
