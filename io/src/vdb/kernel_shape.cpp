@@ -1,12 +1,14 @@
 // The kernels of kernel_shape.h, one particle at a time or four in a vector of doubles (AVX2).
 // This file is compiled without contraction (-ffp-contract=off): a product is fused into a sum
-// only where std::fma or a fused intrinsic says so, and the roundings below are those of Eigen
-// 3.4's 3 x 3 inverse (cofactors), Frobenius norms (pairs of entries, then their sum) and
-// unblocked LLT as g++ 12 compiles them with FMA (its contraction included), so that the kernels
-// are the ones those routines give.
+// only where a fused operation says so (without FMA hardware, the one-particle form rounds those
+// twice), and the roundings below are those of Eigen 3.4's 3 x 3 inverse (cofactors), Frobenius
+// norms (pairs of entries, then their sum) and unblocked LLT as g++ 12 compiles them with FMA (its
+// contraction included), so that the kernels are the ones those routines give.
 #include "vdb/kernel_shape.h"
 
 #include <cmath>
+
+#include "vdb/lanes.h"
 
 #if defined(__AVX2__) && defined(__FMA__)
 #include <immintrin.h>
@@ -37,7 +39,7 @@ struct One {
   static D load(const float* p) { return double(*p); }
   static D load(const std::int32_t* p) { return double(*p); }
   static void store(double* p, D a) { *p = a; }
-  static D fma(D a, D b, D c) { return std::fma(a, b, c); }
+  static D fma(D a, D b, D c) { return fused(a, b, c); }
   static D sqrt(D a) { return std::sqrt(a); }
   static D abs(D a) { return std::fabs(a); }
   static D lesser(D a, D b) { return a < b ? a : b; }   ///< a when a < b, else b

@@ -12,6 +12,24 @@
 
 namespace slurry::io::detail {
 
+/// a b + c, rounded once where the machine has fused multiply-adds (the roundings the vector forms
+/// below reproduce), else rounded twice: a build without FMA does not call a software fma in its
+/// inner loops (and its results may differ from an FMA build's in the last bits).
+inline float fused(float a, float b, float c) {
+#ifdef __FMA__
+  return std::fma(a, b, c);
+#else
+  return a * b + c;
+#endif
+}
+inline double fused(double a, double b, double c) {
+#ifdef __FMA__
+  return std::fma(a, b, c);
+#else
+  return a * b + c;
+#endif
+}
+
 /// The neighbour sums run over every candidate in kLanes partial sums (candidate q in lane
 /// q mod kLanes, a loop of whole vectors that compilers vectorize), then the lanes are added as a
 /// tree in double: the same additions on any machine, whatever its vector width. kLanes is a
@@ -60,11 +78,11 @@ inline void splat_row_scalar(float* row, std::int32_t origin, int first, int las
                              const float (&m)[3], float weight) {
   for (int l = first; l <= last; ++l) {
     const float dz = float(origin + l) - centre;
-    const float q0 = std::fma(m[0], dz, a[0]), q1 = std::fma(m[1], dz, a[1]), q2 = std::fma(m[2], dz, a[2]);
-    const float q = std::fma(q2, q2, std::fma(q0, q0, q1 * q1));
+    const float q0 = fused(m[0], dz, a[0]), q1 = fused(m[1], dz, a[1]), q2 = fused(m[2], dz, a[2]);
+    const float q = fused(q2, q2, fused(q0, q0, q1 * q1));
     if (q < 1.0f) {
       const float t = 1.0f - q;
-      row[l] = std::fma(weight * t * t, t, row[l]);
+      row[l] = fused(weight * t * t, t, row[l]);
     }
   }
 }

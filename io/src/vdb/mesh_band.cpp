@@ -212,7 +212,7 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
           const float gxy = gx + gap2(1, y);
           for (std::int64_t z = v0[2]; z <= v1[2]; ++z) {
             const std::size_t at = std::size_t(((x - o[0]) * B + (y - o[1])) * B + (z - o[2]));
-            if (!exhaustive && gxy + gap2(2, z) > std::fma(d2[at], 1 + kBoundMargin, t.slack)) continue;
+            if (!exhaustive && gxy + gap2(2, z) > fused(d2[at], 1 + kBoundMargin, t.slack)) continue;
             const float p[3] = {float(x), float(y), float(z)};
             const float e = distance2(t, p);
             if (e < d2[at]) d2[at] = e, cl[at] = std::int32_t(i);  // ascending i: ties keep the lower

@@ -4,13 +4,16 @@
 // closest point by the Voronoi regions of the triangle's vertices, edges and face (Ericson,
 // Real-Time Collision Detection, 2005, 5.1.5), in index space (voxel units), in float. The
 // roundings are spelled out as fused operations: a dot product u.v is fma(u2, v2, fma(u0, v0,
-// u1 v1)), a point on an edge p - t e is fma(-t, e, p) per axis.
+// u1 v1)), a point on an edge p - t e is fma(-t, e, p) per axis (fused, lanes.h: without FMA
+// hardware, rounded twice).
 #if defined(__AVX2__) && defined(__FMA__)
 #include <immintrin.h>
 #endif
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+
+#include "vdb/lanes.h"
 
 namespace slurry::io::detail {
 
@@ -24,7 +27,7 @@ struct Tri {
 
 /// u.v with u2 v2 and u0 v0 fused.
 inline float dot3(float u0, float u1, float u2, float v0, float v1, float v2) {
-  return std::fma(u2, v2, std::fma(u0, v0, u1 * v1));
+  return fused(u2, v2, fused(u0, v0, u1 * v1));
 }
 
 /// The squared distance from p to the triangle (the definition; distance2_row must equal it bit
@@ -38,20 +41,20 @@ inline float distance2(const Tri& t, const float p[3]) {
   const auto dot = [](const float* u, const float* v) { return dot3(u[0], u[1], u[2], v[0], v[1], v[2]); };
   // |p - s e|^2 for the point p - s e of an edge e from p's offset to its start.
   const auto along = [](const float* p, float s, const float* e) {
-    const float x = std::fma(-s, e[0], p[0]), y = std::fma(-s, e[1], p[1]), z = std::fma(-s, e[2], p[2]);
+    const float x = fused(-s, e[0], p[0]), y = fused(-s, e[1], p[1]), z = fused(-s, e[2], p[2]);
     return dot3(x, y, z, x, y, z);
   };
   const float d1 = dot(ab, ap), d2 = dot(ac, ap);
   if (d1 <= 0 && d2 <= 0) return dot(ap, ap);
   const float d3 = dot(ab, bp), d4 = dot(ac, bp);
   if (d3 >= 0 && d4 <= d3) return dot(bp, bp);
-  const float vc = std::fma(d1, d4, -(d3 * d2));
+  const float vc = fused(d1, d4, -(d3 * d2));
   if (vc <= 0 && d1 >= 0 && d3 <= 0) return along(ap, d1 / (d1 - d3), ab);
   const float d5 = dot(ab, cp), d6 = dot(ac, cp);
   if (d6 >= 0 && d5 <= d6) return dot(cp, cp);
-  const float vb = std::fma(d5, d2, -(d1 * d6));
+  const float vb = fused(d5, d2, -(d1 * d6));
   if (vb <= 0 && d2 >= 0 && d6 <= 0) return along(ap, d2 / (d2 - d6), ac);
-  const float va = std::fma(d3, d6, -(d5 * d4));
+  const float va = fused(d3, d6, -(d5 * d4));
   if (va <= 0 && d4 - d3 >= 0 && d5 - d6 >= 0) {
     const float bc[3] = {t.c[0] - t.b[0], t.c[1] - t.b[1], t.c[2] - t.b[2]};
     return along(bp, (d4 - d3) / ((d4 - d3) + (d5 - d6)), bc);
@@ -63,9 +66,9 @@ inline float distance2(const Tri& t, const float p[3]) {
     return c2 < m ? c2 : m;
   }
   const float v = vb / sum, w = vc / sum;
-  const float x = std::fma(-ac[0], w, std::fma(-ab[0], v, ap[0]));
-  const float y = std::fma(-ac[1], w, std::fma(-ab[1], v, ap[1]));
-  const float z = std::fma(-ac[2], w, std::fma(-ab[2], v, ap[2]));
+  const float x = fused(-ac[0], w, fused(-ab[0], v, ap[0]));
+  const float y = fused(-ac[1], w, fused(-ab[1], v, ap[1]));
+  const float z = fused(-ac[2], w, fused(-ab[2], v, ap[2]));
   return dot3(x, y, z, x, y, z);
 }
 
@@ -83,10 +86,10 @@ inline __m256 distance2_row(const Tri& t, float px, float py, std::int32_t z0) {
   const __m256 ap2 = _mm256_sub_ps(z, _mm256_set1_ps(t.a[2])), bp2 = _mm256_sub_ps(z, _mm256_set1_ps(t.b[2])),
                cp2 = _mm256_sub_ps(z, _mm256_set1_ps(t.c[2]));
   const auto dot = [](float u0, float u1, float u2, float v0, float v1, __m256 v2) {
-    return _mm256_fmadd_ps(_mm256_set1_ps(u2), v2, _mm256_set1_ps(std::fma(u0, v0, u1 * v1)));
+    return _mm256_fmadd_ps(_mm256_set1_ps(u2), v2, _mm256_set1_ps(fused(u0, v0, u1 * v1)));
   };
   const auto norm2 = [](float x, float y, __m256 z2) {
-    return _mm256_fmadd_ps(z2, z2, _mm256_set1_ps(std::fma(x, x, y * y)));
+    return _mm256_fmadd_ps(z2, z2, _mm256_set1_ps(fused(x, x, y * y)));
   };
   const auto fnmadd = [](__m256 a, __m256 b, __m256 c) { return _mm256_fnmadd_ps(a, b, c); };
   const auto set = [](float a) { return _mm256_set1_ps(a); };
