@@ -188,14 +188,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   if (n == 0) return out;
   const double s = spacing, R = k.neighbourhood * s, H = k.support * s, h = voxel_size;
   const double volume = s * s * s, K = 315.0 / (64.0 * M_PI), s_bulk = 0.15 * R * R;
-  ShapeConstants shape_constants;
-  shape_constants.smoothing = k.smoothing;
-  shape_constants.min_neighbours = k.min_neighbours;
-  shape_constants.max_stretch = k.max_stretch;
-  shape_constants.s_bulk = s_bulk;
-  shape_constants.support = H;
-  shape_constants.volume = volume;
-  shape_constants.normalisation = K;
+  const ShapeConstants shape_constants{k.smoothing, k.min_neighbours, k.max_stretch, s_bulk, H, volume, K};
 
   // 1. Kernels, from each particle's neighbourhood (cells of side R: neighbours lie in the 3 x 3
   //    rows of 3 cells around a particle's cell). One task per cell of particles.

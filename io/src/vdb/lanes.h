@@ -15,14 +15,8 @@ namespace slurry::io::detail {
 /// a b + c, rounded once where the machine has fused multiply-adds (the roundings the vector forms
 /// below reproduce), else rounded twice: a build without FMA does not call a software fma in its
 /// inner loops (and its results may differ from an FMA build's in the last bits).
-inline float fused(float a, float b, float c) {
-#ifdef __FMA__
-  return std::fma(a, b, c);
-#else
-  return a * b + c;
-#endif
-}
-inline double fused(double a, double b, double c) {
+template <class T>
+inline T fused(T a, T b, T c) {
 #ifdef __FMA__
   return std::fma(a, b, c);
 #else
