@@ -357,11 +357,10 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   UninitVector<std::array<float, 3>> centres(n);
   const float reach_max = parallel::parallel_max(0, std::int64_t(n), 0.0f, [&](std::int64_t b, std::int64_t e) {
     float m = 0;
-    for (std::size_t i = std::size_t(b); i < std::size_t(e); ++i)
-      if (deep[i])
-        centres[i] = points.position[i], m = std::max(m, round.reach);
-      else
-        centres[i] = kernel[i].centre, m = std::max(m, kernel[i].reach);
+    for (std::size_t i = std::size_t(b); i < std::size_t(e); ++i) {
+      const Kernel ker = kernel_of(i);
+      centres[i] = ker.centre, m = std::max(m, ker.reach);
+    }
     return m;
   });
   const std::int64_t rb = std::int64_t(std::ceil(double(reach_max) / h / B + 1e-9));
@@ -403,8 +402,8 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
     }
   });
   // Each block's kernels without a sort of (block, kernel) pairs: a kernel reaches only blocks
-  // within `around` blocks of its centre's block, so the kernels of a centre's block are listed by the
-  // offset of each block they reach (slot), in their order; a block then reads, for each
+  // within `around` blocks of its centre's block, so the kernels of a centre's block are listed
+  // by the offset of each block they reach (slot), in their order; a block then reads, for each
   // centre's block around it in ascending order, the list under its own offset from it. Its
   // kernels come in ascending order of their centres' blocks, then of their place in by_block.
   const std::vector<std::uint32_t> centre_runs = runs(keys);

@@ -9,7 +9,6 @@
 #if defined(__AVX2__) && defined(__FMA__)
 #include <immintrin.h>
 #endif
-#include <algorithm>
 #include <cmath>
 #include <cstdint>
 
