@@ -86,10 +86,13 @@ struct CellGrid {
   }
 };
 
-/// Indices of `pos` sorted by key (ties by index), and the sorted keys.
+/// Indices of `pos` sorted by key (ties by index), and the sorted keys; returns where each of the
+/// grid's cells starts (cell_starts.h) when the grid's cells are few enough for a table, else an
+/// empty table.
 template <class Points>
-void sort_by_cell(const Points& pos, const CellGrid& grid, UninitVector<std::uint64_t>& keys,
-                  UninitVector<std::uint32_t>& order) {
+UninitVector<std::uint32_t> sort_by_cell(const Points& pos, const CellGrid& grid,
+                                         UninitVector<std::uint64_t>& keys,
+                                         UninitVector<std::uint32_t>& order) {
   const std::size_t n = pos.size();
   keys.resize(n);
   order.resize(n);
@@ -97,7 +100,10 @@ void sort_by_cell(const Points& pos, const CellGrid& grid, UninitVector<std::uin
     keys[std::size_t(i)] = grid.key(grid.cell(pos[std::size_t(i)]));
     order[std::size_t(i)] = std::uint32_t(i);
   });
+  const double cells = double(grid.n[0]) * double(grid.n[1]) * double(grid.n[2]);
+  if (dense_cell_table(cells, n)) return counting_sort_pairs(keys, order, std::size_t(cells));
   radix_sort_pairs(keys, order);
+  return {};
 }
 
 /// Starts of the runs of equal keys in `keys`, with keys.size() appended.
@@ -151,13 +157,11 @@ class CellIndex {
 /// (cell_starts.h) when the cells' box is small enough, else CellIndex's hash.
 class CellRanges {
  public:
-  CellRanges(const CellGrid& grid, const UninitVector<std::uint64_t>& keys, const std::vector<std::uint32_t>& runs)
-      : runs_(runs) {
-    const double cells = double(grid.n[0]) * double(grid.n[1]) * double(grid.n[2]);
-    if (dense_cell_table(cells, keys.size()))
-      first_ = cell_starts(keys, std::size_t(cells));
-    else
-      index_.emplace(keys, runs);
+  /// `first`: sort_by_cell's table (empty: a hash of the runs instead).
+  CellRanges(UninitVector<std::uint32_t> first, const UninitVector<std::uint64_t>& keys,
+             const std::vector<std::uint32_t>& runs)
+      : runs_(runs), first_(std::move(first)) {
+    if (first_.empty()) index_.emplace(keys, runs);
   }
   /// The particles of the `count` consecutive cells from `key`, [begin, end) of the sorted
   /// order (begin == end when they are all empty).
@@ -210,9 +214,9 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
     const CellGrid grid(points.position, R, 1, "neighbourhoods");
     UninitVector<std::uint64_t> keys;
     UninitVector<std::uint32_t> order;
-    sort_by_cell(points.position, grid, keys, order);
+    UninitVector<std::uint32_t> first = sort_by_cell(points.position, grid, keys, order);
     const std::vector<std::uint32_t> cells = runs(keys);
-    const CellRanges ranges(grid, keys, cells);
+    const CellRanges ranges(std::move(first), keys, cells);
     // Positions in cell order, by coordinate: a row of cells is one range of each.
     UninitVector<float> sorted[3];
     for (auto& axis : sorted) axis.resize(n);
@@ -367,7 +371,7 @@ FieldBlocks anisotropic_field(const PointCloud& points, double voxel_size, doubl
   const CellGrid blocks(centres, B * h, rb + 1, "blocks of 8 voxels");
   UninitVector<std::uint64_t> keys;
   UninitVector<std::uint32_t> order;
-  sort_by_cell(centres, blocks, keys, order);
+  sort_by_cell(centres, blocks, keys, order);  // blocks' starts unused: the runs below
   const float inv_h = float(1.0 / h);
   /// Kernel i's voxels: [lo, hi] per axis (empty when lo > hi on an axis).
   const auto voxel_range = [&](const Kernel& ker, std::int64_t lo[3], std::int64_t hi[3]) {

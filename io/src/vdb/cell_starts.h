@@ -1,9 +1,12 @@
 #pragma once
-// Where each cell's particles start in a list of particles sorted by cell key (the keys numbering
-// a box of cells), as a dense table over every cell of the box: a run of consecutive cells is
-// then two reads. Shared by the anisotropic field's neighbourhoods and the velocity sampler.
+// Particles sorted by cell key (the keys numbering a box of cells) by a counting sort, with where
+// each cell's particles start as a dense table over every cell of the box: a run of consecutive
+// cells is then two reads. Shared by the anisotropic field's neighbourhoods and blocks, the
+// velocity sampler and the mesh's band.
 #include <algorithm>
 #include <cstdint>
+#include <utility>
+#include <vector>
 
 #include "slurry/transfer/parallel.h"
 #include "vdb/buffer.h"
@@ -16,17 +19,62 @@ inline bool dense_cell_table(double cells, std::size_t n) {
   return cells <= std::max(4.0 * double(n), double(1 << 20));
 }
 
-/// first[k] (k in [0, cells]) = the number of particles in cells before k, for `keys` sorted in
-/// ascending order, each below `cells`: the sorted particle i that starts a run of keys is the
-/// first of its cell and of the empty cells just before it.
-inline UninitVector<std::uint32_t> cell_starts(const UninitVector<std::uint64_t>& keys, std::size_t cells) {
+/// Sorts (keys[i], values[i]) by key, ties in their order (what radix_sort_pairs in radix_sort.h
+/// does), for keys each below `cells` with dense_cell_table(cells, keys.size()), and returns
+/// where each cell starts: first[k] (k in [0, cells]) = the number of keys below k. The input is
+/// cut into parts counted in parallel, each in a table of its own; every (cell, part) is given
+/// its place in cell order then part order (the cell's first place is where it starts), and the
+/// parts are scattered in parallel, each in its own order. A stable sort has one result, so the
+/// parts change only the time.
+template <class Keys, class Values>
+UninitVector<std::uint32_t> counting_sort_pairs(Keys& keys, Values& values, std::size_t cells) {
   const std::size_t n = keys.size();
-  UninitVector<std::uint32_t> first(cells + 1);
-  slurry::parallel::parallel_for(0, std::int64_t(n) + 1, [&](std::int64_t i) {
-    const std::size_t from = i == 0 ? 0 : std::size_t(keys[std::size_t(i) - 1]) + 1;
-    const std::size_t to = std::size_t(i) == n ? cells : std::size_t(keys[std::size_t(i)]);
-    for (std::size_t k = from; k <= to; ++k) first[k] = std::uint32_t(i);
+  // Parts: one per thread, at most 16, and tables of at most 16 entries per particle.
+  std::size_t parts = std::size_t(std::clamp(slurry::parallel::max_threads(), 1, 16));
+  parts = std::max<std::size_t>(1, std::min(parts, 16 * n / std::max<std::size_t>(cells, 1)));
+  const std::size_t share = (n + parts - 1) / parts;
+  const auto part_begin = [&](std::size_t p) { return std::min(n, p * share); };
+  UninitVector<std::uint32_t> count(parts * cells);  // part p's cells at p * cells
+  slurry::parallel::parallel_tasks(0, std::int64_t(parts), [&](std::int64_t p) {
+    std::uint32_t* c = count.data() + std::size_t(p) * cells;
+    std::fill(c, c + cells, 0u);
+    for (std::size_t i = part_begin(std::size_t(p)); i < part_begin(std::size_t(p) + 1); ++i) ++c[keys[i]];
   });
+  // Places: the cells cut into ranges summed in parallel, the ranges' totals added up in order,
+  // then each range's places from its start.
+  UninitVector<std::uint32_t> first(cells + 1);
+  const std::size_t ranges = std::min<std::size_t>(64, std::max<std::size_t>(1, cells / 4096));
+  const auto range_begin = [&](std::size_t r) { return cells * r / ranges; };
+  std::vector<std::uint32_t> total(ranges + 1, 0);
+  slurry::parallel::parallel_tasks(0, std::int64_t(ranges), [&](std::int64_t r) {
+    std::uint32_t sum = 0;
+    for (std::size_t p = 0; p < parts; ++p) {
+      const std::uint32_t* c = count.data() + p * cells;
+      for (std::size_t k = range_begin(std::size_t(r)); k < range_begin(std::size_t(r) + 1); ++k) sum += c[k];
+    }
+    total[std::size_t(r) + 1] = sum;
+  });
+  for (std::size_t r = 0; r < ranges; ++r) total[r + 1] += total[r];
+  slurry::parallel::parallel_tasks(0, std::int64_t(ranges), [&](std::int64_t r) {
+    std::uint32_t at = total[std::size_t(r)];
+    for (std::size_t k = range_begin(std::size_t(r)); k < range_begin(std::size_t(r) + 1); ++k) {
+      first[k] = at;
+      for (std::size_t p = 0; p < parts; ++p) at += std::exchange(count[p * cells + k], at);
+    }
+  });
+  first[cells] = std::uint32_t(n);
+  Keys keys_out(n);
+  Values values_out(n);
+  slurry::parallel::parallel_tasks(0, std::int64_t(parts), [&](std::int64_t p) {
+    std::uint32_t* c = count.data() + std::size_t(p) * cells;
+    for (std::size_t i = part_begin(std::size_t(p)); i < part_begin(std::size_t(p) + 1); ++i) {
+      const std::uint32_t at = c[keys[i]]++;
+      keys_out[at] = keys[i];
+      values_out[at] = values[i];
+    }
+  });
+  keys.swap(keys_out);
+  values.swap(values_out);
   return first;
 }
 

@@ -92,11 +92,13 @@ VelocitySampler::VelocitySampler(const PointCloud& points, double spacing) : poi
     keys_[std::size_t(i)] = std::uint64_t((c[0] * dims[1] + c[1]) * dims[2] + c[2]);
     index[std::size_t(i)] = std::uint32_t(i);
   });
-  radix_sort_pairs(keys_, index);
-  // Where each cell's particles start in `keys`, when the cells of the particles' box are few
-  // enough for a table (else a binary search per row).
+  // Sorted, with where each cell's particles start in `keys` when the cells of the particles' box
+  // are few enough for a table (else a binary search per row).
   const double cell_count = double(dims[0]) * double(dims[1]) * double(dims[2]);
-  if (dense_cell_table(cell_count, n)) first_ = cell_starts(keys_, std::size_t(cell_count));
+  if (dense_cell_table(cell_count, n))
+    first_ = counting_sort_pairs(keys_, index, std::size_t(cell_count));
+  else
+    radix_sort_pairs(keys_, index);
   // Positions and velocities in cell order: a row of cells is one stretch of memory.
   for (auto& axis : position_) axis.resize(n);
   velocity_.resize(n);

@@ -9,6 +9,7 @@
 
 #include "slurry/transfer/parallel.h"
 #include "vdb/block_pairs.h"
+#include "vdb/cell_starts.h"
 #include "vdb/radix_sort.h"
 #include "vdb/buffer.h"
 #include "vdb/triangle_distance.h"
@@ -88,7 +89,12 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
   UninitVector<std::uint64_t> keys;
   UninitVector<std::uint32_t> owner;
   list_block_pairs(nt, block_range, key_of, keys, owner);
-  radix_sort_pairs(keys, owner);  // by block, then triangle
+  // By block, then triangle.
+  const double cells = double(nx) * double(ny) * double(hi[2] - lo[2] + reach + 2);
+  if (dense_cell_table(cells, keys.size()))
+    counting_sort_pairs(keys, owner, std::size_t(cells));
+  else
+    radix_sort_pairs(keys, owner);
   std::vector<std::uint32_t> run;  // starts of each seeded block's triangles, then keys.size()
   for (std::size_t i = 0; i < keys.size(); ++i)
     if (i == 0 || keys[i] != keys[i - 1]) run.push_back(std::uint32_t(i));
