@@ -29,9 +29,10 @@ inline bool dense_cell_table(double cells, std::size_t n) {
 template <class Keys, class Values>
 UninitVector<std::uint32_t> counting_sort_pairs(Keys& keys, Values& values, std::size_t cells) {
   const std::size_t n = keys.size();
-  // Parts: one per thread, at most 16, and tables of at most 16 entries per particle.
+  // Parts: one per thread, at most 16, and at most 8 table entries per particle in all (32
+  // bytes; a table of `cells` is at most 4 per particle).
   std::size_t parts = std::size_t(std::clamp(slurry::parallel::max_threads(), 1, 16));
-  parts = std::max<std::size_t>(1, std::min(parts, 16 * n / std::max<std::size_t>(cells, 1)));
+  parts = std::max<std::size_t>(1, std::min(parts, 8 * n / std::max<std::size_t>(cells, 1)));
   const std::size_t share = (n + parts - 1) / parts;
   const auto part_begin = [&](std::size_t p) { return std::min(n, p * share); };
   UninitVector<std::uint32_t> count(parts * cells);  // part p's cells at p * cells
