@@ -37,7 +37,6 @@ void FlipSolver<T, Dim>::split_whitewater(T dt) {
   send_whitewater_to_owners(false);
   W.classify_and_remove(grid_, solids_, time_ + double(dt));
   typename Whitewater<T, Dim>::Window window;
-  window.offset = S.wlo;
   window.domain_res = S.res;
   window.lo = S.lo - S.wlo;
   window.hi = S.hi - S.wlo;

@@ -23,6 +23,7 @@
 #include "slurry/engine/flip/cell_sort.h"
 #include "slurry/engine/flip/flip_particles.h"
 #include "slurry/engine/flip/mac_grid.h"
+#include "slurry/engine/flip/split_window.h"
 #include "slurry/engine/scene/scene.h"
 #include "slurry/transfer/parallel.h"
 
@@ -213,18 +214,12 @@ struct Reseeder {
   std::vector<std::uint8_t> hole;
   std::vector<std::uint32_t> first_id;  // a split run's: each reseeded cell's first new id
 
-  /// Where the grid lies in the domain's when a run is split over processes (the grid is one
-  /// process's window, its particles those of its own cells): the domain's cells per axis, the
-  /// cells it owns, [lo, hi) in the
-  /// grid's coordinates, the particles per cell of the window (its own cells' and, from their
-  /// owners, those of the 2 cells around its box), and `number`, which takes this process's new
-  /// particles per cell (domain cell index, count; in ascending cell order), replaces each count
-  /// by the cell's first id over every process's cells in the domain's order and returns the
-  /// next id after them all (the ids one process gives). The hash counts the domain's cell.
-  struct Window {
-    IVec domain_res = IVec::Zero(), lo = IVec::Zero(), hi = IVec::Zero();
+  /// Where the grid lies in the domain's when a run is split over processes (split_window.h;
+  /// the grid is one process's window, its particles those of its own cells), with the particles
+  /// per cell of the window: its own cells' and, from their owners, those of the 2 cells around
+  /// its box.
+  struct Window : SplitWindow<Dim> {
     const std::vector<double>* counts = nullptr;
-    std::function<std::uint32_t(std::vector<std::pair<std::uint64_t, std::uint32_t>>&)> number;
   };
 
   /// `init(x, v, c)` sets the velocity (and APIC affine vectors, c may be null) of a new particle
@@ -237,12 +232,8 @@ struct Reseeder {
     sort.build(P.x, g.origin, g.dx, g.res, false, g.offset);
     const std::int64_t cells = g.num_cells();
     const auto& start = sort.start;
-    // The domain's cell index (the hash's counter) and whether a cell's particles are empty (the
-    // window's counts in a split run: its ring's come from their owners).
-    const auto key = [&](std::int64_t k) {
-      if (!w) return std::uint64_t(k);
-      return std::uint64_t(transfer::lattice_index<Dim>(IVec(g.cell_coord(k) + g.offset), w->domain_res));
-    };
+    // Whether a cell's particles are empty (the window's counts in a split run: its ring's come
+    // from their owners).
     const auto empty = [&](std::int64_t k) { return w ? (*w->counts)[std::size_t(k)] == 0 : start[k + 1] == start[k]; };
     // Remove the surplus of over-full cells (serial and stable: the highest indices go).
     bool crowded = false;
@@ -282,25 +273,15 @@ struct Reseeder {
     });
     need.assign(std::size_t(cells + 1), 0);
     parallel::parallel_for(0, cells, [&](std::int64_t k) {
-      if (w) {
-        const IVec i = g.cell_coord(k);
-        if (!((i.array() >= w->lo.array()).all() && (i.array() < w->hi.array()).all())) return;
-      }
+      if (w && !w->owns(g.cell_coord(k))) return;
       const std::int64_t n = sort.count(k);
       if (n >= min_per_cell || g.label[k] == MacGrid<T, Dim>::Solid) return;
       if (hole[k] || enclosed(k, true)) need[k + 1] = min_per_cell - n;
     });
     std::uint32_t next_id = 0;
-    if (w) {  // the ids over every process's cells (first_id: each cell's first)
-      std::vector<std::pair<std::uint64_t, std::uint32_t>> mine;
-      for (std::int64_t k = 0; k < cells; ++k)
-        if (need[k + 1] > 0) mine.emplace_back(key(k), std::uint32_t(need[k + 1]));
-      next_id = w->number(mine);
-      first_id.resize(std::size_t(cells));
-      std::size_t m = 0;
-      for (std::int64_t k = 0; k < cells; ++k)
-        if (need[k + 1] > 0) first_id[std::size_t(k)] = mine[m++].second;
-    }
+    if (w)  // the ids over every process's cells (first_id: each cell's first)
+      next_id = number_new_particles(
+          g, *w, [&](std::int64_t k) { return std::uint32_t(need[k + 1]); }, first_id);
     for (std::int64_t k = 0; k < cells; ++k) need[k + 1] += need[k];
     const std::int64_t added = need[cells];
     if (w) P.next_id = next_id - std::uint32_t(added);  // push_back below counts up to next_id
@@ -314,7 +295,8 @@ struct Reseeder {
     parallel::parallel_for(0, cells, [&](std::int64_t k) {
       if (need[k + 1] == need[k]) return;
       const IVec i = g.cell_coord(k);
-      std::uint64_t state = seed ^ (std::uint64_t(step) * 0xD1B54A32D192ED03ull) ^ (key(k) * 0x8CB92BA72F3D8DD7ull);
+      std::uint64_t state = seed ^ (std::uint64_t(step) * 0xD1B54A32D192ED03ull) ^
+                            (domain_cell(g, k, w) * 0x8CB92BA72F3D8DD7ull);
       const std::uint16_t mat = P.has_material ? cell_material[k] : 0;
       for (std::int64_t q = need[k]; q < need[k + 1]; ++q) {
         Vec x;

@@ -66,6 +66,7 @@
 #include "slurry/engine/flip/face_transfer.h"
 #include "slurry/engine/flip/mac_grid.h"
 #include "slurry/engine/flip/solids.h"
+#include "slurry/engine/flip/split_window.h"
 #include "slurry/engine/scene/scene.h"
 #include "slurry/transfer/parallel.h"
 
@@ -156,19 +157,10 @@ class Whitewater {
   Whitewater() = default;
   Whitewater(const WhitewaterParams& params, const Vec& gravity) : p_(params), gravity_(gravity) {}
 
-  /// Where the grid lies in the domain's when a run is split over processes (the grid is one
-  /// process's window): the domain cell of its first cell, the domain's cells per axis, and the
-  /// cells this process owns, [lo, hi) in the grid's own coordinates. New particles come only
-  /// from owned cells, and the hash counts the domain's cell, so that the processes together
-  /// draw what one process would. `number` takes this process's new particles per generating
-  /// cell (domain cell index, count; in ascending cell order), replaces each count by the cell's
-  /// first id over all the processes' cells in the domain's order, and returns the next id after
-  /// them all: the ids one process gives. Every process calls generate() alike (`number` may
-  /// talk to the others).
-  struct Window {
-    IVec offset = IVec::Zero(), domain_res = IVec::Zero(), lo = IVec::Zero(), hi = IVec::Zero();
-    std::function<std::uint32_t(std::vector<std::pair<std::uint64_t, std::uint32_t>>&)> number;
-  };
+  /// Where the grid lies in the domain's when a run is split over processes (split_window.h):
+  /// new particles come only from the cells this process owns, numbered over every process's.
+  /// Every process calls generate() alike.
+  using Window = SplitWindow<Dim>;
 
   /// One substep from t to t + dt, on the grid of this substep (labels and phi of the liquid at
   /// t, face velocities after the projection): classifies the particles by the depth at t, moves
@@ -390,11 +382,6 @@ class Whitewater {
   /// `w`: the grid is a window of a split run's domain (Window).
   void generate(const Grid& g, T dt, std::int64_t substep, const Window* w = nullptr) {
     const std::int64_t cells = g.num_cells();
-    // The hash's cell counter: the domain's cell index (the grid's own in one process).
-    const auto key = [&](std::int64_t c) {
-      if (!w) return std::uint64_t(c);
-      return std::uint64_t(transfer::lattice_index<Dim>(IVec(g.cell_coord(c) + w->offset), w->domain_res));
-    };
     const T dx = g.dx, h = T(2) * dx;
     const std::uint8_t* label = g.label.data();
     // Cell-centre velocities of the liquid cells.
@@ -430,10 +417,7 @@ class Whitewater {
     count_.assign(std::size_t(cells) + 1, 0);
     parallel::parallel_for(0, cells, [&](std::int64_t c) {
       if (label[c] != Grid::Fluid) return;
-      if (w) {
-        const IVec i = g.cell_coord(c);
-        if (!((i.array() >= w->lo.array()).all() && (i.array() < w->hi.array()).all())) return;
-      }
+      if (w && !w->owns(g.cell_coord(c))) return;
       const Vec vi = vel_[std::size_t(c)];
       const T ek = whitewater_detail::clamp_potential(T(0.5) * vi.squaredNorm(), ek_lo, ek_hi);
       if (ek <= T(0)) return;
@@ -463,7 +447,7 @@ class Whitewater {
                            k_wc * whitewater_detail::clamp_potential(wc, wc_lo, wc_hi));
       const double expected = double(rate) * double(dt);
       const double whole = std::floor(expected);
-      const double u = whitewater_detail::uniform(seed, key(c), s, 0);
+      const double u = whitewater_detail::uniform(seed, domain_cell(g, c, w), s, 0);
       count_[std::size_t(c)] = std::uint32_t(whole) + (u < expected - whole ? 1u : 0u);
     });
     // Exclusive prefix sum: each cell's first new particle.
@@ -474,16 +458,10 @@ class Whitewater {
       total += k;
     }
     std::uint32_t next_id = P_.next_id + std::uint32_t(total);
-    if (w) {  // the ids over every process's cells; first_id_ holds each generating cell's first
-      std::vector<std::pair<std::uint64_t, std::uint32_t>> mine;
-      std::vector<std::int64_t> at;
-      for (std::int64_t c = 0; c < cells; ++c)
-        if (count_[std::size_t(c) + 1] > count_[std::size_t(c)])
-          mine.emplace_back(key(c), count_[std::size_t(c) + 1] - count_[std::size_t(c)]), at.push_back(c);
-      next_id = w->number(mine);
-      first_id_.resize(std::size_t(cells));
-      for (std::size_t k = 0; k < at.size(); ++k) first_id_[std::size_t(at[k])] = mine[k].second;
-    }
+    if (w)  // the ids over every process's cells; first_id_ holds each generating cell's first
+      next_id = number_new_particles(g, *w, [&](std::int64_t c) {
+        return count_[std::size_t(c) + 1] - count_[std::size_t(c)];
+      }, first_id_);
     if (total == 0) {
       P_.next_id = next_id;
       return;
@@ -501,7 +479,7 @@ class Whitewater {
       const T speed = vi.norm();
       const Vec dir = speed > T(0) ? Vec(vi / speed) : Vec(Vec::Zero());
       const Vec corner = g.origin + dx * IVec(i + g.offset).template cast<T>();
-      const std::uint64_t kc = key(c);
+      const std::uint64_t kc = domain_cell(g, c, w);
       for (std::uint32_t k = first; k < last; ++k) {
         const std::size_t q = n0 + k;
         const std::uint64_t draw = std::uint64_t(k - first);
