@@ -39,6 +39,43 @@
 
 namespace slurry::flip::detail {
 
+/// Appends the bytes of `v` (trivially copyable) to a message.
+template <class V>
+void put(std::string& out, const V& v) {
+  out.append(reinterpret_cast<const char*>(&v), sizeof v);
+}
+
+/// Reads a message written by put(), value by value, in the order they were put.
+struct MessageReader {
+  std::string_view in;
+  std::size_t at = 0;
+  template <class V>
+  void get(V& v) {
+    std::memcpy(static_cast<void*>(&v), in.data() + at, sizeof v);
+    at += sizeof v;
+  }
+  bool done() const { return at >= in.size(); }
+};
+
+/// Keeps the items of [0, n) whose owner(i) is `me`, moved to the front in their order by
+/// move(kept, i), and packs every other one into out[slot[owner(i)]] by pack(i, message), in its
+/// order; returns how many it kept. `owner` throws for an item it cannot send (slot < 0).
+template <class Owner, class Move, class Pack>
+std::size_t keep_own_pack_others(std::size_t n, int me, const std::vector<int>& slot,
+                                 std::vector<std::string>& out, Owner&& owner, Move&& move, Pack&& pack) {
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const int q = owner(i);
+    if (q == me) {
+      if (kept != i) move(kept, i);
+      ++kept;
+    } else {
+      pack(i, out[std::size_t(slot[std::size_t(q)])]);
+    }
+  }
+  return kept;
+}
+
 template <class T, int Dim>
 struct FlipSplit {
   using IVec = Eigen::Matrix<int, Dim, 1>;
@@ -102,18 +139,14 @@ struct FlipSplit {
   /// the domain's order. Returns the next id after them all. Every rank calls it alike.
   std::uint32_t number_new(std::vector<std::pair<std::uint64_t, std::uint32_t>>& mine, std::uint32_t next) const {
     std::string out;
-    for (const auto& [cell, count] : mine) {
-      out.append(reinterpret_cast<const char*>(&cell), sizeof cell);
-      out.append(reinterpret_cast<const char*>(&count), sizeof count);
-    }
+    for (const auto& [cell, count] : mine) put(out, cell), put(out, count);
     std::vector<std::pair<std::uint64_t, std::uint32_t>> every;
     for (const auto& m : comm->all_gather(out)) {
       constexpr std::size_t each = sizeof(std::uint64_t) + sizeof(std::uint32_t);
       if (m.size() % each != 0) throw SimulationError("split FLIP: a new particles' count message has a partial entry");
-      for (std::size_t at = 0; at < m.size(); at += each) {
+      for (MessageReader r{m}; !r.done();) {
         std::pair<std::uint64_t, std::uint32_t> e;
-        std::memcpy(&e.first, m.data() + at, sizeof e.first);
-        std::memcpy(&e.second, m.data() + at + sizeof e.first, sizeof e.second);
+        r.get(e.first), r.get(e.second);
         every.push_back(e);
       }
     }
@@ -267,13 +300,10 @@ struct FlipSplit {
 /// Appends particle p of P (every channel P stores) to `out`.
 template <class T, int Dim>
 void pack_particle(const FlipParticles<T, Dim>& P, std::size_t p, std::string& out) {
-  const auto put = [&out](const auto& v) { out.append(reinterpret_cast<const char*>(&v), sizeof v); };
-  put(P.x[p]);
-  put(P.v[p]);
-  put(P.id[p]);
+  put(out, P.x[p]), put(out, P.v[p]), put(out, P.id[p]);
   if (P.affine)
-    for (int d = 0; d < Dim; ++d) put(P.c[std::size_t(d)][p]);
-  if (P.has_material) put(P.material[p]);
+    for (int d = 0; d < Dim; ++d) put(out, P.c[std::size_t(d)][p]);
+  if (P.has_material) put(out, P.material[p]);
 }
 
 /// Appends the particles packed in `in` (by pack_particle with the same channels) to P.
@@ -283,25 +313,20 @@ void unpack_particles(std::string_view in, FlipParticles<T, Dim>& P) {
   std::size_t each = 2 * sizeof(Vec) + sizeof(std::uint32_t) + (P.affine ? Dim * sizeof(Vec) : 0) +
                      (P.has_material ? sizeof(std::uint16_t) : 0);
   if (in.size() % each != 0) throw SimulationError("split FLIP: a particle message has a partial particle");
-  std::size_t at = 0;
-  const auto get = [&](auto& v) {
-    std::memcpy(static_cast<void*>(&v), in.data() + at, sizeof v);
-    at += sizeof v;
-  };
-  while (at < in.size()) {
+  for (MessageReader r{in}; !r.done();) {
     Vec x, v;
     std::uint32_t id = 0;
-    get(x), get(v), get(id);
+    r.get(x), r.get(v), r.get(id);
     P.x.push_back(x), P.v.push_back(v), P.id.push_back(id);
     if (P.affine)
       for (int d = 0; d < Dim; ++d) {
         Vec c;
-        get(c);
+        r.get(c);
         P.c[std::size_t(d)].push_back(c);
       }
     if (P.has_material) {
       std::uint16_t m = 0;
-      get(m);
+      r.get(m);
       P.material.push_back(m);
     }
   }
@@ -316,8 +341,7 @@ inline int whitewater_ring(double bubble_depth) { return int(std::ceil(bubble_de
 /// Appends whitewater particle i of W to `out` (position, velocity, life, id, type).
 template <class T, int Dim>
 void pack_whitewater(const WhitewaterParticles<T, Dim>& W, std::size_t i, std::string& out) {
-  const auto put = [&out](const auto& v) { out.append(reinterpret_cast<const char*>(&v), sizeof v); };
-  put(W.x[i]), put(W.v[i]), put(W.life[i]), put(W.id[i]), put(W.type[i]);
+  put(out, W.x[i]), put(out, W.v[i]), put(out, W.life[i]), put(out, W.id[i]), put(out, W.type[i]);
 }
 
 /// Appends the whitewater particles packed in `in` (pack_whitewater) to W.
@@ -326,15 +350,10 @@ void unpack_whitewater(std::string_view in, WhitewaterParticles<T, Dim>& W) {
   using Vec = Eigen::Matrix<T, Dim, 1>;
   constexpr std::size_t each = 2 * sizeof(Vec) + sizeof(T) + sizeof(std::uint32_t) + 1;
   if (in.size() % each != 0) throw SimulationError("split FLIP: a whitewater message has a partial particle");
-  std::size_t at = 0;
-  const auto get = [&](auto& v) {
-    std::memcpy(static_cast<void*>(&v), in.data() + at, sizeof v);
-    at += sizeof v;
-  };
-  while (at < in.size()) {
+  for (MessageReader r{in}; !r.done();) {
     const std::size_t i = W.size();
     W.resize(i + 1);
-    get(W.x[i]), get(W.v[i]), get(W.life[i]), get(W.id[i]), get(W.type[i]);
+    r.get(W.x[i]), r.get(W.v[i]), r.get(W.life[i]), r.get(W.id[i]), r.get(W.type[i]);
   }
 }
 

@@ -133,18 +133,18 @@ void FlipSolver<T, Dim>::send_to_owners(const std::vector<int>& ranks) {
   std::vector<int> slot(std::size_t(S.comm->size()), -1);
   for (std::size_t k = 0; k < ranks.size(); ++k) slot[std::size_t(ranks[k])] = int(k);
   std::vector<std::string> out(ranks.size());
-  std::size_t n = 0;
-  for (std::size_t p = 0; p < P.size(); ++p) {
-    const int q = S.owner(P.x[p]);
-    if (q == me) {
-      P.move(n++, p);
-      continue;
-    }
-    if (slot[std::size_t(q)] < 0)
-      throw SimulationError(scene_.source + ": a particle moved " + "beyond the ranks next to rank " + std::to_string(me) +
-                            " in one substep (more than " + std::to_string(S.band) + " cells); expected a smaller solver.cfl");
-    detail::pack_particle(P, p, out[std::size_t(slot[std::size_t(q)])]);
-  }
+  const std::size_t n = detail::keep_own_pack_others(
+      P.size(), me, slot, out,
+      [&](std::size_t p) {
+        const int q = S.owner(P.x[p]);
+        if (q != me && slot[std::size_t(q)] < 0)
+          throw SimulationError(scene_.source + ": a particle moved beyond the ranks next to rank " +
+                                std::to_string(me) + " in one substep (more than " + std::to_string(S.band) +
+                                " cells); expected a smaller solver.cfl");
+        return q;
+      },
+      [&](std::size_t to, std::size_t from) { P.move(to, from); },
+      [&](std::size_t p, std::string& message) { detail::pack_particle(P, p, message); });
   P.truncate(n);
   const auto in = S.comm->exchange(ranks, out);
   for (const auto& m : in) detail::unpack_particles(m, P);

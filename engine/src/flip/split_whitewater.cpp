@@ -70,16 +70,9 @@ void FlipSolver<T, Dim>::send_whitewater_to_owners(bool everyone) {
     for (std::size_t k = 0; k < to.size(); ++k) slot[std::size_t(to[k])] = int(k);
   }
   std::vector<std::string> out(to.size());
-  std::size_t n = 0;
-  for (std::size_t i = 0; i < W.size(); ++i) {
-    const int q = owner(i);
-    if (q == me) {
-      if (n != i) W.move(n, i);
-      ++n;
-    } else {
-      detail::pack_whitewater(W, i, out[std::size_t(slot[std::size_t(q)])]);
-    }
-  }
+  const std::size_t n = detail::keep_own_pack_others(
+      W.size(), me, slot, out, owner, [&](std::size_t to, std::size_t from) { W.move(to, from); },
+      [&](std::size_t i, std::string& message) { detail::pack_whitewater(W, i, message); });
   W.resize(n);
   for (const auto& m : S.comm->exchange(to, out)) detail::unpack_whitewater(m, W);
   detail::sort_whitewater(W);
