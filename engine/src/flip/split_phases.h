@@ -143,7 +143,7 @@ void FlipSolver<T, Dim>::send_to_owners(const std::vector<int>& ranks) {
                                 " cells); expected a smaller solver.cfl");
         return q;
       },
-      [&](std::size_t to, std::size_t from) { P.move(to, from); },
+      [&](std::size_t kept, std::size_t p) { P.move(kept, p); },
       [&](std::size_t p, std::string& message) { detail::pack_particle(P, p, message); });
   P.truncate(n);
   const auto in = S.comm->exchange(ranks, out);

@@ -71,7 +71,7 @@ void FlipSolver<T, Dim>::send_whitewater_to_owners(bool everyone) {
   }
   std::vector<std::string> out(to.size());
   const std::size_t n = detail::keep_own_pack_others(
-      W.size(), me, slot, out, owner, [&](std::size_t to, std::size_t from) { W.move(to, from); },
+      W.size(), me, slot, out, owner, [&](std::size_t kept, std::size_t i) { W.move(kept, i); },
       [&](std::size_t i, std::string& message) { detail::pack_whitewater(W, i, message); });
   W.resize(n);
   for (const auto& m : S.comm->exchange(to, out)) detail::unpack_whitewater(m, W);

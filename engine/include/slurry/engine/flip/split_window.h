@@ -42,9 +42,9 @@ std::uint64_t domain_cell(const Grid& g, std::int64_t c, const SplitWindow<Dim>*
   return std::uint64_t(transfer::lattice_index<Dim>(i, w->domain_res));
 }
 
-/// The first id of each of the grid's `cells` cells with new particles (count(c) > 0) over every
-/// process's cells, in first_id[c] (resized to `cells`; the others untouched), through
-/// w.number; returns the next id after them all.
+/// The first id of each of the grid's cells c with new particles (count(c) > 0) over every
+/// process's cells, through w.number, in first_id[c] (resized to the grid's cells; the others
+/// untouched); returns the next id after them all.
 template <class Grid, int Dim, class Count>
 std::uint32_t number_new_particles(const Grid& g, const SplitWindow<Dim>& w, Count&& count,
                                    std::vector<std::uint32_t>& first_id) {
