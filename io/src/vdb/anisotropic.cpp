@@ -28,7 +28,6 @@
 #include "vdb/kernel_shape.h"
 #include "vdb/lanes.h"
 #include "vdb/point_bounds.h"
-#include "vdb/radix_sort.h"
 
 namespace slurry::io::detail {
 
@@ -100,10 +99,7 @@ UninitVector<std::uint32_t> sort_by_cell(const Points& pos, const CellGrid& grid
     keys[std::size_t(i)] = grid.key(grid.cell(pos[std::size_t(i)]));
     order[std::size_t(i)] = std::uint32_t(i);
   });
-  const double cells = double(grid.n[0]) * double(grid.n[1]) * double(grid.n[2]);
-  if (dense_cell_table(cells, n)) return counting_sort_pairs(keys, order, std::size_t(cells));
-  radix_sort_pairs(keys, order);
-  return {};
+  return sort_pairs_by_cell(keys, order, double(grid.n[0]) * double(grid.n[1]) * double(grid.n[2]));
 }
 
 /// Starts of the runs of equal keys in `keys`, with keys.size() appended.

@@ -10,6 +10,7 @@
 
 #include "slurry/transfer/parallel.h"
 #include "vdb/buffer.h"
+#include "vdb/radix_sort.h"
 
 namespace slurry::io::detail {
 
@@ -77,6 +78,17 @@ UninitVector<std::uint32_t> counting_sort_pairs(Keys& keys, Values& values, std:
   keys.swap(keys_out);
   values.swap(values_out);
   return first;
+}
+
+/// Sorts (keys[i], values[i]) by key, ties in their order, for keys each below `cells`: by
+/// counting_sort_pairs where dense_cell_table allows a table, returning where each cell starts;
+/// else by radix_sort_pairs, returning an empty table.
+template <class Keys, class Values>
+UninitVector<std::uint32_t> sort_pairs_by_cell(Keys& keys, Values& values, double cells) {
+  if (dense_cell_table(cells, keys.size()))
+    return counting_sort_pairs(keys, values, std::size_t(cells));
+  radix_sort_pairs(keys, values);
+  return {};
 }
 
 }  // namespace slurry::io::detail

@@ -15,7 +15,6 @@
 #include "vdb/cell_starts.h"
 #include "vdb/lanes.h"
 #include "vdb/point_bounds.h"
-#include "vdb/radix_sort.h"
 #include "vdb/velocities.h"
 
 namespace slurry::io {
@@ -94,11 +93,7 @@ VelocitySampler::VelocitySampler(const PointCloud& points, double spacing) : poi
   });
   // Sorted, with where each cell's particles start in `keys` when the cells of the particles' box
   // are few enough for a table (else a binary search per row).
-  const double cell_count = double(dims[0]) * double(dims[1]) * double(dims[2]);
-  if (dense_cell_table(cell_count, n))
-    first_ = counting_sort_pairs(keys_, index, std::size_t(cell_count));
-  else
-    radix_sort_pairs(keys_, index);
+  first_ = sort_pairs_by_cell(keys_, index, double(dims[0]) * double(dims[1]) * double(dims[2]));
   // Positions and velocities in cell order: a row of cells is one stretch of memory.
   for (auto& axis : position_) axis.resize(n);
   velocity_.resize(n);

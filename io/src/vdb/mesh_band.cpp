@@ -10,7 +10,6 @@
 #include "slurry/transfer/parallel.h"
 #include "vdb/block_pairs.h"
 #include "vdb/cell_starts.h"
-#include "vdb/radix_sort.h"
 #include "vdb/buffer.h"
 #include "vdb/triangle_distance.h"
 
@@ -90,11 +89,7 @@ MeshBand mesh_band(const std::vector<std::array<float, 3>>& vertices,
   UninitVector<std::uint32_t> owner;
   list_block_pairs(nt, block_range, key_of, keys, owner);
   // By block, then triangle.
-  const double cells = double(nx) * double(ny) * double(hi[2] - lo[2] + reach + 2);
-  if (dense_cell_table(cells, keys.size()))
-    counting_sort_pairs(keys, owner, std::size_t(cells));
-  else
-    radix_sort_pairs(keys, owner);
+  sort_pairs_by_cell(keys, owner, double(nx) * double(ny) * double(hi[2] - lo[2] + reach + 2));
   std::vector<std::uint32_t> run;  // starts of each seeded block's triangles, then keys.size()
   for (std::size_t i = 0; i < keys.size(); ++i)
     if (i == 0 || keys[i] != keys[i - 1]) run.push_back(std::uint32_t(i));
