@@ -1,7 +1,7 @@
 // FLIP pressure projection: Poisson convergence orders (Dirichlet, Neumann, ghost-fluid free
 // surface), preconditioner iteration counts, divergence after projection, solids with face
 // fractions (hydrostatic rest in a curved container, moving collider), velocity extrapolation,
-// and thread-count independence.
+// thread-count independence, and surface tension's placement of the free surface in its cells.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "slurry/engine/flip/extrapolate.h"
+#include "slurry/engine/flip/level_set.h"
 #include "slurry/engine/flip/mac_grid.h"
 #include "slurry/engine/flip/pressure.h"
 #include "slurry/transfer/parallel.h"
@@ -781,5 +782,85 @@ TEST(PressureOptions, ValidateNamesTheField) {
   m.multigrid_smoothing = 3, m.multigrid_boundary_smoothing = 0;
   EXPECT_NO_THROW(m.validate());
 }
+
+// ---------------------------------------------------------------------------------------------
+// Surface tension's free surface: placed inside the liquid's surface cells (level_set.h), and
+// the nearly empty faces that gives left unprojected where liquid behind them holds the cell.
+
+/// A flat liquid surface at height h (in cells) on an 8^Dim grid of unit cells: rows whose
+/// centre is below `fluid_top` are Fluid (phi = -1/2, as label_cells gives them), the others
+/// Air with phi = max(y - h, 0.01), the distance to the surface as label_cells gives it.
+template <int Dim>
+Grid<Dim> flat_surface(double h, double fluid_top) {
+  Grid<Dim> g;
+  g.resize(IVec<Dim>::Constant(8), 1.0, Vec<Dim>::Zero());
+  for_each_cell<Dim>(g, [&](std::int64_t c, const IVec<Dim>& i) {
+    const double y = g.cell_center(i)[1];
+    const bool fluid = y < fluid_top;
+    g.label[std::size_t(c)] = fluid ? Grid<Dim>::Fluid : Grid<Dim>::Air;
+    g.phi[std::size_t(c)] = fluid ? -0.5 : std::max(y - h, 0.01);
+  });
+  return g;
+}
+
+template <int Dim>
+void check_surface_placement() {
+  // h: the surface above the top fluid row's centre (3.5), at it, and below it (its particles
+  // all in the row's lower half: the centre is outside the liquid, and phi keeps the label's sign).
+  for (const double h : {4.4, 3.8, 3.5, 3.3}) {
+    Grid<Dim> g = flat_surface<Dim>(h, 4.0);
+    place_surface_in_fluid_cells(g);
+    double worst_top = 0, worst_inner = 0;
+    for_each_cell<Dim>(g, [&](std::int64_t c, const IVec<Dim>& i) {
+      const double phi = g.phi[std::size_t(c)];
+      if (i[1] == 3) worst_top = std::max(worst_top, std::abs(phi - std::min(3.5 - h, -0.01)));
+      if (i[1] < 3) worst_inner = std::max(worst_inner, std::abs(phi + 0.5));
+    });
+    std::printf("[ figure ] %dD flat surface at %.1f cells: surface cells' phi off by %.2g, inner cells' by %.2g\n", Dim, h,
+                worst_top, worst_inner);
+    EXPECT_LT(worst_top, 1e-12) << "the surface cells' phi is the distance to the surface, kept <= -0.01";
+    EXPECT_EQ(worst_inner, 0.0) << "cells without an air neighbour keep -1/2";
+  }
+}
+
+TEST(SurfaceTensionSurface, PlacedInsideTheSurfaceCellsFromTheAirBeside2D) { check_surface_placement<2>(); }
+TEST(SurfaceTensionSurface, PlacedInsideTheSurfaceCellsFromTheAirBeside3D) { check_surface_placement<3>(); }
+
+/// Projects the flat surface's grid (surface at h, fluid up to row fluid_rows - 1) with the
+/// surface pressure 1 everywhere or none, and counts the faces from the top fluid row to air
+/// that the projection updated (valid) and those it left.
+template <int Dim>
+std::pair<int, int> projected_surface_faces(double h, int fluid_rows, bool surface_pressure) {
+  Grid<Dim> g = flat_surface<Dim>(h, double(fluid_rows));
+  place_surface_in_fluid_cells(g);
+  random_velocity(g, 5);
+  const std::vector<double> sigma_kappa(std::size_t(g.num_cells()), 1.0);
+  PressureSolver<double, Dim> solver;
+  solver.set_surface_pressure(surface_pressure ? sigma_kappa.data() : nullptr);
+  ProjectionOptions opt = tight();
+  opt.density = 1;
+  solver.project(g, 0.01, opt);
+  int valid = 0, left = 0;
+  for (std::int64_t f = 0; f < g.num_faces(1); ++f)
+    if (g.face_coord(1, f)[1] == fluid_rows && g.open_weight(1, g.face_coord(1, f)) > 0)
+      (g.valid[1][std::size_t(f)] ? valid : left) += 1;
+  return {valid, left};
+}
+
+template <int Dim>
+void check_sliver_faces() {
+  const int faces = Dim == 2 ? 8 : 64;
+  // theta = 0.1 / (0.1 + 0.9) on the top faces of a pool 4 cells deep: left unprojected with a
+  // surface pressure, projected without one.
+  EXPECT_EQ(projected_surface_faces<Dim>(3.6, 4, true), std::make_pair(0, faces));
+  EXPECT_EQ(projected_surface_faces<Dim>(3.6, 4, false), std::make_pair(faces, 0));
+  // theta = 0.3: projected.
+  EXPECT_EQ(projected_surface_faces<Dim>(3.8, 4, true), std::make_pair(faces, 0));
+  // A film one cell thick (every fluid cell beside air): projected, however thin.
+  EXPECT_EQ(projected_surface_faces<Dim>(0.6, 1, true), std::make_pair(faces, 0));
+}
+
+TEST(SurfaceTensionSurface, NearlyEmptyFacesAreLeftUnprojectedOnlyWithLiquidBehindThem2D) { check_sliver_faces<2>(); }
+TEST(SurfaceTensionSurface, NearlyEmptyFacesAreLeftUnprojectedOnlyWithLiquidBehindThem3D) { check_sliver_faces<3>(); }
 
 }  // namespace

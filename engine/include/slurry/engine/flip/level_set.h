@@ -17,17 +17,15 @@
 ///
 /// Known bias: with phi = -dx/2 in every fluid cell, theta >= 1/3 at a fluid cell holding a
 /// sliver of liquid, so the pressure solve sees the liquid up to about half a cell beyond its
-/// particles. This is most of what makes a 3D drop's mode-2 period long (surface_tension.h).
-/// Taking a surface cell's phi from its air neighbours instead (the largest phi_a - |x_c - x_a|,
-/// exact for a flat surface) brought the period of a ball of 12 cells' radius from 12.5% to
-/// 3.9% long, and the 3D Laplace pressure from 2.9% to 1.1% low. But the fractions it gives,
-/// down to 0.01, let the projection put a cell's divergence into its nearly empty surface face,
-/// whose velocity G2P then hands to the particles in full: the 3D dam break gained a fifth of
-/// its available energy within a frame, and drops gained energy. Leaving faces below
-/// theta = 0.25 unprojected cured both, but not sparse particles (every face a sliver), which
-/// then gained energy without bound; leaving them unprojected only beside a fluid cell that is
-/// not beside air kept sparse particles bounded and a ball of 12 cells' period 4% long, but is
-/// not yet applied by the split over processes' projection.
+/// particles (more where a surface cell's particles all sit in its inner half: its centre is
+/// then outside the liquid). Where the free surface carries a pressure jump (surface tension)
+/// this misplaces the jump, and it is most of what made a 3D drop's mode-2 period long
+/// (surface_tension.h). place_surface_in_fluid_cells() below takes a surface cell's phi from
+/// its air neighbours instead; the solver calls it only for scenes with surface tension, and
+/// the pressure solve then leaves the faces it makes nearly empty unprojected (pressure.h,
+/// set_surface_pressure). Without surface tension it is not used: on the 3D dam break the same
+/// placement and rule lost more volume (3.56% over 32 frames, against 2.74% without) and made
+/// its whitewater depend more on the substep.
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>
@@ -143,6 +141,46 @@ void label_cells(MacGrid<T, Dim>& g, const FlipParticles<T, Dim>& P, const CellS
     if (!holes[k]) return;
     g.label[k] = MacGrid<T, Dim>::Fluid;
     g.phi[k] = T(-0.5) * g.dx;
+  });
+}
+
+/// Places the free surface inside the liquid's surface cells (the Fluid cells with an Air face
+/// neighbour), whose phi label_cells() left at -dx/2: phi_c = the largest over the Air cells a of
+/// the 3^Dim block around c of phi_a - |x_c - x_a|, the bound that a signed distance's unit
+/// slope gives (exact for a flat surface at any height), kept <= -cap dx so that its sign
+/// agrees with the label (cap = kSurfaceCap). Reads only Air cells' phi and writes only Fluid
+/// cells', so the cells may be done in any order.
+template <class T, int Dim>
+void place_surface_in_fluid_cells(MacGrid<T, Dim>& g) {
+  using IVec = Eigen::Matrix<int, Dim, 1>;
+  constexpr T kSurfaceCap = T(0.01);
+  const std::uint8_t fluid = MacGrid<T, Dim>::Fluid, air = MacGrid<T, Dim>::Air;
+  const T diag[4] = {T(0), g.dx, std::sqrt(T(2)) * g.dx, std::sqrt(T(3)) * g.dx};  // by offsets set
+  parallel::parallel_for(0, g.num_cells(), [&](std::int64_t k) {
+    if (g.label[std::size_t(k)] != fluid) return;
+    const IVec i = g.cell_coord(k);
+    bool surface = false;
+    for (int d = 0; d < Dim && !surface; ++d) {
+      const std::int64_t s = g.cell_stride(d);
+      surface = (i[d] > 0 && g.label[std::size_t(k - s)] == air) || (i[d] + 1 < g.res[d] && g.label[std::size_t(k + s)] == air);
+    }
+    if (!surface) return;
+    T best = -std::numeric_limits<T>::max();
+    for (int o = 0; o < (Dim == 3 ? 27 : 9); ++o) {
+      IVec q = i;
+      int moved = 0;
+      bool inside = true;
+      for (int d = 0, m = o; d < Dim; ++d, m /= 3) {
+        const int step = m % 3 - 1;
+        q[d] += step;
+        moved += step != 0;
+        inside = inside && q[d] >= 0 && q[d] < g.res[d];
+      }
+      if (!inside || moved == 0) continue;
+      const std::int64_t a = g.cell(q);
+      if (g.label[std::size_t(a)] == air) best = std::max(best, g.phi[std::size_t(a)] - diag[moved]);
+    }
+    g.phi[std::size_t(k)] = std::min(best, -kSurfaceCap * g.dx);
   });
 }
 

@@ -37,7 +37,14 @@
 ///
 /// The surface pressure at a face from fluid cell c to air cell a is interpolated to where the
 /// surface crosses it: p_gamma = (1 - theta) sigma kappa_c + theta sigma kappa_a, theta the
-/// ghost-fluid fraction (pressure.h).
+/// ghost-fluid fraction (pressure.h). With surface tension the solver places the surface inside
+/// the liquid's surface cells (level_set.h, place_surface_in_fluid_cells) rather than at least
+/// a third of a cell beyond their centres, and the projection leaves the nearly empty faces
+/// this gives unprojected where liquid behind them holds the cell (pressure.h,
+/// set_surface_pressure). This took the Laplace pressure in a 3D ball from 2.9% to 1.2% low at
+/// 8 cells' radius and from 1.8% to 0.45% at 12, the mode-2 period of the ball of 12 cells over
+/// its first period from 12.5% to 4.0% long, and a glycerol puddle's height from 6.3% low to
+/// 1.0% high (flip_surface_tension_tests and their validation set).
 ///
 /// Time step: the explicit jump resolves capillary waves only if
 /// dt <= sqrt(rho_avg dx^3 / (2 pi sigma)) (Brackbill, Kothe & Zemach 1992, "A continuum method
@@ -54,18 +61,22 @@
 /// Known limits. A drop resolved by few cells does not hold together when it spreads thinner
 /// than a cell (a 3 mm drop at dx = 0.5 mm falling at 0.3 m/s onto the floor spreads into a film
 /// one particle thick and splashes up the walls). Over many capillary times sqrt(rho R^3 /
-/// sigma) an inviscid drop at rest slowly gains energy with "apic" and "flip" (not with "pic").
-/// A 3 mm water drop at dx = 0.5 mm (6 cells across its radius) had 2.3e-10 J of kinetic energy
-/// at 0.1 s and 9.2e-7 J at 0.3 s (16 capillary times); at 16 cells across the radius in 2D the
-/// largest speed stays bounded for 12 capillary times and has grown to 0.18 of the capillary
-/// speed by 15. Most of the gain is the explicit jump's time integration: a 3D drop of 8 cells'
-/// radius oscillating at 10% amplitude had 4.8e-3 J of kinetic energy after 16 s at this
-/// substep, 5.4e-4 J at half of it and 7.5e-4 J at a quarter. Its mode-2 period stays 10-17%
-/// long at all three substeps, but falls with resolution (17% at 8 cells, 11% at 12): most of
-/// it is where the pressure solve places the surface in a fluid cell (level_set.h). A
-/// projection weighted by the faces' particle mass (light faces moved more) made the gain far
-/// larger. The run's
-/// statistics count the surface energy sigma * area() (RunStats::surface).
+/// sigma) an inviscid drop slowly gains energy with "apic" and "flip" (not with "pic"). At 16
+/// cells across the radius in 2D the largest speed of a drop at rest stays bounded for 12
+/// capillary times (flip_surface_tension_tests). In 3D the gain ends a drop's oscillation: a
+/// ball of 8 cells' radius oscillating in mode 2 at 5% amplitude (Rayleigh's period 8.8 s) keeps
+/// its kinetic energy for about 1.5 periods, then within the next period it grows twentyfold
+/// and the motion turns irregular (at 12 cells after about 2 periods). Shorter substeps delay
+/// the growth but do not remove it (it sets in between 12 and 18 s at this substep, 26 and 38 s
+/// at half of it, 30 and 54 s at a quarter), and so do a viscosity of 0.08 Pa s (Ohnesorge
+/// number 0.005; between 20 and 26 s) and "flip" (between 34 and 58 s); "pic" damps the
+/// oscillation instead (its amplitude falls to 6% in 1.5 periods). A surface viscosity sigma dt
+/// spread over the colour function's gradient (the implicit part of the jump, in the manner of
+/// Hysing 2006, "A new implicit surface tension implementation for interfacial flows", IJNMF
+/// 51) delayed it to between 21 and 35 s; four times that kept the energy bounded for 3.5
+/// periods but damped it to a tenth. A projection weighted by the faces' particle mass (light
+/// faces moved more) made the gain far larger. The run's statistics count the surface energy
+/// sigma * area() (RunStats::surface).
 ///
 /// Cost: only where the scene has surface tension (sigma > 0): a dozen passes over the cells
 /// and one over the particles near the surface per substep.
