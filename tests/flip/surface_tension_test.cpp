@@ -72,7 +72,7 @@ TEST(FlipSurfaceTension, SpuriousCurrentsAroundAViscousDiskAtRest) {
   std::printf("[ figure ] viscous 2D disk (Oh = 1), R = 16 dx: largest speed over the last second %.3g m/s, capillary "
               "number %.3g (largest over the run %.3g m/s); pressure error %.3f%%\n",
               r.late_speed, ca, r.max_speed, 100 * r.pressure_error());
-  EXPECT_LT(ca, 1e-2);  // 3.9e-3 measured
+  EXPECT_LT(ca, 1e-2);  // 4.3e-3 measured
   EXPECT_LT(std::abs(r.pressure_error()), 0.05);
 }
 
@@ -153,13 +153,14 @@ TEST(FlipSurfaceTension, OscillatingBallHasRayleighsPeriod) {
 // Gravity against surface tension: a block of glycerol on the floor settles into a puddle whose
 // height is set by the capillary length (surface_tension_drop.h). At dx = 0.5 mm (the height is
 // 6.4 cells) it measures 1.0% high after 1 s. Without surface tension the block spreads over the
-// whole floor, 1.6 mm high; a jump off by 16% moves the height by 8% (it goes as sqrt(sigma)).
+// whole floor, 1.6 mm high; the height goes as sqrt(sigma), so the 3% bound holds the jump to
+// about 6%.
 // Finer: the validation label.
 TEST(FlipSurfaceTension, GlycerolPuddleHasTheCapillaryHeight) {
   const auto p = slurry_test::glycerol_puddle(0.0005, 1.0);
   std::printf("[ figure ] 2D glycerol puddle, dx = 0.5 mm, 1 s: height %.4f mm, 2 l_c sin 45 = %.4f mm, error %.2f%%, "
               "width %.2f mm\n", 1e3 * p.height, 1e3 * p.expected, 100 * p.error(), 1e3 * p.width);
-  EXPECT_LT(std::abs(p.error()), 0.08);
+  EXPECT_LT(std::abs(p.error()), 0.03);
 }
 
 TEST(FlipSurfaceTension, SurfaceEnergyIsSigmaTimesTheArea) {
