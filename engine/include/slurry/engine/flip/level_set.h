@@ -155,7 +155,8 @@ void place_surface_in_fluid_cells(MacGrid<T, Dim>& g) {
   using IVec = Eigen::Matrix<int, Dim, 1>;
   constexpr T kSurfaceCap = T(0.01);
   const std::uint8_t fluid = MacGrid<T, Dim>::Fluid, air = MacGrid<T, Dim>::Air;
-  const T diag[4] = {T(0), g.dx, std::sqrt(T(2)) * g.dx, std::sqrt(T(3)) * g.dx};  // by offsets set
+  // |x_c - x_a| by the number of axes along which a is offset from c.
+  const T distance[4] = {T(0), g.dx, std::sqrt(T(2)) * g.dx, std::sqrt(T(3)) * g.dx};
   parallel::parallel_for(0, g.num_cells(), [&](std::int64_t k) {
     if (g.label[std::size_t(k)] != fluid) return;
     const IVec i = g.cell_coord(k);
@@ -178,7 +179,7 @@ void place_surface_in_fluid_cells(MacGrid<T, Dim>& g) {
       }
       if (!inside || moved == 0) continue;
       const std::int64_t a = g.cell(q);
-      if (g.label[std::size_t(a)] == air) best = std::max(best, g.phi[std::size_t(a)] - diag[moved]);
+      if (g.label[std::size_t(a)] == air) best = std::max(best, g.phi[std::size_t(a)] - distance[moved]);
     }
     g.phi[std::size_t(k)] = std::min(best, -kSurfaceCap * g.dx);
   });

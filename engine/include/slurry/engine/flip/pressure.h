@@ -547,9 +547,9 @@ class PressureSolver {
         if (!is(nb, Grid::Fluid)) continue;
         bool beside_air = false;
         for (int e = 0; e < Dim && !beside_air; ++e)
-          for (int s2 = -1; s2 <= 1 && !beside_air; s2 += 2) {
-            const int je = j[e] + s2;
-            beside_air = je >= 0 && je < g.res[e] && is(nb + s2 * g.cell_stride(e), Grid::Air);
+          for (int dir = -1; dir <= 1 && !beside_air; dir += 2) {
+            const int je = j[e] + dir;
+            beside_air = je >= 0 && je < g.res[e] && is(nb + dir * g.cell_stride(e), Grid::Air);
           }
         if (!beside_air) return true;
       }
