@@ -127,6 +127,9 @@ struct Oscillation {
   double period = 0;    ///< twice the mean time between zero crossings of the mode's moment (s)
   double rayleigh = 0;  ///< Rayleigh's period of mode 2 (s)
   int half_periods = 0; ///< intervals between zero crossings measured
+  double m0 = 0;        ///< the moment at release (m^2)
+  std::vector<double> peaks;  ///< the largest |m| between consecutive zero crossings, in order
+  double farthest = 0;  ///< the farthest any particle came from the centre of mass, over R
 };
 
 /// The drop in the mode-2 shape of relative amplitude eps (an ellipse of semi-axes R (1 + eps)
@@ -135,7 +138,8 @@ struct Oscillation {
 /// particles (stretching the lattice instead would make its spacing differ between the axes, and
 /// the surface's staircase with it, a mode-2 error as large as the signal), released at rest;
 /// measures the period of the second moment m(t) = <x^2> - <y^2> (2D) or <z^2> - (<x^2> +
-/// <y^2>) / 2 (3D) about the centre of mass over `half_periods` half periods. Rayleigh (1879,
+/// <y^2>) / 2 (3D) about the centre of mass over `half_periods` half periods, the amplitude of
+/// each, and how far the particles stray from the centre. Rayleigh (1879,
 /// "On the capillary phenomena of jets", Proc. R. Soc. London 29; Lamb, "Hydrodynamics",
 /// sec. 275): omega^2 = n (n^2 - 1) sigma / (rho R^3) for a 2D drop and
 /// n (n - 1) (n + 2) sigma / (rho R^3) for a 3D one, n = 2: 6 and 8.
@@ -150,24 +154,36 @@ Oscillation oscillating_drop(int cells_per_radius, double eps, int half_periods,
   semi_axes[Dim == 3 ? 2 : 0] = kDropRadius * (1 + eps);
   auto& P = sim.particles();
   keep_particles(P, [&](const Vec& x) { return (x - centre).cwiseQuotient(semi_axes).squaredNorm() <= 1; });
+  Oscillation r;
   const auto moment = [&] {
     Vec mean = Vec::Zero();
     for (const auto& x : P.x) mean += x;
     mean /= double(P.size());
     Vec m2 = Vec::Zero();
-    for (const auto& x : P.x) m2 += (x - mean).cwiseAbs2();
+    double far2 = 0;
+    for (const auto& x : P.x) {
+      const Vec d = (x - mean).cwiseAbs2();
+      m2 += d;
+      far2 = std::max(far2, d.sum());
+    }
     m2 /= double(P.size());
+    r.farthest = std::max(r.farthest, std::sqrt(far2) / kDropRadius);
     return Dim == 3 ? m2[2] - 0.5 * (m2[0] + m2[1]) : m2[0] - m2[1];
   };
-  Oscillation r;
   const double n = 2, factor = Dim == 3 ? n * (n - 1) * (n + 2) : n * (n * n - 1);
   r.rayleigh = 2 * M_PI / std::sqrt(factor * sigma / (kDropDensity * std::pow(kDropRadius, 3)));
   std::vector<double> crossings;
-  double m_prev = moment(), t_prev = sim.time();
-  while (int(crossings.size()) <= half_periods && sim.time() < 3 * r.rayleigh) {
+  double m_prev = moment(), t_prev = sim.time(), peak = 0;
+  r.m0 = m_prev;
+  while (int(crossings.size()) <= half_periods && sim.time() < (half_periods / 2 + 2) * r.rayleigh) {
     sim.step(std::min(sim.stable_dt(), 0.05));
     const double m = moment(), t = sim.time();
-    if ((m_prev > 0) != (m > 0)) crossings.push_back(t_prev + (t - t_prev) * m_prev / (m_prev - m));
+    if ((m_prev > 0) != (m > 0)) {
+      crossings.push_back(t_prev + (t - t_prev) * m_prev / (m_prev - m));
+      if (crossings.size() > 1) r.peaks.push_back(peak);
+      peak = 0;
+    }
+    peak = std::max(peak, std::abs(m));
     m_prev = m, t_prev = t;
   }
   r.half_periods = int(crossings.size()) - 1;

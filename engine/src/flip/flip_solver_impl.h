@@ -352,7 +352,7 @@ void FlipSolver<T, Dim>::build_boundaries(T t) {
   label_cells(grid_, particles_, sort_, solids_, t, particle_radius_, holes_);
   if (sigma_ > T(0)) {
     place_surface_in_fluid_cells(grid_);  // where the jump sigma kappa is imposed (level_set.h)
-    surface_tension_.compute(grid_, particles_, sort_, sigma_);
+    surface_tension_.compute(grid_, particles_, sort_, sigma_, particles_per_cell());
     pressure_.set_surface_pressure(surface_tension_.pressure().data());
   }
 }

@@ -31,6 +31,24 @@
 /// the staircase of the seeding that the smoothing does not remove. (A kernel-weighted mean
 /// position, Zhu & Bridson 2005, in place of the colour function is flat from a cell inside the
 /// surface on; with it the mean kappa at the air-side cells of a disk of 16 cells measured 24% low.) kappa > 0 where the liquid is convex.
+/// kappa is then carried from each cell centre to the smoothed surface, the level c = bulk / 2
+/// of the colour function (to_surface): a centre d outside that level has the curvature of the
+/// level through it, (Dim - 1) / (R + d) for a ball of radius R, and the surface's is
+/// kappa / (1 - d kappa / (Dim - 1)). Without this a bump of liquid narrower than the smoothing,
+/// whose cells stand outside the smoothed surface, had a jump the lower the farther it stood
+/// out: nothing pulled it back and the flow fed it. In 3D the outermost cells where an
+/// oscillating drop's equator meets a grid axis were drawn out (their faces to air moving out
+/// at 0.02-0.03 m/s while the liquid behind moved at 0.003-0.008), their particles left the
+/// drop in straight lines from 7.5 s (0.85 of a period), and its kinetic energy was nearly 900
+/// times its first by 29 s (a ball of 8 cells' radius in mode 2 at 5% amplitude, Rayleigh's
+/// period 8.8 s). The level bulk / 2 lies
+/// inside a convex surface by about kappa s^2 / 2, s^2 = 1.7 dx^2 the variance of the
+/// cloud-in-cell weights and the smoothing (a smoothed indicator's levels move by their mean
+/// curvature), so the Laplace pressure comes out high by the fraction kappa s^2 / (2 R) or so:
+/// 3.6% at 8 cells' radius in 3D, 1.9% at 12, 0.3% at 16 in 2D. Carrying kappa to the corrected level
+/// instead brought these within 0.9% but made the 3D mode-2 period 9.0% long at 8 cells and
+/// 5.2% at 12 (4.7% and 3.3% at the half level): another error lengthens the period, and the
+/// half level is the measured compromise.
 /// |kappa| is clamped to 2 / dx in 3D and 1 / dx in 2D: a surface curved more tightly than a
 /// ball of one cell's radius is not resolved (a few-particle droplet), and its jump is that of
 /// the smallest resolved ball.
@@ -41,10 +59,10 @@
 /// the liquid's surface cells (level_set.h, place_surface_in_fluid_cells) rather than at least
 /// a third of a cell beyond their centres, and the projection leaves the nearly empty faces
 /// this gives unprojected where liquid behind them holds the cell (pressure.h,
-/// set_surface_pressure). This took the Laplace pressure in a 3D ball from 2.9% to 1.2% low at
-/// 8 cells' radius and from 1.8% to 0.45% at 12, the mode-2 period of the ball of 12 cells over
-/// its first period from 12.5% to 4.0% long, and a glycerol puddle's height from 6.3% low to
-/// 1.0% high (flip_surface_tension_tests and their validation set).
+/// set_surface_pressure). With the curvature at the cell centres, this took the Laplace
+/// pressure in a 3D ball from 2.9% to 1.2% low at 8 cells' radius, the mode-2 period of the ball
+/// of 12 cells over its first period from 12.5% to 4.0% long, and a glycerol puddle's height
+/// from 6.3% low to 1.0% high (flip_surface_tension_tests and their validation set).
 ///
 /// Time step: the explicit jump resolves capillary waves only if
 /// dt <= sqrt(rho_avg dx^3 / (2 pi sigma)) (Brackbill, Kothe & Zemach 1992, "A continuum method
@@ -60,37 +78,17 @@
 ///
 /// Known limits. A drop resolved by few cells does not hold together when it spreads thinner
 /// than a cell (a 3 mm drop at dx = 0.5 mm falling at 0.3 m/s onto the floor spreads into a film
-/// one particle thick and splashes up the walls). Over many capillary times sqrt(rho R^3 /
-/// sigma) an inviscid drop slowly gains energy with "apic" and "flip" (not with "pic"). At 16
-/// cells across the radius in 2D the largest speed of a drop at rest stays bounded for 12
-/// capillary times (flip_surface_tension_tests). In 3D the gain ends a drop's oscillation: a
-/// ball of 8 cells' radius oscillating in mode 2 at 5% amplitude (Rayleigh's period 8.8 s) keeps
-/// its kinetic energy for about 1.5 periods, then within the next period it grows twentyfold
-/// and the motion turns irregular (at 12 cells after about 2 periods). Shorter substeps delay
-/// the growth but do not remove it (it sets in between 12 and 18 s at this substep, 26 and 38 s
-/// at half of it, 30 and 54 s at a quarter), and so do a viscosity of 0.08 Pa s (Ohnesorge
-/// number 0.005; between 20 and 26 s) and "flip" (between 34 and 58 s); "pic" damps the
-/// oscillation instead (its amplitude falls to 6% in 1.5 periods). A surface viscosity sigma dt
-/// spread over the colour function's gradient (the implicit part of the jump, in the manner of
-/// Hysing 2006, "A new implicit surface tension implementation for interfacial flows", IJNMF
-/// 51) delayed it to between 21 and 35 s; four times that kept the energy bounded for 3.5
-/// periods but damped it to a tenth. A projection weighted by the faces' particle mass (light
-/// faces moved more) made the gain far larger. Where it starts (the ball of 8 cells, traced
-/// particle by particle): where the drop's equator meets the x and y axes, the outermost cell of
-/// the lattice's staircase holds a few particles in its inner half, and its face to air, a
-/// sliver, moves outward at 0.02-0.03 m/s while the face behind it moves at 0.003-0.008 m/s.
-/// When the equator turns back (7.5 s), 4 particles at each of those 4 points leave the drop at
-/// 0.024 m/s, twice the oscillation's largest speed, in a straight line (1.10 R at 7.5 s, 1.33 R
-/// at 10 s); 400 particles lie beyond 1.08 R at 12 s, and the growth follows. The smoothed
-/// colour function (about 1.3 dx wide) does not see a bump of one cell, so no jump pulls it
-/// back. Measured against that: projecting the slivers, or clamping their theta at 0.25,
-/// changes nothing; the extrapolated velocity in place of the kept one on unprojected faces
-/// (FlipSolver::extrapolate_velocities), or surface cells whose placed surface lies outside
-/// them made air, delay the growth by half a period to a period; one smoothing pass instead of
-/// three keeps the 3D ball's energy bounded for 5 periods, but its period is then 8.4% long,
-/// and a 2D disk of 24 cells, which holds its energy and its period for 2.5 periods with three
-/// passes, turns irregular and gains energy. The run's statistics count the surface energy
-/// sigma * area() (RunStats::surface).
+/// one particle thick and splashes up the walls). An inviscid drop's oscillation is damped a
+/// little: a ball of 8 cells' radius oscillating in mode 2 at 5% amplitude (Rayleigh's period
+/// 8.8 s) keeps its oscillation for 4.5 periods with its amplitude falling by 11% and its period
+/// 4.6-4.9% long, and one of 12 cells its amplitude within 0.76 to 0.95 of the release's over 2
+/// periods, 1.7% long (flip_surface_tension_tests and their validation set). A disk of 32
+/// cells' radius stops oscillating in mode 2 in its second period and starts again later (the
+/// kinetic energy at the fourth zero crossing of the mode's moment is a fifth of that at the
+/// first; a tenth with the curvature at the cell centres), so its period is measured over the
+/// first (flip_surface_tension_validation_tests). At 16 cells across the radius in 2D the
+/// largest speed of a drop at rest stays bounded for 12 capillary times sqrt(rho R^3 / sigma).
+/// The run's statistics count the surface energy sigma * area() (RunStats::surface).
 ///
 /// Cost: only where the scene has surface tension (sigma > 0): a dozen passes over the cells
 /// and one over the particles near the surface per substep.
@@ -119,6 +117,9 @@ class SurfaceTension {
 
   /// Passes of the [1 2 1] / 4 filter along every axis over the colour function.
   static constexpr int kSmoothing = 3;
+  /// compute(): the largest distance (cells) by which a cell centre's curvature is carried to
+  /// the smoothed surface (to_surface()).
+  static constexpr T kSurfaceReach = T(2);
   /// area(): cells within this many of the surface are summed (the smoothed colour's profile
   /// falls from the bulk to 0 within about 3 cells of it).
   static constexpr int kSumReach = 4;
@@ -142,8 +143,9 @@ class SurfaceTension {
   const std::vector<T>& colour() const { return colour_; }
 
   /// Fills pressure() for surface tension sigma from the grid's labels and the particles,
-  /// sorted by cell (`sort.start`, positions `P.x`).
-  void compute(const Grid& g, const FlipParticles<T, Dim>& P, const CellSort<T, Dim>& sort, T sigma) {
+  /// sorted by cell (`sort.start`, positions `P.x`); `bulk` is the colour of the bulk (the
+  /// particles per cell), whose half marks the smoothed surface.
+  void compute(const Grid& g, const FlipParticles<T, Dim>& P, const CellSort<T, Dim>& sort, T sigma, T bulk) {
     const std::int64_t n = g.num_cells();
     surface_.assign(std::size_t(n), 0);
     pressure_.assign(std::size_t(n), T(0));
@@ -211,19 +213,36 @@ class SurfaceTension {
       const T len = grad.norm();
       if (len > T(1e-9) * g.dx) normal_[std::size_t(k)] = grad / len;
     });
-    // 5. kappa = div n at the surface cells (central differences), and sigma kappa.
+    // 5. kappa = div n at the surface cells (central differences), carried to the smoothed
+    // surface, and sigma kappa.
     const T kmax = T(Dim - 1) / g.dx;
     parallel::parallel_for(0, n, [&](std::int64_t k) {
       if (!surface_[std::size_t(k)]) return;
       const IVec i = g.cell_coord(k);
       T div = T(0);
+      Vec grad;  // -grad c, 2 dx times
       for (int a = 0; a < Dim; ++a) {
         const std::int64_t hi = across(g, k, i, a, 1), lo = across(g, k, i, a, -1);
         const T own = normal_[std::size_t(k)][a];
         div += (hi < 0 ? -own : normal_[std::size_t(hi)][a]) - (lo < 0 ? -own : normal_[std::size_t(lo)][a]);
+        grad[a] = even(g, colour_, k, i, a, -1) - even(g, colour_, k, i, a, 1);
       }
-      pressure_[std::size_t(k)] = sigma * std::clamp(div / (T(2) * g.dx), -kmax, kmax);
+      const T slope = grad.norm() / (T(2) * g.dx);  // |grad c|
+      const T kappa = div / (T(2) * g.dx);
+      pressure_[std::size_t(k)] = sigma * std::clamp(to_surface(kappa, colour_[std::size_t(k)], slope, bulk, g.dx), -kmax, kmax);
     });
+  }
+
+  /// The curvature at the smoothed surface, the level c = bulk / 2 of the colour function,
+  /// from kappa, the curvature of the level through a cell centre of colour c where the
+  /// colour's slope is |grad c|. The centre lies d = (bulk / 2 - c) / |grad c| outside that
+  /// surface (kept within kSurfaceReach cells), and the levels of a ball's colour function are
+  /// concentric spheres, kappa(r) = (Dim - 1) / r, so the surface's is
+  /// kappa / (1 - d kappa / (Dim - 1)) (the denominator kept >= 1/2).
+  static T to_surface(T kappa, T c, T slope, T bulk, T dx) {
+    if (!(slope > T(1e-9) / dx)) return kappa;
+    const T d = std::clamp((T(0.5) * bulk - c) / slope, -kSurfaceReach * dx, kSurfaceReach * dx);
+    return kappa / std::max(T(1) - d * kappa / T(Dim - 1), T(0.5));
   }
 
   /// The area (3D; the length in 2D) of the liquid's free surface, for the energy sigma * area
