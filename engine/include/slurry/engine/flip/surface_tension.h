@@ -41,14 +41,13 @@
 /// at 0.02-0.03 m/s while the liquid behind moved at 0.003-0.008), their particles left the
 /// drop in straight lines from 7.5 s (0.85 of a period), and its kinetic energy was nearly 900
 /// times its first by 29 s (a ball of 8 cells' radius in mode 2 at 5% amplitude, Rayleigh's
-/// period 8.8 s). The level bulk / 2 lies
-/// inside a convex surface by about kappa s^2 / 2, s^2 = 1.7 dx^2 the variance of the
-/// cloud-in-cell weights and the smoothing (a smoothed indicator's levels move by their mean
-/// curvature), so the Laplace pressure comes out high by the fraction kappa s^2 / (2 R) or so:
-/// 3.6% at 8 cells' radius in 3D, 1.9% at 12, 0.3% at 16 in 2D. Carrying kappa to the corrected level
-/// instead brought these within 0.9% but made the 3D mode-2 period 9.0% long at 8 cells and
-/// 5.2% at 12 (4.7% and 3.3% at the half level): another error lengthens the period, and the
-/// half level is the measured compromise.
+/// period 8.8 s). The level bulk / 2 lies inside a convex surface by about kappa s^2 / 2,
+/// s^2 = 1.7 dx^2 the variance of the cloud-in-cell weights and the smoothing (a smoothed
+/// indicator's levels move by their mean curvature), so the Laplace pressure comes out high by
+/// the fraction kappa s^2 / (2 R) or so: 3.6% at 8 cells' radius in 3D, 1.9% at 12, 0.3% at 16
+/// in 2D. Carrying kappa to the corrected level instead brought these within 0.9% but made the
+/// 3D mode-2 period 9.0% long at 8 cells and 5.2% at 12 (4.7% and 3.3% at the half level):
+/// another error lengthens the period, and the half level is the measured compromise.
 /// |kappa| is clamped to 2 / dx in 3D and 1 / dx in 2D: a surface curved more tightly than a
 /// ball of one cell's radius is not resolved (a few-particle droplet), and its jump is that of
 /// the smallest resolved ball.
