@@ -2,7 +2,7 @@
 // and the flow through a square duct in 3D against their analytic profiles, free-slip walls
 // without shear, a very viscous column that spreads without blowing up or losing volume, and
 // the scene key's bad values. (The standing wave's damping against Lamb is in
-// viscosity_validation_test.cpp: it needs fine grids.)
+// viscosity_wave_test.cpp.)
 #include <gtest/gtest.h>
 
 #include <algorithm>

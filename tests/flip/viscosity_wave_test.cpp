@@ -1,5 +1,6 @@
-// Validation of the FLIP liquid's viscosity at sizes too slow for CI (label "validation"): the
-// damping of a small standing wave against Lamb's viscous dispersion relation.
+// The FLIP liquid's viscosity against Lamb's viscous dispersion relation: the damping of a small
+// standing wave, at dx = 1/48 and 1/64 of the tank in CI (flip_viscosity_wave_tests), and at
+// 1/64 and 1/96 under label validation (flip_viscosity_validation_tests, SLURRY_VISCOSITY_FULL).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -87,17 +88,28 @@ double lamb_damping(double nu, double k, double g) {
 }
 
 // The viscous part of the damping is the viscous run's rate less the inviscid run's at the same
-// resolution (APIC and the free surface's resolution damp the wave too: 0.21 1/s at dx = 1/48,
-// 0.17 at 1/64). nu = 0.03 m^2/s makes the viscous part about three times the numerical one,
-// with eps = nu k^2 / omega = 0.053 still small; Lamb's exact root is then 0.84 of 2 nu k^2 (the
-// weak-damping formula alone would be 16% off the physics). The vorticity layer at the surface
-// is sqrt(2 nu / omega) = 0.10 m thick: 5 cells at dx = 1/48, 7 at 1/64; coarser, the viscous
-// part falls well short (-36% at 1/32).
-TEST(FlipViscosityValidation, StandingWaveDampsAtLambsRate) {
+// resolution (APIC and the free surface's resolution damp the wave too: 0.27 1/s at dx = 1/48,
+// 0.19 at 1/64, 0.09 at 1/96). nu = 0.03 m^2/s makes the viscous part about twice the numerical
+// one or more, with eps = nu k^2 / omega = 0.053 still small; Lamb's exact root is then 0.84 of
+// 2 nu k^2 (the weak-damping formula alone would be 16% off the physics). The vorticity layer at
+// the surface is sqrt(2 nu / omega) = 0.10 m thick: 5 cells at dx = 1/48, 7 at 1/64, 10 at 1/96;
+// coarser, the viscous part falls well short (-36% at 1/32). It does not settle on Lamb's rate:
+// -28.3% at 1/48, -1.5% at 1/64, +18.3% at 1/96 (against 2 nu k^2: -40.3%, -18.0%, -1.6%). So
+// the agreement at 1/64 that CI checks is where the measured rate crosses Lamb's, and the
+// validation's pair (1/64, 1/96) fails until the cause is known.
+#ifdef SLURRY_VISCOSITY_FULL
+#define VISCOSITY_WAVE_SUITE FlipViscosityValidation
+constexpr int kCells[2] = {64, 96};
+#else
+#define VISCOSITY_WAVE_SUITE FlipViscosityWave
+constexpr int kCells[2] = {48, 64};
+#endif
+
+TEST(VISCOSITY_WAVE_SUITE, StandingWaveDampsAtLambsRate) {
   const double mu = 30, nu = mu / 1000, k = M_PI, g = 9.81;
   const double lamb = lamb_damping(nu, k, g), weak = 2 * nu * k * k;
   double error[2] = {0, 0};
-  const int cells[2] = {48, 64};
+  const int* cells = kCells;
   for (int r = 0; r < 2; ++r) {
     const double dx = 1.0 / cells[r];
     const double inviscid = standing_wave_decay_rate(0, dx);
@@ -109,7 +121,7 @@ TEST(FlipViscosityValidation, StandingWaveDampsAtLambsRate) {
                 cells[r], nu, viscous, inviscid, measured, lamb, 100 * error[r], weak, 100 * (measured / weak - 1));
   }
   EXPECT_NEAR(error[1], 0, 0.10);
-  EXPECT_LT(std::abs(error[1]), std::abs(error[0]));  // converging, not drifting away
+  EXPECT_LT(std::abs(error[1]), std::abs(error[0]));  // closer at the finer level
 }
 
 }  // namespace
