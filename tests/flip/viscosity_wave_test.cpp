@@ -89,8 +89,8 @@ double lamb_damping(double nu, double k, double g) {
 
 // The viscous part of the damping is the viscous run's rate less the inviscid run's at the same
 // resolution (APIC and the free surface's resolution damp the wave too: 0.27 1/s at dx = 1/48,
-// 0.19 at 1/64, 0.09 at 1/96). nu = 0.03 m^2/s makes the viscous part about twice the numerical
-// one or more, with eps = nu k^2 / omega = 0.053 still small; Lamb's exact root is then 0.84 of
+// 0.19 at 1/64, 0.09 at 1/96). nu = 0.03 m^2/s makes the viscous part 1.3 to 6 times the
+// numerical one, with eps = nu k^2 / omega = 0.053 still small; Lamb's exact root is then 0.84 of
 // 2 nu k^2 (the weak-damping formula alone would be 16% off the physics). The vorticity layer at
 // the surface is sqrt(2 nu / omega) = 0.10 m thick: 5 cells at dx = 1/48, 7 at 1/64, 10 at 1/96;
 // coarser, the viscous part falls well short (-36% at 1/32). It does not settle on Lamb's rate:
