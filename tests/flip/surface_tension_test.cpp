@@ -16,12 +16,15 @@
 #include "slurry/engine/scene/scene.h"
 #include "slurry/transfer/parallel.h"
 #include "liquid_scene.h"
+#include "oscillation_checks.h"
 #include "slurry/io/scene_file.h"
 #include "surface_tension_drop.h"
 
 namespace {
 
 using slurry::Scene;
+using slurry_test::check_rayleigh;
+using slurry_test::check_sustained;
 using slurry_test::DropRun;
 
 /// Prints and checks a drop at rest: its pressure within 5% of Laplace's; its largest speed, the
@@ -125,30 +128,6 @@ TEST(FlipSurfaceTension, HalfBallOnTheFloorStaysAtRest) {
               speed, reach);
   EXPECT_LT(speed, 0.25);
   EXPECT_LT(reach, 1.1);
-}
-
-/// Prints and checks a mode-2 oscillation: at least two half periods, the period within 5% of
-/// Rayleigh's.
-void check_rayleigh(const slurry_test::Oscillation& r, const char* what) {
-  std::printf("[ figure ] %s, mode 2, amplitude 5%%: period %.4f s, Rayleigh %.4f s, error %.3f%% (%d half periods)\n", what,
-              r.period, r.rayleigh, 100 * (r.period / r.rayleigh - 1), r.half_periods);
-  ASSERT_GE(r.half_periods, 2);
-  EXPECT_LT(std::abs(r.period / r.rayleigh - 1), 0.05);
-}
-
-/// Prints and checks that a mode-2 oscillation keeps its amplitude, within [low, 1.2] of the
-/// release's in every half period, and its particles together, none farther than 1.1 R from the
-/// centre of mass (the release's spheroid reaches 1.05 R).
-void check_sustained(const slurry_test::Oscillation& r, const char* what, double low) {
-  std::printf("[ figure ] %s: amplitude of each half period over the release's:", what);
-  for (double p : r.peaks) std::printf(" %.3f", p / std::abs(r.m0));
-  std::printf("; farthest particle %.3f R\n", r.farthest);
-  ASSERT_EQ(int(r.peaks.size()), r.half_periods);
-  for (double p : r.peaks) {
-    EXPECT_GT(p / std::abs(r.m0), low);
-    EXPECT_LT(p / std::abs(r.m0), 1.2);
-  }
-  EXPECT_LT(r.farthest, 1.1);
 }
 
 TEST(FlipSurfaceTension, OscillatingDiskHasRayleighsPeriod) {
