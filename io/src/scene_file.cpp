@@ -311,6 +311,7 @@ Scene parse_scene(std::string_view text, const std::string& source) {
     r.choice("integrator", kIntegrator, s.solver.integrator);
     if (s.solver.type == SolverType::FLIP) {  // keys of the FLIP solver only
       r.choice("advection", kAdvection, s.solver.advection);
+      r.choice("free_surface", kFreeSurface, s.solver.free_surface);
       r.number("volume_correction", s.solver.volume_correction);
       r.object("pressure", [&](ObjectReader& q) {
         q.choice("preconditioner", kPreconditioner, s.solver.pressure.preconditioner);

@@ -1,7 +1,7 @@
 // FLIP pressure projection: Poisson convergence orders (Dirichlet, Neumann, ghost-fluid free
 // surface), preconditioner iteration counts, divergence after projection, solids with face
 // fractions (hydrostatic rest in a curved container, moving collider), velocity extrapolation,
-// thread-count independence, and surface tension's placement of the free surface in its cells.
+// thread-count independence, and the subcell free surface (its placement and sliver faces).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -784,8 +784,9 @@ TEST(PressureOptions, ValidateNamesTheField) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Surface tension's free surface: placed inside the liquid's surface cells (level_set.h), and
-// the nearly empty faces that gives left unprojected where liquid behind them holds the cell.
+// The subcell free surface (solver.free_surface): placed inside the liquid's surface cells
+// (level_set.h), and the nearly empty faces that gives left unprojected where liquid behind them
+// holds the cell.
 
 /// A flat liquid surface at height h (in cells) on an 8^Dim grid of unit cells: rows whose
 /// centre is below `fluid_top` are Fluid (phi = -1/2, as label_cells gives them), the others
@@ -823,19 +824,21 @@ void check_surface_placement() {
   }
 }
 
-TEST(SurfaceTensionSurface, PlacedInsideTheSurfaceCellsFromTheAirBeside2D) { check_surface_placement<2>(); }
-TEST(SurfaceTensionSurface, PlacedInsideTheSurfaceCellsFromTheAirBeside3D) { check_surface_placement<3>(); }
+TEST(SubcellSurface, PlacedInsideTheSurfaceCellsFromTheAirBeside2D) { check_surface_placement<2>(); }
+TEST(SubcellSurface, PlacedInsideTheSurfaceCellsFromTheAirBeside3D) { check_surface_placement<3>(); }
 
 /// Projects the flat surface's grid (surface at h, fluid up to row fluid_rows - 1) with the
-/// surface pressure 1 everywhere or none, and counts the faces from the top fluid row to air
-/// that the projection updated (valid) and those it left.
+/// surface placed inside the cells (set_subcell_surface) or not, with the surface pressure 1
+/// everywhere or none, and counts the faces from the top fluid row to air that the projection
+/// updated (valid) and those it left.
 template <int Dim>
-std::pair<int, int> projected_surface_faces(double h, int fluid_rows, bool surface_pressure) {
+std::pair<int, int> projected_surface_faces(double h, int fluid_rows, bool subcell, bool surface_pressure) {
   Grid<Dim> g = flat_surface<Dim>(h, double(fluid_rows));
   place_surface_in_fluid_cells(g);
   random_velocity(g, 5);
   const std::vector<double> sigma_kappa(std::size_t(g.num_cells()), 1.0);
   PressureSolver<double, Dim> solver;
+  solver.set_subcell_surface(subcell);
   solver.set_surface_pressure(surface_pressure ? sigma_kappa.data() : nullptr);
   ProjectionOptions opt = tight();
   opt.density = 1;
@@ -850,17 +853,19 @@ std::pair<int, int> projected_surface_faces(double h, int fluid_rows, bool surfa
 template <int Dim>
 void check_sliver_faces() {
   const int faces = Dim == 2 ? 8 : 64;
-  // theta = 0.1 / (0.1 + 0.9) on the top faces of a pool 4 cells deep: left unprojected with a
-  // surface pressure, projected without one.
-  EXPECT_EQ(projected_surface_faces<Dim>(3.6, 4, true), std::make_pair(0, faces));
-  EXPECT_EQ(projected_surface_faces<Dim>(3.6, 4, false), std::make_pair(faces, 0));
+  // theta = 0.1 / (0.1 + 0.9) on the top faces of a pool 4 cells deep: left unprojected with the
+  // subcell surface, with or without a surface pressure; projected without the subcell surface.
+  EXPECT_EQ(projected_surface_faces<Dim>(3.6, 4, true, true), std::make_pair(0, faces));
+  EXPECT_EQ(projected_surface_faces<Dim>(3.6, 4, true, false), std::make_pair(0, faces));
+  EXPECT_EQ(projected_surface_faces<Dim>(3.6, 4, false, true), std::make_pair(faces, 0));
+  EXPECT_EQ(projected_surface_faces<Dim>(3.6, 4, false, false), std::make_pair(faces, 0));
   // theta = 0.3: projected.
-  EXPECT_EQ(projected_surface_faces<Dim>(3.8, 4, true), std::make_pair(faces, 0));
+  EXPECT_EQ(projected_surface_faces<Dim>(3.8, 4, true, true), std::make_pair(faces, 0));
   // A film one cell thick (every fluid cell beside air): projected, however thin.
-  EXPECT_EQ(projected_surface_faces<Dim>(0.6, 1, true), std::make_pair(faces, 0));
+  EXPECT_EQ(projected_surface_faces<Dim>(0.6, 1, true, true), std::make_pair(faces, 0));
 }
 
-TEST(SurfaceTensionSurface, NearlyEmptyFacesAreLeftUnprojectedOnlyWithLiquidBehindThem2D) { check_sliver_faces<2>(); }
-TEST(SurfaceTensionSurface, NearlyEmptyFacesAreLeftUnprojectedOnlyWithLiquidBehindThem3D) { check_sliver_faces<3>(); }
+TEST(SubcellSurface, NearlyEmptyFacesAreLeftUnprojectedOnlyWithLiquidBehindThem2D) { check_sliver_faces<2>(); }
+TEST(SubcellSurface, NearlyEmptyFacesAreLeftUnprojectedOnlyWithLiquidBehindThem3D) { check_sliver_faces<3>(); }
 
 }  // namespace

@@ -21,7 +21,7 @@ json good_flip_scene() {
   return json::parse(R"({
     "domain": {"min": [0, 0], "max": [1, 1], "dx": 0.05},
     "solver": {"type": "flip", "dimension": 2, "transfer": "apic", "kernel": "linear", "cfl": 4,
-               "advection": "rk3", "pressure": {"preconditioner": "jacobi", "tolerance": 1e-5, "max_iterations": 300},
+               "advection": "rk3", "free_surface": "subcell", "pressure": {"preconditioner": "jacobi", "tolerance": 1e-5, "max_iterations": 300},
                "reseed": {"min_per_cell": 2, "max_per_cell": 9}},
     "materials": [{"name": "water", "model": "fluid", "density": 998}],
     "bodies": [{"shape": "box", "min": [0, 0], "max": [1, 0.4], "material": "water", "particles_per_cell": 4}],
@@ -43,6 +43,12 @@ const BadCase kBad[] = {
     {"cfl", R"({"solver": {"cfl": 6}})", "solver.cfl: expected a number in (0, 5], got 6"},
     {"advection", R"({"solver": {"advection": "rk4"}})",
      "solver.advection: expected one of \"euler\", \"midpoint\", \"heun\", \"rk3\", got \"rk4\""},
+    {"free_surface", R"({"solver": {"free_surface": "exact"}})",
+     "solver.free_surface: expected one of \"auto\", \"cell\", \"subcell\", got \"exact\""},
+    {"free_surface_cell_with_surface_tension",
+     R"({"solver": {"free_surface": "cell"}, "materials": [{"name": "water", "model": "fluid", "surface_tension": 0.07}]})",
+     "solver.free_surface: surface tension's pressure jump is imposed at the subcell surface: expected \"auto\" or "
+     "\"subcell\" with materials[].surface_tension 0.07, got \"cell\""},
     {"tolerance", R"({"solver": {"pressure": {"tolerance": 0}}})", "solver.pressure.tolerance: expected a number in (0, 1), got 0"},
     {"iterations", R"({"solver": {"pressure": {"max_iterations": 0}}})",
      "solver.pressure.max_iterations: expected an integer in [1, 1000000], got 0"},
@@ -110,6 +116,7 @@ TEST(FlipScene, GoodSceneKeepsItsValuesAndRuns) {
   const auto s = slurry::parse_scene(good_flip_scene().dump(), "good.json");
   EXPECT_EQ(s.solver.type, slurry::SolverType::FLIP);
   EXPECT_EQ(s.solver.advection, slurry::AdvectionScheme::RK3);
+  EXPECT_EQ(s.solver.free_surface, slurry::FreeSurface::Subcell);
   EXPECT_EQ(s.solver.pressure.preconditioner, slurry::PressurePreconditioner::Jacobi);
   EXPECT_DOUBLE_EQ(s.solver.pressure.tolerance, 1e-5);
   EXPECT_EQ(s.solver.pressure.max_iterations, 300);

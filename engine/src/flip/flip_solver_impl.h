@@ -80,6 +80,9 @@ FlipSolver<T, Dim>::FlipSolver(const Scene& scene, Communicator* communicator) :
   }
   viscosity_.no_slip_walls = scene_.boundaries.walls == Condition::Sticky;
   sigma_ = T(scene_.materials[0].surface_tension);
+  const FreeSurface surface = scene_.solver.free_surface;
+  subcell_surface_ = surface == FreeSurface::Subcell || (surface == FreeSurface::Auto && (sigma_ > T(0) || viscous_));
+  pressure_.set_subcell_surface(subcell_surface_);
 
   // The nominal density of particles: the densest body or emitter.
   double ppc = 0;
@@ -350,8 +353,8 @@ void FlipSolver<T, Dim>::build_boundaries(T t) {
   if (!solids_.empty() || !faces_ready_) solids_.update_faces(grid_, t);
   faces_ready_ = true;
   label_cells(grid_, particles_, sort_, solids_, t, particle_radius_, holes_);
+  if (subcell_surface_) place_surface_in_fluid_cells(grid_);  // solver.free_surface (level_set.h)
   if (sigma_ > T(0)) {
-    place_surface_in_fluid_cells(grid_);  // where the jump sigma kappa is imposed (level_set.h)
     surface_tension_.compute(grid_, particles_, sort_, sigma_, particles_per_cell());
     pressure_.set_surface_pressure(surface_tension_.pressure().data());
   }

@@ -40,6 +40,10 @@ void FlipSolver<T, Dim>::split_particles() {
   if (whitewater_) S.band = std::max(S.band, detail::whitewater_ring(scene_.solver.whitewater.bubble_depth));
   S.reach = layers;
   S.ghost = order_ + 1;
+  // The subcell surface (solver.free_surface): a fluid cell of the ring takes phi from the air
+  // cells of its 3^Dim neighbourhood, whose level sets read particles 3 cells from the box, and
+  // its sliver rule reads the labels of its fluid neighbours' neighbours, 3 cells out (pressure.h).
+  if (subcell_surface_) S.ghost = std::max(S.ghost, 3);
   // Surface tension: the curvature of a cell next to the box reads the colour function up to 6
   // cells away, which is kept only within 5 cells of the labelled surface (surface_tension.h),
   // so the labels must be exact up to 11 cells out: every particle of the window comes as a ghost.

@@ -168,6 +168,7 @@ std::string_view to_string(SolverType m) { return name_of(kSolverType, m); }
 std::string_view to_string(Integrator m) { return name_of(kIntegrator, m); }
 std::string_view to_string(ImplicitPreconditioner m) { return name_of(kImplicitPreconditioner, m); }
 std::string_view to_string(AdvectionScheme m) { return name_of(kAdvection, m); }
+std::string_view to_string(FreeSurface m) { return name_of(kFreeSurface, m); }
 std::string_view to_string(PressurePreconditioner m) { return name_of(kPreconditioner, m); }
 std::string_view to_string(OnInstability m) { return name_of(kOnInstability, m); }
 
@@ -218,6 +219,10 @@ void Scene::validate_flip() const {
            "the FLIP solver takes one density for all liquids: expected " + fmt_num(materials[0].density) +
                " (materials[0].density), got " + fmt_num(materials[i].density));
   }
+  if (solver.free_surface == FreeSurface::Cell && materials[0].surface_tension > 0)
+    fail(source, "solver.free_surface",
+         "surface tension's pressure jump is imposed at the subcell surface: expected \"auto\" or \"subcell\" with "
+         "materials[].surface_tension " + fmt_num(materials[0].surface_tension) + ", got \"cell\"");
   bool viscous = false;
   for (const auto& m : materials) viscous = viscous || m.viscosity > 0;
   // "sticky" is the no-slip wall of the viscous stress (flip/viscosity.h); an inviscid liquid has

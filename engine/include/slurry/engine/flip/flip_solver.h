@@ -270,6 +270,7 @@ class FlipSolver final : public Solver {
   SurfaceTension<T, Dim> surface_tension_;
   T sigma_ = 0;                  // surface tension (N/m), 0 = none
   bool viscous_ = false;         // a material has viscosity > 0
+  bool subcell_surface_ = false; // solver.free_surface resolved: the surface placed inside the cells
   bool mixed_viscosity_ = false; // materials of different viscosities: mu per cell (cell_mu_)
   std::vector<T> material_mu_, cell_mu_, viscosity_scratch_;
   std::unique_ptr<Whitewater<T, Dim>> whitewater_;  // only when solver.whitewater.enabled

@@ -18,14 +18,19 @@
 /// Known bias: with phi = -dx/2 in every fluid cell, theta >= 1/3 at a fluid cell holding a
 /// sliver of liquid, so the pressure solve sees the liquid up to about half a cell beyond its
 /// particles (more where a surface cell's particles all sit in its inner half: its centre is
-/// then outside the liquid). Where the free surface carries a pressure jump (surface tension)
-/// this misplaces the jump, and it is most of what made a 3D drop's mode-2 period long
-/// (surface_tension.h). place_surface_in_fluid_cells() below takes a surface cell's phi from
-/// its air neighbours instead; the solver calls it only for scenes with surface tension, and
-/// the pressure solve then leaves the faces it makes nearly empty unprojected (pressure.h,
-/// set_surface_pressure). Without surface tension it is not used: on the 3D dam break the same
-/// placement and rule lost more volume (3.56% over 32 frames, against 2.74% without) and made
-/// its whitewater depend more on the substep.
+/// then outside the liquid). place_surface_in_fluid_cells() below takes a surface cell's phi
+/// from its air neighbours instead (solver.free_surface "subcell"), and the pressure solve then
+/// leaves the faces it makes nearly empty unprojected (pressure.h, set_subcell_surface). What
+/// the half cell costs, measured:
+/// - a standing wave's own damping (dx = 1/48, 1/64, 1/96 of a 1 m tank; viscosity_wave_test.cpp)
+///   is 0.27, 0.19, 0.09 1/s with phi = -dx/2 and 0.031, 0.0097, 0.0070 1/s placed, so the
+///   damping of a viscous wave only matches Lamb's rate with the surface placed;
+/// - where the surface carries a pressure jump (surface tension) it misplaces the jump, and it
+///   was most of what made a 3D drop's mode-2 period long (surface_tension.h).
+/// The solver places the surface for scenes with surface tension or viscosity ("auto"); other
+/// scenes keep phi = -dx/2 unless they ask for "subcell", since on the 3D dam break the placed
+/// surface and its rule lost more volume (the filled-cell volume's worst over 120 frames -6.57%,
+/// against -4.90%) and made its whitewater depend more on the substep (scene-reference.md).
 #include <Eigen/Core>
 #include <algorithm>
 #include <cmath>

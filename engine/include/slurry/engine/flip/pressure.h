@@ -20,8 +20,9 @@
 ///   w / theta (Gibou, Fedkiw, Cheng & Kang 2002; Enright, Nguyen, Gibou & Fedkiw 2003). theta is
 ///   clamped below at 1e-3 (at 0.01 the clamp error, ~0.01 dx |grad p|, already showed as a loss
 ///   of order at 256^2 in the tests). Without it p = 0 at the air cell centre (theta = 1), first order.
-///   With a surface pressure (surface tension, set_surface_pressure) the surface is p = p_gamma,
-///   and faces with theta < kSliverTheta that liquid behind their cell holds are left unprojected.
+///   With a surface pressure (surface tension, set_surface_pressure) the surface is p = p_gamma.
+///   With the surface placed inside the fluid cells (set_subcell_surface), faces with
+///   theta < kSliverTheta that liquid behind their cell holds are left unprojected.
 /// A fluid component without any free-surface face (a closed container) makes A singular: the
 /// right-hand side is projected onto the range (its mean over the component removed) and the
 /// solution's mean over the component is set to zero.
@@ -505,20 +506,23 @@ class PressureSolver {
   /// neighbour a of fluid cell c becomes p_c + (p_gamma - p_c) / theta: the diagonal is
   /// unchanged and the right-hand side gains w p_gamma / theta.
   ///
-  /// With a surface pressure the surface is also placed inside the fluid cells
-  /// (level_set.h, place_surface_in_fluid_cells), where theta comes down to 0.01 at a cell that
-  /// the liquid barely fills. Such a face takes up its cell's divergence at a cost that theta
-  /// weights (the projection's norm), but G2P hands its velocity to the particles in full: a 3D
-  /// drop of 12 cells' radius oscillating for 2.2 periods ended with 50 times the kinetic energy,
-  /// and with the same placement the 3D dam break's kinetic energy went from 2810 to 6740 J in
-  /// one substep. So finish() leaves a face to air with theta < kSliverTheta unprojected
-  /// (invalid: the solver gives it the particles' kept velocity or an extrapolated one, as an
-  /// air face) where its fluid cell c has a fluid face neighbour that is not itself beside air:
-  /// the liquid behind c is then held by that neighbour's projected faces. Where every cell is a
-  /// surface cell (sparse particles, spray) every face is projected, since leaving them all free
-  /// let sparse particles gain kinetic energy without bound (x10 to x250 000 over 2000
-  /// substeps; FlipPhysics).
   void set_surface_pressure(const T* p) { surface_pressure_ = p; }
+
+  /// Whether the free surface of the next project() was placed inside the fluid cells
+  /// (level_set.h, place_surface_in_fluid_cells; solver.free_surface "subcell"), where theta
+  /// comes down to 0.01 at a cell that the liquid barely fills. Such a face takes up its cell's
+  /// divergence at a cost that theta weights (the projection's norm), but G2P hands its velocity
+  /// to the particles in full: a 3D drop of 12 cells' radius oscillating for 2.2 periods ended
+  /// with 50 times the kinetic energy, and with the same placement the 3D dam break's kinetic
+  /// energy went from 2810 to 6740 J in one substep. So finish() then leaves a face to air with
+  /// theta < kSliverTheta unprojected (invalid: the solver gives it the particles' kept velocity
+  /// or an extrapolated one, as an air face) where its fluid cell c has a fluid face neighbour
+  /// that is not itself beside air: the liquid behind c is then held by that neighbour's
+  /// projected faces. Where every cell is a surface cell (sparse particles, spray) every face is
+  /// projected, since leaving them all free let sparse particles gain kinetic energy without
+  /// bound (x10 to x250 000 over 2000 substeps; FlipPhysics). Off (the default): every face is
+  /// projected.
+  void set_subcell_surface(bool on) { subcell_ = on; }
   static constexpr double kSliverTheta = 0.25;
 
   /// Free-surface fraction between fluid cell c and air cell a: theta = phi_c / (phi_c - phi_a)
@@ -532,10 +536,10 @@ class PressureSolver {
 
  private:
   /// Whether finish() leaves a face from fluid cell c to air with fraction th unprojected (see
-  /// set_surface_pressure): a surface pressure, th < kSliverTheta, and a fluid face neighbour of
-  /// c without an air face neighbour.
+  /// set_subcell_surface): a subcell surface, th < kSliverTheta, and a fluid face neighbour of c
+  /// without an air face neighbour.
   bool sliver(const Grid& g, double th, std::int64_t c) const {
-    if (!surface_pressure_ || th >= kSliverTheta) return false;
+    if (!subcell_ || th >= kSliverTheta) return false;
     const auto is = [&](std::int64_t k, std::uint8_t l) { return g.label[std::size_t(k)] == l; };
     const IVec i = g.cell_coord(c);
     for (int d = 0; d < Dim; ++d)
@@ -1212,6 +1216,7 @@ class PressureSolver {
   std::array<std::int64_t, Dim> row_step_{};  ///< rows between a cell and its +e_d neighbour (d < Dim - 1)
   bool ghost_fluid_ = true;
   const T* surface_pressure_ = nullptr;  // sigma kappa per cell, or null (set_surface_pressure)
+  bool subcell_ = false;                 // the surface placed inside the fluid cells (set_subcell_surface)
   bool mic_built_ = false, multigrid_built_ = false;
   int mic_blocks_ = 0;
   std::vector<int> block_start_;

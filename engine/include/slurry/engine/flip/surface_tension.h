@@ -55,13 +55,14 @@
 /// The surface pressure at a face from fluid cell c to air cell a is interpolated to where the
 /// surface crosses it: p_gamma = (1 - theta) sigma kappa_c + theta sigma kappa_a, theta the
 /// ghost-fluid fraction (pressure.h). With surface tension the solver places the surface inside
-/// the liquid's surface cells (level_set.h, place_surface_in_fluid_cells) rather than at least
-/// a third of a cell beyond their centres, and the projection leaves the nearly empty faces
-/// this gives unprojected where liquid behind them holds the cell (pressure.h,
-/// set_surface_pressure). With the curvature at the cell centres, this took the Laplace
-/// pressure in a 3D ball from 2.9% to 1.2% low at 8 cells' radius, the mode-2 period of the ball
-/// of 12 cells over its first period from 12.5% to 4.0% long, and a glycerol puddle's height
-/// from 6.3% low to 1.0% high (flip_surface_tension_tests and their validation set).
+/// the liquid's surface cells (level_set.h, place_surface_in_fluid_cells; solver.free_surface
+/// "subcell", which such a scene requires) rather than at least a third of a cell beyond their
+/// centres, and the projection leaves the nearly empty faces this gives unprojected where liquid
+/// behind them holds the cell (pressure.h, set_subcell_surface). With the curvature at the cell
+/// centres, this took the Laplace pressure in a 3D ball from 2.9% to 1.2% low at 8 cells'
+/// radius, the mode-2 period of the ball of 12 cells over its first period from 12.5% to 4.0%
+/// long, and a glycerol puddle's height from 6.3% low to 1.0% high (flip_surface_tension_tests
+/// and their validation set).
 ///
 /// Time step: the explicit jump resolves capillary waves only if
 /// dt <= sqrt(rho_avg dx^3 / (2 pi sigma)) (Brackbill, Kothe & Zemach 1992, "A continuum method

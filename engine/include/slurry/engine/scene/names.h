@@ -52,6 +52,8 @@ inline const NameTable<AdvectionScheme> kAdvection{{"euler", AdvectionScheme::Eu
                                             {"midpoint", AdvectionScheme::Midpoint},
                                             {"heun", AdvectionScheme::Heun},
                                             {"rk3", AdvectionScheme::RK3}};
+inline const NameTable<FreeSurface> kFreeSurface{
+    {"auto", FreeSurface::Auto}, {"cell", FreeSurface::Cell}, {"subcell", FreeSurface::Subcell}};
 inline const NameTable<PressurePreconditioner> kPreconditioner{{"multigrid", PressurePreconditioner::Multigrid},
                                                         {"mic0", PressurePreconditioner::MIC0},
                                                         {"jacobi", PressurePreconditioner::Jacobi},

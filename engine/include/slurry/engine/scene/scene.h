@@ -48,6 +48,14 @@ enum class GridKind { Auto, Sparse, Dense };
 /// FLIP particle advection through the grid velocity: forward Euler (order 1), explicit
 /// midpoint (RK2), trapezoidal / Heun (RK2) or Kutta's third-order method (RK3).
 enum class AdvectionScheme { Euler, Midpoint, Heun, RK3 };
+/// Where the FLIP pressure solve puts the free surface (level_set.h). Cell: every liquid cell at
+/// phi = -dx/2, the surface between a liquid cell and its air neighbour at the air's distance to
+/// the particles. Subcell: the liquid's surface cells take phi from the air beside them, so the
+/// surface sits at the particles' extent inside the cell, and nearly empty faces are left
+/// unprojected where liquid behind them holds their cell (pressure.h). Auto: subcell for scenes
+/// with surface tension or viscosity, whose jump and stress-free condition act at the surface,
+/// cell otherwise.
+enum class FreeSurface { Auto, Cell, Subcell };
 /// Preconditioner of the FLIP pressure solve (PCG).
 /// Multigrid: one V-cycle per iteration (McAdams et al. 2010), about 7 iterations at any size.
 enum class PressurePreconditioner { None, Jacobi, MIC0, Multigrid };
@@ -133,6 +141,7 @@ struct SolverParams {
   Eigen::Vector3d gravity{0, -9.81, 0};  ///< m/s^2
   double max_dt = 1e-3;                  ///< upper bound on the substep (s)
   AdvectionScheme advection = AdvectionScheme::Midpoint;  ///< FLIP only
+  FreeSurface free_surface = FreeSurface::Auto;           ///< FLIP only: "auto", "cell" or "subcell"
   PressureParams pressure;                                ///< FLIP only
   ReseedParams reseed;                                    ///< FLIP only
   /// FLIP only: share in [0, 1] of the particle over- or under-density of interior fluid cells
@@ -372,6 +381,7 @@ std::string_view to_string(SolverType);
 std::string_view to_string(Integrator);
 std::string_view to_string(ImplicitPreconditioner);
 std::string_view to_string(AdvectionScheme);
+std::string_view to_string(FreeSurface);
 std::string_view to_string(PressurePreconditioner);
 std::string_view to_string(OnInstability);
 
