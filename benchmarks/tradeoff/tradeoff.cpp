@@ -317,6 +317,8 @@ std::vector<Point> sweep(int pi, const Problem& pr, bool reduced) {
             with([pc = pc](Scene& s) { s.solver.pressure.preconditioner = pc; }));
     for (double v : {0.0, 1.0})
       add("volume_correction", "volume_correction=" + fmt(v), with([&](Scene& s) { s.solver.volume_correction = v; }), v);
+    // The study's liquids are inviscid, so "auto" is "cell": the other one.
+    add("free_surface", "free_surface=subcell", with([](Scene& s) { s.solver.free_surface = slurry::FreeSurface::Subcell; }));
   }
   add("precision", "precision=double", with([](Scene& s) { s.solver.precision = Precision::Double; }));
   return pts;
