@@ -95,6 +95,16 @@ struct MacGrid {
   }
   /// Cell coordinates of a cell index (inverse of cell()).
   IVec cell_coord(std::int64_t k) const { return transfer::lattice_coord<Dim>(k, res); }
+  /// Whether pred(j) holds for a face neighbour j of cell k inside the grid.
+  template <class Pred>
+  bool any_face_neighbour(std::int64_t k, Pred&& pred) const {
+    const IVec i = cell_coord(k);
+    for (int d = 0; d < Dim; ++d) {
+      const std::int64_t s = cell_stride(d);
+      if ((i[d] > 0 && pred(k - s)) || (i[d] + 1 < res[d] && pred(k + s))) return true;
+    }
+    return false;
+  }
 
   /// Axis-d face i separates cells i - e_d and i; it sits at origin + dx (i + 1/2 - 1/2 e_d).
   std::int64_t face(int d, const IVec& i) const { return transfer::lattice_index<Dim>(i, face_res(d)); }

@@ -541,23 +541,9 @@ class PressureSolver {
   bool sliver(const Grid& g, double th, std::int64_t c) const {
     if (!subcell_ || th >= kSliverTheta) return false;
     const auto is = [&](std::int64_t k, std::uint8_t l) { return g.label[std::size_t(k)] == l; };
-    const IVec i = g.cell_coord(c);
-    for (int d = 0; d < Dim; ++d)
-      for (int side = -1; side <= 1; side += 2) {
-        IVec j = i;
-        j[d] += side;
-        if (j[d] < 0 || j[d] >= g.res[d]) continue;
-        const std::int64_t nb = c + side * g.cell_stride(d);
-        if (!is(nb, Grid::Fluid)) continue;
-        bool beside_air = false;
-        for (int e = 0; e < Dim && !beside_air; ++e)
-          for (int dir = -1; dir <= 1 && !beside_air; dir += 2) {
-            const int je = j[e] + dir;
-            beside_air = je >= 0 && je < g.res[e] && is(nb + dir * g.cell_stride(e), Grid::Air);
-          }
-        if (!beside_air) return true;
-      }
-    return false;
+    return g.any_face_neighbour(c, [&](std::int64_t nb) {
+      return is(nb, Grid::Fluid) && !g.any_face_neighbour(nb, [&](std::int64_t a) { return is(a, Grid::Air); });
+    });
   }
 
   /// p_gamma on the face from fluid cell c to air cell a, theta of the way from c (0 without a

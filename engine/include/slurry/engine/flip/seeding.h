@@ -255,17 +255,9 @@ struct Reseeder {
     // domain, or is an empty hole that this pass fills (so no cell is left starving next to a
     // hole that becomes full).
     auto enclosed = [&](std::int64_t k, bool holes_count_as_full) {
-      const IVec i = g.cell_coord(k);
-      for (int d = 0; d < Dim; ++d)
-        for (int s = -1; s <= 1; s += 2) {
-          IVec j = i;
-          j[d] += s;
-          if (j[d] < 0 || j[d] >= g.res[d]) continue;
-          const std::int64_t kj = g.cell(j);
-          if (empty(kj) && g.label[kj] != MacGrid<T, Dim>::Solid && !(holes_count_as_full && hole[kj]))
-            return false;
-        }
-      return true;
+      return !g.any_face_neighbour(k, [&](std::int64_t kj) {
+        return empty(kj) && g.label[kj] != MacGrid<T, Dim>::Solid && !(holes_count_as_full && hole[kj]);
+      });
     };
     hole.resize(std::size_t(cells));
     parallel::parallel_for(0, cells, [&](std::int64_t k) {

@@ -149,19 +149,13 @@ class SurfaceTension {
     const std::int64_t n = g.num_cells();
     surface_.assign(std::size_t(n), 0);
     pressure_.assign(std::size_t(n), T(0));
-    std::int64_t stride[Dim];
-    for (int d = 0; d < Dim; ++d) stride[d] = g.cell_stride(d);
     const auto is = [&](std::int64_t k, std::uint8_t l) { return g.label[std::size_t(k)] == l; };
     // 1. Surface cells: fluid next to air or air next to fluid, across a face.
     parallel::parallel_for(0, n, [&](std::int64_t k) {
       const bool fluid = is(k, Grid::Fluid), air = is(k, Grid::Air);
       if (!fluid && !air) return;
       const std::uint8_t other = fluid ? Grid::Air : Grid::Fluid;
-      const IVec i = g.cell_coord(k);
-      bool s = false;
-      for (int d = 0; d < Dim && !s; ++d)
-        s = (i[d] > 0 && is(k - stride[d], other)) || (i[d] + 1 < g.res[d] && is(k + stride[d], other));
-      surface_[std::size_t(k)] = s;
+      surface_[std::size_t(k)] = g.any_face_neighbour(k, [&](std::int64_t j) { return is(j, other); });
     });
     // 2. The bands: cells within one cell (normals) and 2 + kSmoothing cells (the colour
     // function) of a surface cell (per axis, so boxes).
