@@ -168,7 +168,6 @@ std::string_view to_string(SolverType m) { return name_of(kSolverType, m); }
 std::string_view to_string(Integrator m) { return name_of(kIntegrator, m); }
 std::string_view to_string(ImplicitPreconditioner m) { return name_of(kImplicitPreconditioner, m); }
 std::string_view to_string(AdvectionScheme m) { return name_of(kAdvection, m); }
-std::string_view to_string(FreeSurface m) { return name_of(kFreeSurface, m); }
 std::string_view to_string(PressurePreconditioner m) { return name_of(kPreconditioner, m); }
 std::string_view to_string(OnInstability m) { return name_of(kOnInstability, m); }
 

@@ -164,8 +164,8 @@ void place_surface_in_fluid_cells(MacGrid<T, Dim>& g) {
   const T distance[4] = {T(0), g.dx, std::sqrt(T(2)) * g.dx, std::sqrt(T(3)) * g.dx};
   parallel::parallel_for(0, g.num_cells(), [&](std::int64_t k) {
     if (g.label[std::size_t(k)] != fluid) return;
-    if (!g.any_face_neighbour(k, [&](std::int64_t j) { return g.label[std::size_t(j)] == air; })) return;
     const IVec i = g.cell_coord(k);
+    if (!g.any_face_neighbour(k, i, [&](std::int64_t j) { return g.label[std::size_t(j)] == air; })) return;
     T best = -std::numeric_limits<T>::max();
     for (int o = 0; o < (Dim == 3 ? 27 : 9); ++o) {
       IVec q = i;

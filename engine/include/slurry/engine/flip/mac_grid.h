@@ -98,7 +98,11 @@ struct MacGrid {
   /// Whether pred(j) holds for a face neighbour j of cell k inside the grid.
   template <class Pred>
   bool any_face_neighbour(std::int64_t k, Pred&& pred) const {
-    const IVec i = cell_coord(k);
+    return any_face_neighbour(k, cell_coord(k), pred);
+  }
+  /// The same for cell k at coordinates i.
+  template <class Pred>
+  bool any_face_neighbour(std::int64_t k, const IVec& i, Pred&& pred) const {
     for (int d = 0; d < Dim; ++d) {
       const std::int64_t s = cell_stride(d);
       if ((i[d] > 0 && pred(k - s)) || (i[d] + 1 < res[d] && pred(k + s))) return true;

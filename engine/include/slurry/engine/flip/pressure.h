@@ -561,31 +561,34 @@ class PressureSolver {
   /// to air of w p_gamma / theta.
   double surface_rhs(const Grid& g, std::int64_t c, const IVec& i) const {
     double s = 0;
-    for (int d = 0; d < Dim; ++d) {
-      const std::int64_t lower = g.face(d, i);
-      for (int side = 0; side < 2; ++side) {
-        const std::int64_t nb = side ? c + g.cell_stride(d) : c - g.cell_stride(d);
-        const double w = double(g.open_weight(d, i[d] + side, side ? lower + face_up_[d] : lower, side ? nb : c));
-        if (w <= 0 || g.label[std::size_t(nb)] != Grid::Air) continue;
-        const double th = theta(g, c, nb);
-        s += w * surface_pressure(c, nb, th) / th;
-      }
-    }
+    for_open_air_faces(g, c, i, [&](int, std::int64_t, std::int64_t nb, double w) {
+      const double th = theta(g, c, nb);
+      s += w * surface_pressure(c, nb, th) / th;
+    });
     return s;
   }
 
-  /// Whether fluid cell c has an open face to air that finish() left unprojected (sliver()).
-  bool has_unprojected_air_face(const Grid& g, std::int64_t c, const IVec& i) const {
+  /// fn(d, f, a, w) for every open face f (axis d, open weight w > 0) from fluid cell c (at i) to
+  /// an air cell a.
+  template <class Fn>
+  void for_open_air_faces(const Grid& g, std::int64_t c, const IVec& i, Fn&& fn) const {
     for (int d = 0; d < Dim; ++d) {
       const std::int64_t lower = g.face(d, i);
       for (int side = 0; side < 2; ++side) {
         const std::int64_t nb = side ? c + g.cell_stride(d) : c - g.cell_stride(d);
         const std::int64_t f = side ? lower + face_up_[d] : lower;
-        if (g.open_weight(d, i[d] + side, f, side ? nb : c) <= T(0) || g.label[std::size_t(nb)] != Grid::Air) continue;
-        if (!g.valid[d][std::size_t(f)]) return true;
+        const double w = double(g.open_weight(d, i[d] + side, f, side ? nb : c));
+        if (w <= 0 || g.label[std::size_t(nb)] != Grid::Air) continue;
+        fn(d, f, nb, w);
       }
     }
-    return false;
+  }
+
+  /// Whether fluid cell c has an open face to air that finish() left unprojected (sliver()).
+  bool has_unprojected_air_face(const Grid& g, std::int64_t c, const IVec& i) const {
+    bool left = false;
+    for_open_air_faces(g, c, i, [&](int d, std::int64_t f, std::int64_t, double) { left = left || !g.valid[d][std::size_t(f)]; });
+    return left;
   }
 
   /// Index of the first element of row `row` of a row-major box (last axis along the row).

@@ -381,7 +381,6 @@ std::string_view to_string(SolverType);
 std::string_view to_string(Integrator);
 std::string_view to_string(ImplicitPreconditioner);
 std::string_view to_string(AdvectionScheme);
-std::string_view to_string(FreeSurface);
 std::string_view to_string(PressurePreconditioner);
 std::string_view to_string(OnInstability);
 
